@@ -1,0 +1,1 @@
+"""The ``riverbed`` command line: one thin click module per subcommand over a library function."""

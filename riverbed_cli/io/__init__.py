@@ -1,0 +1,1 @@
+"""Reading and writing files: images, disparity maps, and the atomic-output helper."""

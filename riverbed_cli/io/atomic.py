@@ -1,0 +1,35 @@
+"""Write outputs under a temporary name and rename them into place, so a failure never leaves half a file."""
+
+import contextlib
+import os
+import uuid
+from pathlib import Path
+
+from ..errors import RiverbedError
+
+
+def check_output(path, overwrite=False):
+    """Raise :class:`RiverbedError` if ``path`` exists and ``overwrite`` is false, or its folder is missing."""
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise RiverbedError("output exists; pass --overwrite to replace it", path)
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise RiverbedError(f"output folder {parent} does not exist", path)
+
+
+@contextlib.contextmanager
+def atomic_output(path, overwrite=False):
+    """Yield a temporary path beside ``path`` with the same suffix; rename it to ``path`` on success.
+
+    On any exception the temporary file is removed and ``path`` is left as it was.
+    """
+    path = Path(path)
+    check_output(path, overwrite)
+    tmp = path.with_name(f".{path.stem}.{uuid.uuid4().hex[:8]}.tmp{path.suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
