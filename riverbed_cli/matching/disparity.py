@@ -1,0 +1,118 @@
+"""Disparity selection and refinement: winner-takes-all, sub-pixel fit, left-right check, median filter.
+
+Input is the aggregated cost ``S`` (``H x W x D``, disparity ``d = d_min + i`` at index ``i``); output is a float32
+disparity map of the left image, ``d = x_left - x_right``, NaN where invalid.
+"""
+
+import numpy as np
+from numba import njit, prange
+
+from ..errors import RiverbedError
+
+
+@njit(cache=True, parallel=True)
+def _select_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold):
+    H, W, D = fwd.shape
+    disp = np.empty((H, W), dtype=np.float32)
+    for y in prange(H):
+        s = np.empty(D, dtype=np.int32)
+        best_left = np.empty(W, dtype=np.int64)
+        # Right-image winner: min over d of S(y, xr + d, d), accumulated while scanning the row.
+        right_cost = np.full(W, 2147483647, dtype=np.int64)
+        right_best = np.zeros(W, dtype=np.int64)
+        for x in range(W):
+            for i in range(D):
+                s[i] = np.int32(fwd[y, x, i]) + np.int32(bwd[y, x, i])
+            bi = 0
+            bv = s[0]
+            for i in range(1, D):
+                if s[i] < bv:
+                    bv = s[i]
+                    bi = i
+            best_left[x] = bi
+            val = np.float32(d_min + bi)
+            if subpixel and bi > 0 and bi < D - 1:
+                a = s[bi - 1]
+                c = s[bi + 1]
+                den = a - 2 * bv + c
+                if den > 0:
+                    val += np.float32(0.5 * (a - c) / den)
+            disp[y, x] = val
+            if lr_check:
+                for i in range(D):
+                    xr = x - (d_min + i)
+                    if xr >= 0 and xr < W and s[i] < right_cost[xr]:
+                        right_cost[xr] = s[i]
+                        right_best[xr] = i
+        if lr_check:
+            for x in range(W):
+                xr = x - (d_min + best_left[x])
+                if xr < 0 or xr >= W or abs(best_left[x] - right_best[xr]) > lr_threshold:
+                    disp[y, x] = np.nan
+    return disp
+
+
+def select_disparity(aggregated, d_min, subpixel=True, lr_check=False, lr_threshold=1, aggregated2=None):
+    """Winner-takes-all disparity with optional sub-pixel fit and left-right consistency check.
+
+    Parameters
+    ----------
+    aggregated : (H, W, D) uint16
+        Aggregated cost; ``aggregated2`` (same shape), if given, is added to it on the fly (the two SGM half-sums).
+    d_min : int
+        Disparity at index 0.
+    subpixel : bool
+        Refine each winner by the vertex of the parabola through the costs at ``i - 1, i, i + 1`` (offset within
+        +-0.5 px); winners at the ends of the range stay integer.
+    lr_check : bool
+        Mark pixels NaN whose integer disparity differs by more than ``lr_threshold`` px from the disparity the right
+        image selects at ``x - d`` (right disparities taken from the same cost volume: min over d of S(x_r + d, d)).
+
+    Returns
+    -------
+    (H, W) float32
+        Disparity of the left image in pixels, NaN where the left-right check fails.
+    """
+    if aggregated2 is None:
+        aggregated2 = np.zeros_like(aggregated)
+    if aggregated.shape != aggregated2.shape:
+        raise RiverbedError(f"cost volumes differ in shape: {aggregated.shape} vs {aggregated2.shape}")
+    return _select_kernel(aggregated, aggregated2, int(d_min), bool(subpixel), bool(lr_check), int(lr_threshold))
+
+
+@njit(cache=True, parallel=True)
+def _median_kernel(disp, r):
+    H, W = disp.shape
+    out = np.empty_like(disp)
+    for y in prange(H):
+        buf = np.empty((2 * r + 1) * (2 * r + 1), dtype=np.float32)
+        for x in range(W):
+            if np.isnan(disp[y, x]):
+                out[y, x] = np.nan
+                continue
+            n = 0
+            for yy in range(max(0, y - r), min(H, y + r + 1)):
+                for xx in range(max(0, x - r), min(W, x + r + 1)):
+                    v = disp[yy, xx]
+                    if not np.isnan(v):
+                        buf[n] = v
+                        n += 1
+            s = np.sort(buf[:n])
+            if n % 2 == 1:
+                out[y, x] = s[n // 2]
+            else:
+                out[y, x] = np.float32(0.5) * (s[n // 2 - 1] + s[n // 2])
+    return out
+
+
+def median_filter(disp, size=3):
+    """Median filter of a disparity map over a ``size x size`` window, ignoring NaN neighbours.
+
+    Invalid (NaN) pixels stay invalid; windows are clipped at the image border. ``size`` <= 1 returns a copy.
+    """
+    size = int(size)
+    if size <= 1:
+        return disp.copy()
+    if size % 2 == 0:
+        raise RiverbedError(f"median size must be odd, got {size}")
+    return _median_kernel(np.ascontiguousarray(disp, dtype=np.float32), size // 2)

@@ -1,0 +1,193 @@
+"""``match_pair``: the matching stages in order (cost, guidance, aggregation, selection, refinement), timed."""
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import RiverbedError
+from ..io.images import to_grey, to_guide
+from . import census, disparity, guidance, sgm
+
+log = logging.getLogger(__name__)
+
+GUIDES = ("none", "gauss", "riverbed")
+
+
+@dataclass
+class MatchParams:
+    """Matcher settings; defaults are the paper's where it gives them (k = 10, c = 1, sigma = 8, gamma = 0.3)."""
+
+    guide: str = "riverbed"
+    window: object = "auto"  # riverbed window side s (odd) or "auto"
+    census: tuple = (9, 7)
+    paths: int = 8
+    p1: int = 10  # census (Hamming) units
+    p2: int = 120
+    subpixel: bool = True
+    median: int = 3
+    lr_check: bool = False
+    lr_threshold: int = 1
+    outside_cost: object = "auto"  # cost where the match leaves the right image; auto = a quarter of the bits
+    k: float = 10.0
+    c: float = 1.0
+    sigma_xy: float = 8.0
+    sigma_i: float = 8.0
+    gamma: float = 0.3
+    band: float = 3.0
+    form: str = "additive"
+    cost_scale: int = 4  # guided costs are kept in uint16 at this resolution (1/4 of a Hamming unit)
+    window_target: float = 1.0  # auto window: smallest odd s with s*s*p >= window_target
+
+
+@dataclass
+class MatchResult:
+    disparity: np.ndarray
+    info: dict = field(default_factory=dict)
+
+
+def disparity_range_from_sparse(sparse, margin=None):
+    """Inclusive integer range ``(d_min, d_max)`` covering the sparse disparities plus a margin.
+
+    The margin (px) defaults to ``max(8, 15 % of the LiDAR span)``: LiDAR misses parts of the scene (occlusions,
+    dark surfaces) whose disparities may lie a little beyond what it saw.
+    """
+    vals = sparse[np.isfinite(sparse)]
+    if vals.size == 0:
+        raise RiverbedError("sparse map has no valid disparities")
+    lo, hi = float(vals.min()), float(vals.max())
+    if margin is None:
+        margin = max(8.0, 0.15 * (hi - lo))
+    return int(math.floor(lo - margin)), int(math.ceil(hi + margin))
+
+
+def _prepare_sparse(sparse, shape, d_min, d_max):
+    sparse = np.asarray(sparse, dtype=np.float32)
+    if sparse.shape != shape:
+        raise RiverbedError(
+            f"sparse map is {sparse.shape[1] if sparse.ndim > 1 else '?'}x{sparse.shape[0]} (WxH) but the images are "
+            f"{shape[1]}x{shape[0]}"
+        )
+    valid = np.isfinite(sparse)
+    n = int(valid.sum())
+    if n == 0:
+        raise RiverbedError("sparse map has no valid disparities")
+    inside = valid & (sparse >= d_min) & (sparse <= d_max)
+    n_in = int(inside.sum())
+    if n_in == 0:
+        vals = sparse[valid]
+        raise RiverbedError(
+            f"disparity range [{d_min}, {d_max}] excludes all sparse disparities (they span "
+            f"[{vals.min():.2f}, {vals.max():.2f}])"
+        )
+    if n_in < n:
+        log.warning("%d of %d sparse disparities lie outside [%d, %d] and are ignored", n - n_in, n, d_min, d_max)
+        sparse = np.where(inside, sparse, np.float32(np.nan))
+    return sparse
+
+
+def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, **overrides):
+    """Dense disparity of a rectified pair, optionally guided by sparse LiDAR disparities.
+
+    Parameters
+    ----------
+    left, right : (H, W) or (H, W, 3) uint8 / uint16 arrays
+        Rectified images; the left one is the reference.
+    sparse : (H, W) float, optional
+        LiDAR disparities of the left image, NaN where there is none.
+    d_min, d_max : int, optional
+        Inclusive disparity search range, ``d = x_left - x_right``. Without them the range comes from ``sparse``
+        with a margin (:func:`disparity_range_from_sparse`).
+    params : MatchParams, optional
+        Settings; keyword ``overrides`` replace single fields (``match_pair(l, r, s, guide="gauss")``).
+
+    Returns
+    -------
+    MatchResult
+        ``disparity``: (H, W) float32, NaN invalid; ``info``: ``seconds`` (whole matching time), ``stages``
+        (seconds per stage), ``lidar_share``, ``window``, ``d_min``, ``d_max``, ``guide``, ``guided_pixels``.
+    """
+    p = MatchParams(**{**(params.__dict__ if params else {}), **overrides})
+    if p.guide not in GUIDES:
+        raise RiverbedError(f"unknown guide '{p.guide}' (use one of {', '.join(GUIDES)})")
+    if left.shape[:2] != right.shape[:2]:
+        raise RiverbedError(
+            f"left and right images differ in size: {left.shape[1]}x{left.shape[0]} vs {right.shape[1]}x{right.shape[0]}"
+        )
+    if p.guide != "none" and sparse is None:
+        raise RiverbedError(f"guide '{p.guide}' needs a sparse LiDAR map (--sparse)")
+    if d_min is None or d_max is None:
+        if sparse is None:
+            raise RiverbedError("give the disparity range (--min-disp/--max-disp) or a sparse map to derive it from")
+        lo, hi = disparity_range_from_sparse(sparse)
+        d_min = lo if d_min is None else d_min
+        d_max = hi if d_max is None else d_max
+    d_min, d_max = int(d_min), int(d_max)
+    if d_max < d_min:
+        raise RiverbedError(f"empty disparity range: --min-disp {d_min} > --max-disp {d_max}")
+
+    t_all = time.perf_counter()
+    stages = {}
+
+    def lap(name, t0):
+        stages[name] = round(time.perf_counter() - t0, 4)
+
+    shape = left.shape[:2]
+    if sparse is not None:
+        sparse = _prepare_sparse(sparse, shape, d_min, d_max)
+
+    t0 = time.perf_counter()
+    win = census.parse_census_window(p.census)
+    nbits = win[0] * win[1] - 1
+    outside = nbits // 4 if p.outside_cost == "auto" else int(p.outside_cost)
+    cl = census.census_transform(to_grey(left), win)
+    cr = census.census_transform(to_grey(right), win)
+    cost = census.census_cost(cl, cr, d_min, d_max, outside)
+    del cl, cr
+    lap("cost", t0)
+
+    share = guidance.lidar_share(sparse) if sparse is not None else 0.0
+    window = None
+    scale = 1
+    t0 = time.perf_counter()
+    if p.guide != "none":
+        scale = int(p.cost_scale)
+        cap = 65535 // p.paths - p.p2 * scale
+        if cap <= nbits * scale:
+            raise RiverbedError(f"P2 {p.p2} is too large for {p.paths} paths with guided uint16 costs")
+        if p.guide == "gauss":
+            cost = guidance.gauss_modulate(cost, sparse, d_min, p.k, p.c, p.form, scale, cap)
+        else:
+            window = guidance.auto_window(share, p.window_target) if p.window == "auto" else int(p.window)
+            cost = guidance.riverbed_modulate(cost, sparse, to_guide(left), d_min, window, p.k, p.c, p.sigma_xy,
+                                              p.sigma_i, p.gamma, p.band, p.form, scale, cap)
+    lap("guidance", t0)
+
+    t0 = time.perf_counter()
+    fwd, bwd = sgm.sgm_aggregate_passes(cost, p.p1 * scale, p.p2 * scale, p.paths)
+    del cost
+    lap("aggregation", t0)
+
+    t0 = time.perf_counter()
+    disp = disparity.select_disparity(fwd, d_min, p.subpixel, p.lr_check, p.lr_threshold, aggregated2=bwd)
+    del fwd, bwd
+    lap("selection", t0)
+
+    t0 = time.perf_counter()
+    disp = disparity.median_filter(disp, p.median)
+    lap("refinement", t0)
+
+    info = {
+        "seconds": round(time.perf_counter() - t_all, 4),
+        "stages": stages,
+        "guide": p.guide,
+        "lidar_share": share,
+        "lidar_points": int(np.isfinite(sparse).sum()) if sparse is not None else 0,
+        "window": window,
+        "d_min": d_min,
+        "d_max": d_max,
+        "size": [int(shape[1]), int(shape[0])],
+    }
+    return MatchResult(disp, info)

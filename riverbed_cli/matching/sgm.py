@@ -1,0 +1,164 @@
+"""Aggregation: Semi-Global Matching (Hirschmueller 2008) over 4, 8 or 16 paths.
+
+Each path cost follows ``L_r(p, d) = C(p, d) + min(L_r(p-r, d), L_r(p-r, d+-1) + P1, min_k L_r(p-r, k) + P2)
+- min_k L_r(p-r, k)``, starting with ``L_r = C`` at the first pixel of every path. The aggregated cost is the sum over
+paths. Costs and sums stay in ``uint16``.
+
+Implementation: half of the directions are swept in one raster-order pass (top-left to bottom-right), the other half in
+the reverse pass; each pass keeps the path costs of the last rows in a small ring buffer, so the cost volume is read
+once per pass and the inner loop over disparities vectorises. The two passes are independent and run in parallel.
+"""
+
+import numpy as np
+from numba import njit, prange
+
+from ..errors import RiverbedError
+
+# Directions (dx, dy) swept in the forward raster pass; the reverse pass sweeps their opposites.
+_FORWARD_DIRS = {
+    4: [(1, 0), (0, 1)],
+    8: [(1, 0), (0, 1), (1, 1), (-1, 1)],
+    16: [(1, 0), (0, 1), (1, 1), (-1, 1), (2, 1), (-2, 1), (1, 2), (-1, 2)],
+}
+
+def path_directions(paths):
+    """All ``paths`` directions ``(dx, dy)`` (each path runs from ``p - r`` to ``p``)."""
+    if paths not in _FORWARD_DIRS:
+        raise RiverbedError(f"--paths must be 4, 8 or 16, not {paths}")
+    fwd = _FORWARD_DIRS[paths]
+    return fwd + [(-dx, -dy) for dx, dy in fwd]
+
+
+# Path costs live in int16 (16 SIMD lanes): every path cost is at most max_cost + P2, and check_sgm_bounds keeps
+# paths * (max_cost + P2) <= 65535, so a path cost is <= 16383 and each half-sum (half the paths) <= 32767.
+_SENTINEL = 16384  # above any path cost; sentinel + P1 still fits int16
+
+
+@njit(cache=True, boundscheck=False)
+def _path_step(prev, cur, c, acc, P1, jump, mp):
+    # One SGM step along a path for all disparities; prev/cur are padded by a sentinel at both ends.
+    m = np.int16(_SENTINEL)
+    for d in range(c.shape[0]):
+        v = min(prev[d + 1], min(prev[d], prev[d + 2]) + P1)
+        v = np.int16(c[d] + min(v, jump) - mp)
+        cur[d + 1] = v
+        acc[d] += v
+        m = min(m, v)
+    return m
+
+
+@njit(cache=True, boundscheck=False)
+def _path_start(cur, c, acc):
+    m = np.int16(_SENTINEL)
+    for d in range(c.shape[0]):
+        v = np.int16(c[d])
+        cur[d + 1] = v
+        acc[d] += v
+        m = min(m, v)
+    return m
+
+
+@njit(cache=True)
+def _sgm_pass(cost, out, dxs, dys, P1, P2, flip):
+    H, W, D = cost.shape
+    nd = dxs.shape[0]
+    P1 = np.int16(P1)
+    P2 = np.int16(P2)
+    # Ring buffer of the last three rows of path costs (16-path directions reach two rows back).
+    L = np.full((nd, 3, W, D + 2), np.int16(_SENTINEL), dtype=np.int16)
+    Lmin = np.zeros((nd, 3, W), dtype=np.int16)
+    acc = np.empty(D, dtype=np.int16)
+    for yy in range(H):
+        y = H - 1 - yy if flip else yy
+        slot = yy % 3
+        for xx in range(W):
+            x = W - 1 - xx if flip else xx
+            c = cost[y, x]
+            acc[:] = 0
+            for k in range(nd):
+                px = xx - dxs[k]
+                py = yy - dys[k]
+                if px < 0 or px >= W or py < 0:
+                    m = _path_start(L[k, slot, xx], c, acc)
+                else:
+                    mp = Lmin[k, py % 3, px]
+                    m = _path_step(L[k, py % 3, px], L[k, slot, xx], c, acc, P1, np.int16(mp + P2), mp)
+                Lmin[k, slot, xx] = m
+            o = out[y, x]
+            for d in range(D):
+                o[d] = np.uint16(acc[d])
+
+
+@njit(cache=True, parallel=True)
+def _sgm_two_passes(cost, fwd, bwd, dxs, dys, P1, P2):
+    for t in prange(2):
+        if t == 0:
+            _sgm_pass(cost, fwd, dxs, dys, P1, P2, False)
+        else:
+            _sgm_pass(cost, bwd, dxs, dys, P1, P2, True)
+
+
+@njit(cache=True, parallel=True)
+def _add_inplace(a, b):
+    H = a.shape[0]
+    for y in prange(H):
+        ay = a[y]
+        by = b[y]
+        for x in range(ay.shape[0]):
+            for d in range(ay.shape[1]):
+                ay[x, d] = ay[x, d] + by[x, d]
+
+
+def check_sgm_bounds(max_cost, p2, paths):
+    """Raise if the summed path costs could overflow uint16 (each path cost is at most ``max_cost + P2``)."""
+    bound = paths * (int(max_cost) + int(p2))
+    if bound > 65535 or int(p2) >= 16384:
+        raise RiverbedError(
+            f"SGM sums could reach {bound} > 65535 with {paths} paths, max cost {max_cost} and P2 {p2}; "
+            "lower P2 or the number of paths"
+        )
+
+
+def sgm_aggregate_passes(cost, p1, p2, paths=8):
+    """Forward and reverse half-sums of the path costs, ``(S_forward, S_reverse)``, both ``uint16 (H, W, D)``.
+
+    Their sum is the aggregated cost; keeping them apart lets disparity selection fuse the addition.
+    """
+    if cost.ndim != 3 or cost.dtype not in (np.uint8, np.uint16):
+        raise RiverbedError(f"cost volume must be uint8 or uint16 (H, W, D), got {cost.dtype} {cost.shape}")
+    p1, p2 = int(p1), int(p2)
+    if p1 < 0 or p2 < p1:
+        raise RiverbedError(f"SGM penalties need 0 <= P1 <= P2 (got P1={p1}, P2={p2})")
+    fwd_dirs = path_directions(paths)[: paths // 2]
+    max_cost = int(cost.max()) if cost.size else 0
+    check_sgm_bounds(max_cost, p2, paths)
+    cost = np.ascontiguousarray(cost)
+    dxs = np.array([d[0] for d in fwd_dirs], dtype=np.int64)
+    dys = np.array([d[1] for d in fwd_dirs], dtype=np.int64)
+    fwd = np.empty(cost.shape, dtype=np.uint16)
+    bwd = np.empty(cost.shape, dtype=np.uint16)
+    _sgm_two_passes(cost, fwd, bwd, dxs, dys, np.int32(p1), np.int32(p2))
+    return fwd, bwd
+
+
+def sgm_aggregate(cost, p1, p2, paths=8):
+    """Semi-Global Matching aggregation.
+
+    Parameters
+    ----------
+    cost : (H, W, D) uint8 or uint16
+        Matching cost volume (disparity innermost).
+    p1, p2 : int
+        Penalties for a disparity change of one, and of more than one, between neighbours along a path
+        (in the units of ``cost``), ``0 <= p1 <= p2``.
+    paths : {4, 8, 16}
+        Number of path directions.
+
+    Returns
+    -------
+    (H, W, D) uint16
+        Sum over all paths of the path costs ``L_r``.
+    """
+    fwd, bwd = sgm_aggregate_passes(cost, p1, p2, paths)
+    _add_inplace(fwd, bwd)
+    return fwd
