@@ -48,24 +48,21 @@ def parse_census_window(spec):
 
 
 @njit(cache=True, parallel=True)
-def _census_kernel(img, hw, hh):
-    H, W = img.shape
+def _census_kernel(pad, H, W, hw, hh):
+    # pad is the image with hh rows / hw columns of replicated border on each side. The loop over x is innermost
+    # and branch-free so it vectorises; bits are appended in row-major window order.
     out = np.zeros((H, W), dtype=np.uint64)
     one = np.uint64(1)
     for y in prange(H):
-        for x in range(W):
-            c = img[y, x]
-            bits = np.uint64(0)
-            for dy in range(-hh, hh + 1):
-                yy = min(max(y + dy, 0), H - 1)
-                for dx in range(-hw, hw + 1):
-                    if dy == 0 and dx == 0:
-                        continue
-                    xx = min(max(x + dx, 0), W - 1)
-                    bits = bits << one
-                    if img[yy, xx] < c:
-                        bits = bits | one
-            out[y, x] = bits
+        row = out[y]
+        centre = pad[y + hh, hw:hw + W]
+        for dy in range(-hh, hh + 1):
+            for dx in range(-hw, hw + 1):
+                if dy == 0 and dx == 0:
+                    continue
+                nb = pad[y + hh + dy, hw + dx:hw + dx + W]
+                for x in range(W):
+                    row[x] = (row[x] << one) | np.uint64(nb[x] < centre[x])
     return out
 
 
@@ -89,13 +86,14 @@ def census_transform(grey, window=(9, 7)):
     grey = np.ascontiguousarray(grey, dtype=np.float32)
     if grey.ndim != 2:
         raise RiverbedError(f"census_transform needs a 2-D grey image, got shape {grey.shape}")
-    return _census_kernel(grey, w // 2, h // 2)
+    H, W = grey.shape
+    pad = np.pad(grey, ((h // 2, h // 2), (w // 2, w // 2)), mode="edge")
+    return _census_kernel(pad, H, W, w // 2, h // 2)
 
 
 @njit(cache=True, parallel=True)
-def _census_cost_kernel(cl, cr, d_min, D, outside):
-    H, W = cl.shape
-    cost = np.empty((H, W, D), dtype=np.uint8)
+def _census_cost_kernel(cl, cr, d_min, cost, outside, scale):
+    H, W, D = cost.shape
     for y in prange(H):
         for x in range(W):
             a = cl[y, x]
@@ -104,11 +102,10 @@ def _census_cost_kernel(cl, cr, d_min, D, outside):
                 if xr < 0 or xr >= W:
                     cost[y, x, i] = outside
                 else:
-                    cost[y, x, i] = np.uint8(popcount64(a ^ cr[y, xr]))
-    return cost
+                    cost[y, x, i] = popcount64(a ^ cr[y, xr]) * scale
 
 
-def census_cost(census_left, census_right, d_min, d_max, outside_cost):
+def census_cost(census_left, census_right, d_min, d_max, outside_cost, scale=1):
     """Hamming-distance cost volume between two census images.
 
     Parameters
@@ -120,15 +117,24 @@ def census_cost(census_left, census_right, d_min, d_max, outside_cost):
     outside_cost : int
         Cost where ``x_left - d`` falls outside the right image. A moderate constant: a maximal cost would make every
         pixel near the left border prefer the smallest disparity.
+    scale : int
+        1 gives a ``uint8`` volume of Hamming distances; a larger scale gives ``uint16`` costs multiplied by it (the
+        fixed-point units the guidance stage works in).
 
     Returns
     -------
-    (H, W, D) uint8
-        ``cost[y, x, i] = popcount(census_left[y, x] ^ census_right[y, x - (d_min + i)])``.
+    (H, W, D) uint8 (scale 1) or uint16
+        ``cost[y, x, i] = scale * popcount(census_left[y, x] ^ census_right[y, x - (d_min + i)])``.
     """
     if census_left.shape != census_right.shape:
         raise RiverbedError(f"census images differ in shape: {census_left.shape} vs {census_right.shape}")
     if d_max < d_min:
         raise RiverbedError(f"empty disparity range [{d_min}, {d_max}]")
     D = int(d_max) - int(d_min) + 1
-    return _census_cost_kernel(census_left, census_right, int(d_min), D, np.uint8(outside_cost))
+    H, W = census_left.shape
+    dtype = np.uint8 if scale == 1 else np.uint16
+    if scale < 1 or 64 * scale > np.iinfo(dtype).max or not 0 <= outside_cost <= 64:
+        raise RiverbedError(f"census cost scale {scale} / outside cost {outside_cost} out of range")
+    cost = np.empty((H, W, D), dtype=dtype)
+    _census_cost_kernel(census_left, census_right, int(d_min), cost, dtype(outside_cost * scale), dtype(scale))
+    return cost

@@ -4,6 +4,7 @@ Input is the aggregated cost ``S`` (``H x W x D``, disparity ``d = d_min + i`` a
 disparity map of the left image, ``d = x_left - x_right``, NaN where invalid.
 """
 
+import cv2
 import numpy as np
 from numba import njit, prange
 
@@ -91,28 +92,40 @@ def _median_kernel(disp, r):
                 out[y, x] = np.nan
                 continue
             n = 0
-            for yy in range(max(0, y - r), min(H, y + r + 1)):
-                for xx in range(max(0, x - r), min(W, x + r + 1)):
-                    v = disp[yy, xx]
+            for yy in range(y - r, y + r + 1):
+                for xx in range(x - r, x + r + 1):
+                    # replicated border, as OpenCV's medianBlur
+                    v = disp[min(max(yy, 0), H - 1), min(max(xx, 0), W - 1)]
                     if not np.isnan(v):
                         buf[n] = v
                         n += 1
-            s = np.sort(buf[:n])
+            # insertion sort: n is at most a few dozen
+            for i in range(1, n):
+                v = buf[i]
+                j = i - 1
+                while j >= 0 and buf[j] > v:
+                    buf[j + 1] = buf[j]
+                    j -= 1
+                buf[j + 1] = v
             if n % 2 == 1:
-                out[y, x] = s[n // 2]
+                out[y, x] = buf[n // 2]
             else:
-                out[y, x] = np.float32(0.5) * (s[n // 2 - 1] + s[n // 2])
+                out[y, x] = np.float32(0.5) * (buf[n // 2 - 1] + buf[n // 2])
     return out
 
 
 def median_filter(disp, size=3):
     """Median filter of a disparity map over a ``size x size`` window, ignoring NaN neighbours.
 
-    Invalid (NaN) pixels stay invalid; windows are clipped at the image border. ``size`` <= 1 returns a copy.
+    Invalid (NaN) pixels stay invalid; the border is replicated (as OpenCV's ``medianBlur``, which does the work
+    when the map has no NaN and ``size`` is 3 or 5). ``size`` <= 1 returns a copy.
     """
     size = int(size)
     if size <= 1:
         return disp.copy()
     if size % 2 == 0:
         raise RiverbedError(f"median size must be odd, got {size}")
-    return _median_kernel(np.ascontiguousarray(disp, dtype=np.float32), size // 2)
+    disp = np.ascontiguousarray(disp, dtype=np.float32)
+    if size in (3, 5) and not np.isnan(disp).any():
+        return cv2.medianBlur(disp, size)
+    return _median_kernel(disp, size // 2)

@@ -129,34 +129,38 @@ def homogeneous_owners(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0
 
 
 @njit(cache=True, parallel=True)
-def _modulate_kernel(cost, owner, dissim, values, d_min, k, c, band, form, scale, fbar, cap):
-    H, W, D = cost.shape
-    out = np.empty((H, W, D), dtype=np.uint16)
+def _modulate_kernel(cost, grows, gcols, owner, dissim, values, d_min, k, c, band, form, scale, fbar, cap):
+    # In place, only at the guided pixels (grows, gcols). cost holds q = scale * F; every form is
+    # out = (alpha + beta * g) * q + gamma * g with the wall height g in [0, 1] (module docstring).
+    D = cost.shape[2]
     inv2c2 = 1.0 / (2.0 * c * c)
-    for y in prange(H):
-        for x in range(W):
-            o = owner[y, x]
-            if o < 0:
-                for i in range(D):
-                    out[y, x, i] = np.uint16(cost[y, x, i] * scale)
-                continue
-            dm = values[o]
-            w = dissim[y, x]
-            lidar_pixel = w == 0.0
-            half = band * w
-            for i in range(D):
-                f = np.float64(cost[y, x, i])
-                t = abs(d_min + i - dm) - half
-                if t < 0.0:
-                    t = 0.0
-                g = 1.0 - math.exp(-t * t * inv2c2)
-                if form == 0:
-                    r = (f if lidar_pixel else w * f) + k * fbar * g
-                else:
-                    r = k * g * f if lidar_pixel else (w + k * g) * f
-                v = math.floor(scale * r + 0.5)
-                out[y, x, i] = np.uint16(min(v, cap))
-    return out
+    tfar = 6.5 * c  # past this, 1 - exp(-t^2 / 2c^2) == 1 to 1e-9: the wall is flat and needs no exp
+    fcap = np.float32(cap)
+    for j in prange(grows.shape[0]):
+        y = grows[j]
+        x = gcols[j]
+        dm = values[owner[y, x]]
+        w = np.float64(dissim[y, x])
+        lidar_pixel = w == 0.0
+        if form == 0:
+            alpha, beta, gamma = (1.0 if lidar_pixel else w), 0.0, scale * k * fbar
+        else:
+            alpha, beta, gamma = (0.0 if lidar_pixel else w), k, 0.0
+        half = band * w
+        # indices whose wall is not yet flat: |d - dm| < half + tfar
+        lo = min(D, max(0, int(math.floor(dm - half - tfar)) - d_min))
+        hi = max(lo, min(D, int(math.ceil(dm + half + tfar)) - d_min + 1))
+        cy = cost[y, x]
+        a1 = np.float32(alpha + beta)
+        g1 = np.float32(gamma + 0.5)  # + 0.5: truncating a positive value then rounds
+        for i in range(lo):
+            cy[i] = np.uint16(min(a1 * np.float32(cy[i]) + g1, fcap))
+        for i in range(lo, hi):
+            t = abs(d_min + i - dm) - half
+            g = 0.0 if t <= 0.0 else 1.0 - math.exp(-t * t * inv2c2)
+            cy[i] = np.uint16(min((alpha + beta * g) * cy[i] + gamma * g + 0.5, cap))
+        for i in range(hi, D):
+            cy[i] = np.uint16(min(a1 * np.float32(cy[i]) + g1, fcap))
 
 
 def _check_inputs(cost, sparse):
@@ -166,39 +170,60 @@ def _check_inputs(cost, sparse):
         raise RiverbedError(f"sparse map {sparse.shape} and cost volume {cost.shape[:2]} differ in size")
 
 
-def _mean_cost_at(cost, rows, cols):
-    return float(cost[rows, cols].mean()) if rows.size else 0.0
+def _scaled(cost, cost_scale, inplace):
+    """The uint16 volume to modulate: ``cost`` itself when it is already scaled uint16 and ``inplace``."""
+    if cost.dtype == np.uint16 and inplace:
+        return cost
+    if cost.dtype == np.uint16:
+        return cost.copy()
+    return cost.astype(np.uint16) * np.uint16(cost_scale)
 
 
-def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_scale=4, cap=65535):
+def _apply(cost, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, cap):
+    if form not in FORMS:
+        raise RiverbedError(f"unknown guidance form '{form}' (use additive or product)")
+    grows, gcols = np.nonzero(owner >= 0)
+    fbar = float(cost[rows, cols].mean()) / cost_scale if rows.size else 0.0
+    _modulate_kernel(cost, grows.astype(np.int64), gcols.astype(np.int64), owner, dissim, values, int(d_min),
+                     float(k), float(c), float(band), FORMS[form], float(cost_scale), fbar, int(cap))
+    return cost
+
+
+def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_scale=4, cap=65535, inplace=False):
     """Gauss enhancement (paper eq. 5, Poggi et al. 2019) at the LiDAR pixels.
 
     Parameters
     ----------
     cost : (H, W, D) uint8 or uint16
-        Matching cost, ``d = d_min + i`` at index ``i``.
+        Matching cost, ``d = d_min + i`` at index ``i``. A ``uint8`` volume holds plain costs; a ``uint16`` volume
+        holds costs already multiplied by ``cost_scale`` (as :func:`census_cost` makes with ``scale``).
     sparse : (H, W) float
         LiDAR disparities of the left image (``d = x_left - x_right``), NaN elsewhere.
     k, c : float
         Height and width (px) of the Gaussian; ``form`` is ``"additive"`` or ``"product"`` (module docstring).
     cost_scale : int
-        Every cost is multiplied by this before rounding to uint16 (scale SGM penalties alike).
+        Fixed-point scale of the output: ``round(cost_scale * cost)`` (scale SGM penalties alike).
+    cap : int
+        Upper bound of guided costs (keeps SGM sums within uint16).
+    inplace : bool
+        Modulate a scaled ``uint16`` input in place instead of copying it.
 
     Returns
     -------
     (H, W, D) uint16
+        Scaled costs, modulated at the LiDAR pixels and unchanged (times ``cost_scale``) elsewhere.
     """
     _check_inputs(cost, sparse)
     rows, cols, values = lidar_points(sparse)
     owner = np.full(sparse.shape, -1, dtype=np.int32)
     owner[rows, cols] = np.arange(rows.size, dtype=np.int32)
     dissim = np.zeros(sparse.shape, dtype=np.float32)
-    return _modulate_kernel(cost, owner, dissim, values, int(d_min), float(k), float(c), 0.0, FORMS[form],
-                            float(cost_scale), _mean_cost_at(cost, rows, cols), int(cap))
+    out = _scaled(cost, cost_scale, inplace)
+    return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, 0.0, form, cost_scale, cap)
 
 
 def riverbed_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, sigma_xy=8.0, sigma_i=8.0, gamma=0.3,
-                      band=3.0, form="additive", cost_scale=4, cap=65535, owners=None):
+                      band=3.0, form="additive", cost_scale=4, cap=65535, owners=None, inplace=False):
     """Riverbed enhancement (paper eqs. 2, 3, 6): Gauss at LiDAR pixels, band-and-walls at homogeneous pixels.
 
     Parameters are those of :func:`gauss_modulate` plus: ``guide`` the left image (0..255 scale) for the colour
@@ -214,5 +239,5 @@ def riverbed_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, sigma_x
     rows, cols, values = lidar_points(sparse)
     owner, dissim = owners if owners is not None else homogeneous_owners(sparse, guide, window, sigma_xy, sigma_i,
                                                                         gamma)
-    return _modulate_kernel(cost, owner, dissim, values, int(d_min), float(k), float(c), float(band), FORMS[form],
-                            float(cost_scale), _mean_cost_at(cost, rows, cols), int(cap))
+    out = _scaled(cost, cost_scale, inplace)
+    return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, cap)

@@ -142,31 +142,33 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, **
     win = census.parse_census_window(p.census)
     nbits = win[0] * win[1] - 1
     outside = nbits // 4 if p.outside_cost == "auto" else int(p.outside_cost)
+    scale = 1 if p.guide == "none" else int(p.cost_scale)
     cl = census.census_transform(to_grey(left), win)
     cr = census.census_transform(to_grey(right), win)
-    cost = census.census_cost(cl, cr, d_min, d_max, outside)
+    cost = census.census_cost(cl, cr, d_min, d_max, outside, scale)
     del cl, cr
     lap("cost", t0)
 
     share = guidance.lidar_share(sparse) if sparse is not None else 0.0
     window = None
-    scale = 1
+    max_cost = max(nbits, outside) * scale
     t0 = time.perf_counter()
     if p.guide != "none":
-        scale = int(p.cost_scale)
         cap = 65535 // p.paths - p.p2 * scale
         if cap <= nbits * scale:
             raise RiverbedError(f"P2 {p.p2} is too large for {p.paths} paths with guided uint16 costs")
         if p.guide == "gauss":
-            cost = guidance.gauss_modulate(cost, sparse, d_min, p.k, p.c, p.form, scale, cap)
+            cost = guidance.gauss_modulate(cost, sparse, d_min, p.k, p.c, p.form, scale, cap, inplace=True)
+            max_cost = cap
         else:
             window = guidance.auto_window(share, p.window_target) if p.window == "auto" else int(p.window)
             cost = guidance.riverbed_modulate(cost, sparse, to_guide(left), d_min, window, p.k, p.c, p.sigma_xy,
-                                              p.sigma_i, p.gamma, p.band, p.form, scale, cap)
+                                              p.sigma_i, p.gamma, p.band, p.form, scale, cap, inplace=True)
+        max_cost = cap
     lap("guidance", t0)
 
     t0 = time.perf_counter()
-    fwd, bwd = sgm.sgm_aggregate_passes(cost, p.p1 * scale, p.p2 * scale, p.paths)
+    fwd, bwd = sgm.sgm_aggregate_passes(cost, p.p1 * scale, p.p2 * scale, p.paths, max_cost=max_cost)
     del cost
     lap("aggregation", t0)
 

@@ -119,10 +119,11 @@ def check_sgm_bounds(max_cost, p2, paths):
         )
 
 
-def sgm_aggregate_passes(cost, p1, p2, paths=8):
+def sgm_aggregate_passes(cost, p1, p2, paths=8, max_cost=None):
     """Forward and reverse half-sums of the path costs, ``(S_forward, S_reverse)``, both ``uint16 (H, W, D)``.
 
     Their sum is the aggregated cost; keeping them apart lets disparity selection fuse the addition.
+    ``max_cost`` is a known upper bound of ``cost`` (spares a pass over the volume to find it).
     """
     if cost.ndim != 3 or cost.dtype not in (np.uint8, np.uint16):
         raise RiverbedError(f"cost volume must be uint8 or uint16 (H, W, D), got {cost.dtype} {cost.shape}")
@@ -130,7 +131,8 @@ def sgm_aggregate_passes(cost, p1, p2, paths=8):
     if p1 < 0 or p2 < p1:
         raise RiverbedError(f"SGM penalties need 0 <= P1 <= P2 (got P1={p1}, P2={p2})")
     fwd_dirs = path_directions(paths)[: paths // 2]
-    max_cost = int(cost.max()) if cost.size else 0
+    if max_cost is None:
+        max_cost = int(cost.max()) if cost.size else 0
     check_sgm_bounds(max_cost, p2, paths)
     cost = np.ascontiguousarray(cost)
     dxs = np.array([d[0] for d in fwd_dirs], dtype=np.int64)
