@@ -9,7 +9,7 @@ from ..errors import RiverbedError
 from ..io.atomic import check_output
 from ..io.disparity import read_disparity, write_disparity
 from ..io.images import MAX_PIXELS, check_pair, read_image
-from ..matching.pipeline import GUIDES, MatchParams, match_pair
+from ..matching.pipeline import GUIDES, MatchParams, match_pair, warm_up
 from ..products.visualize import colorize_disparity, write_png
 from .options import input_path, json_opt, output_opt, overwrite_opt, print_json, progress_enabled
 
@@ -99,6 +99,7 @@ def match_cmd(left, right, output, sparse, sparse_scale, guide, window, min_disp
 
         params = MatchParams(guide=guide, window=window, census=census_win, paths=int(paths), p1=p1, p2=p2,
                              subpixel=subpixel, median=median, lr_check=lr_check)
+        warm_up()  # load the compiled kernels now: start-up, not matching time
         try:
             result = match_pair(left_img, right_img, sparse_map, min_disp, max_disp, params)
         except RiverbedError as e:

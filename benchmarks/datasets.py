@@ -1,0 +1,53 @@
+"""Real stereo scenes with ground truth from the shared data folder (``RIVERBED_DATA`` or a path argument).
+
+Middlebury dev scenes (dense GT) and, held out from development, the KITTI 2015 frame (sparse GT from accumulated
+LiDAR). KITTI may not be copied into the repository; it is only read from the data folder.
+"""
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from riverbed_cli.io.disparity import read_disparity
+from riverbed_cli.io.images import read_image
+
+MIDDLEBURY = "middlebury_2003_2005_2006_ethanli/Data"
+KITTI2015 = "kitti2015_stereo_sttr/sample_data/KITTI_2015/training"
+
+# name -> (folder, left, right, gt, gt scale)
+DEV_SCENES = {
+    "Cones": ("cone", "im2.png", "im6.png", "disp2.png", 4),
+    "Reindeer": ("Reindeer", "view1.png", "view5.png", "disp1.png", 2),
+    "Cloth3": ("Cloth3", "view1.png", "view5.png", "disp1.png", 2),
+    "Wood2": ("Wood2", "view1.png", "view5.png", "disp1.png", 2),
+}
+
+
+@dataclass
+class Scene:
+    name: str
+    left: np.ndarray
+    right: np.ndarray
+    gt: np.ndarray  # float32, NaN = no GT
+    held_out: bool = False
+
+
+def middlebury(data_dir, name):
+    folder, lf, rf, gf, scale = DEV_SCENES[name]
+    base = Path(data_dir) / MIDDLEBURY / folder
+    return Scene(name, read_image(base / lf), read_image(base / rf), read_disparity(base / gf, scale=scale))
+
+
+def kitti2015(data_dir, frame="000046_10"):
+    base = Path(data_dir) / KITTI2015
+    return Scene(f"KITTI15-{frame[:6]}", read_image(base / "image_2" / f"{frame}.png"),
+                 read_image(base / "image_3" / f"{frame}.png"), read_disparity(base / "disp_occ_0" / f"{frame}.png"),
+                 held_out=True)
+
+
+def all_scenes(data_dir, held_out=True):
+    scenes = [middlebury(data_dir, n) for n in DEV_SCENES]
+    if held_out and (Path(data_dir) / KITTI2015).is_dir():
+        scenes.append(kitti2015(data_dir))
+    return scenes

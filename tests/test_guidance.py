@@ -1,0 +1,119 @@
+import math
+
+import numpy as np
+import pytest
+
+from riverbed_cli.matching.guidance import (
+    auto_window,
+    gauss_modulate,
+    homogeneous_owners,
+    lidar_share,
+    riverbed_modulate,
+)
+
+
+def cost_volume(H=9, W=9, D=21, seed=7):
+    return np.random.default_rng(seed).integers(1, 40, (H, W, D)).astype(np.uint8)
+
+
+def one_point(H=9, W=9, y=4, x=4, d=10.0):
+    sparse = np.full((H, W), np.nan, dtype=np.float32)
+    sparse[y, x] = d
+    return sparse
+
+
+@pytest.mark.parametrize("form", ["additive", "product"])
+def test_gauss_minimum_at_lidar_disparity(form):
+    cost = cost_volume()
+    out = gauss_modulate(cost, one_point(d=10.0), d_min=0, form=form, cost_scale=4)
+    assert out[4, 4].argmin() == 10
+    # costs grow away from d_m: the far ends are above the plain (scaled) cost
+    assert out[4, 4, 0] > 4 * cost[4, 4, 0] and out[4, 4, 20] > 4 * cost[4, 4, 20]
+    if form == "product":
+        assert out[4, 4, 10] == 0  # k (1 - exp(0)) F = 0 at d_m
+
+
+def test_gauss_formula_values():
+    cost = cost_volume()
+    out = gauss_modulate(cost, one_point(d=10.0), d_min=0, k=10, c=1, form="product", cost_scale=4)
+    d = np.arange(21)
+    expect = np.floor(4 * 10 * (1 - np.exp(-((d - 10.0) ** 2) / 2)) * cost[4, 4] + 0.5)
+    np.testing.assert_array_equal(out[4, 4], expect)
+    fbar = cost[4, 4].mean()
+    add = gauss_modulate(cost, one_point(d=10.0), d_min=0, k=10, c=1, form="additive", cost_scale=4)
+    expect = np.floor(4 * (cost[4, 4] + 10 * fbar * (1 - np.exp(-((d - 10.0) ** 2) / 2))) + 0.5)
+    np.testing.assert_array_equal(add[4, 4], expect)
+
+
+@pytest.mark.parametrize("fn", ["gauss", "riverbed"])
+def test_untouched_pixels_unchanged(fn):
+    cost = cost_volume()
+    sparse = one_point()
+    guide = np.zeros((9, 9), np.float32)
+    guide[:, 6:] = 200  # a different surface: not homogeneous with the LiDAR point
+    if fn == "gauss":
+        out = gauss_modulate(cost, sparse, 0, cost_scale=4)
+        touched = np.isfinite(sparse)
+    else:
+        out = riverbed_modulate(cost, sparse, guide, 0, window=5, cost_scale=4)
+        touched = homogeneous_owners(sparse, guide, 5)[0] >= 0
+        assert touched.sum() == 25 - 5  # the 5x5 window minus the column of the other surface
+    np.testing.assert_array_equal(out[~touched], 4 * cost[~touched].astype(np.uint16))
+    assert (out[touched] != 4 * cost[touched]).any(axis=-1).all()
+
+
+def test_riverbed_band_is_flat_and_walls_continuous():
+    # A homogeneous pixel at distance 2 px (same colour): W = 1 - exp(-4 / 128) ~ 0.031, band half-width 3 W.
+    cost = np.full((9, 9, 41), 20, dtype=np.uint8)
+    guide = np.zeros((9, 9), np.float32)
+    owner, dis = homogeneous_owners(one_point(d=20.0), guide, 5)
+    w = float(dis[4, 6])
+    assert owner[4, 6] == 0 and w == pytest.approx(1 - math.exp(-4 / 128), rel=1e-5)
+
+    def modulated(dm):
+        return riverbed_modulate(cost, one_point(d=dm), guide, 0, window=5, band=3.0, cost_scale=64)[4, 6] / 64
+
+    out = modulated(20.0)
+    assert out.argmin() == 20 and out[20] == pytest.approx(w * 20, abs=1 / 64)  # inside the band: W * F
+    # continuity: moving d_m by tiny steps across the band edge changes every cost by a tiny amount
+    half = 3.0 * w
+    for dm in (21 - half - 1e-3, 21 - half + 1e-3):
+        assert np.abs(modulated(dm) - modulated(dm + 1e-4)).max() < 0.05
+    # walls rise monotonically away from the band
+    assert (np.diff(out[:20]) <= 0).all() and (np.diff(out[21:]) >= 0).all()
+
+
+def test_ownership_rules():
+    guide = np.zeros((12, 12), np.float32)
+    sparse = np.full((12, 12), np.nan, np.float32)
+    sparse[5, 3] = 7.0
+    sparse[5, 6] = 9.0  # inside the first point's window: keeps its own disparity
+    owner, dis = homogeneous_owners(sparse, guide, 7)
+    assert owner[5, 3] == 0 and owner[5, 6] == 1 and dis[5, 3] == 0 and dis[5, 6] == 0
+    # a pixel between them belongs to the nearer (more similar) one
+    assert owner[5, 4] == 0 and owner[5, 5] == 1
+    # outside every window: no owner
+    assert owner[0, 11] == -1 and np.isinf(dis[0, 11])
+
+
+def test_homogeneous_means_similar_not_dissimilar():
+    # Eq. 3 as printed (W > gamma) would pick the *least* similar pixels; we keep 1 - W >= gamma.
+    guide = np.zeros((9, 9), np.float32)
+    guide[4, 5] = 255.0  # very different colour right next to the LiDAR pixel
+    owner, dis = homogeneous_owners(one_point(), guide, 5, gamma=0.3)
+    assert owner[4, 5] == -1
+    assert owner[4, 3] == 0 and dis[4, 3] <= 0.7
+
+
+def test_lidar_share_uses_covered_area():
+    sparse = np.full((100, 100), np.nan, np.float32)
+    sparse[10:30:2, 10:30:2] = 5  # 100 points on a 19x19 block
+    assert lidar_share(sparse) == pytest.approx(100 / 361)
+    sparse2 = np.full((100, 100), np.nan, np.float32)
+    sparse2[::10, ::10] = 5
+    assert lidar_share(sparse2) == pytest.approx(100 / 8281)
+
+
+@pytest.mark.parametrize("p,s", [(0.05, 5), (0.0123, 11), (0.0016, 25), (0.5, 5), (1e-6, 25)])
+def test_auto_window(p, s):
+    assert auto_window(p) == s
