@@ -7,6 +7,7 @@ from tqdm import tqdm
 
 from ..errors import RiverbedError
 from ..io.atomic import check_output
+from ..io.disparity import _kind as disparity_format
 from ..io.disparity import read_disparity, write_disparity
 from ..io.images import MAX_PIXELS, check_pair, read_image
 from ..matching.pipeline import GUIDES, MatchParams, match_pair, warm_up
@@ -68,7 +69,8 @@ def match_cmd(left, right, output, sparse, sparse_scale, guide, window, min_disp
     Disparity d = x_left - x_right (px). OUTPUT format by extension: .tif (float32, NaN invalid), .pfm
     (Middlebury, inf invalid) or .png (KITTI 16-bit, d*256, 0 invalid).
     """
-    # Refuse to clobber before doing any work.
+    # Refuse to clobber, or to compute what cannot be written, before doing any work.
+    disparity_format(output)
     check_output(output, overwrite)
     if color_png:
         if not color_png.lower().endswith(".png"):

@@ -1,0 +1,120 @@
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from riverbed_cli.cli.main import cli
+from riverbed_cli.io.disparity import read_disparity, read_disparity_tags, write_disparity
+from riverbed_cli.products.evaluate import evaluate_disparity
+from riverbed_cli.products.simulate import simulate_lidar
+
+DATA = Path(__file__).parent / "data" / "cones"
+LEFT, RIGHT, GT = str(DATA / "im2.png"), str(DATA / "im6.png"), str(DATA / "disp2.png")
+
+
+@pytest.fixture()
+def work(tmp_path, cones):
+    gt = cones[2]
+    write_disparity(tmp_path / "sparse.tif", simulate_lidar(gt, 0.05, seed=0))
+    write_disparity(tmp_path / "small.tif", simulate_lidar(gt, 0.05, seed=0)[:100])
+    write_disparity(tmp_path / "empty.tif", np.full(gt.shape, np.nan, np.float32))
+    cv2.imwrite(str(tmp_path / "right_small.png"), cv2.imread(RIGHT)[:, :400])
+    (tmp_path / "broken.png").write_bytes(b"not a png")
+    return tmp_path
+
+
+def run(args):
+    return CliRunner().invoke(cli, args)
+
+
+def test_match_guided_json_and_accuracy(work):
+    out = work / "d.tif"
+    r = run(["match", LEFT, RIGHT, "--sparse", str(work / "sparse.tif"), "-o", str(out), "--json",
+             "--color", str(work / "d.png")])
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.output)
+    assert s["guide"] == "riverbed" and s["window"] == 5
+    assert set(s["stages"]) == {"cost", "guidance", "aggregation", "selection", "refinement"}
+    assert 0 < s["seconds"] and abs(s["lidar_share"] - 0.05) < 0.002
+    assert s["d_min"] <= 9 and s["d_max"] >= 55  # derived from the sparse map (9.25 .. 55) with a margin
+    gt = read_disparity(GT, scale=4)
+    m = evaluate_disparity(read_disparity(out), gt, exclude=read_disparity(work / "sparse.tif"))
+    assert m["bad3"] < 2.5 and m["avg"] < 0.4
+    assert read_disparity_tags(out)["riverbed_guide"] == "riverbed"
+    assert cv2.imread(str(work / "d.png")).shape == (375, 450, 3)
+
+
+@pytest.mark.parametrize("ext", [".pfm", ".png"])
+def test_match_unguided_other_formats(work, ext):
+    out = work / f"d{ext}"
+    r = run(["match", LEFT, RIGHT, "--max-disp", "59", "--paths", "4", "--census", "5x5", "--no-subpixel",
+             "--lr-check", "--median", "1", "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    d = read_disparity(out)
+    assert d.shape == (375, 450)
+    assert 0.7 < np.isfinite(d).mean() < 0.99  # the left-right check removed occlusions and mismatches
+    v = d[np.isfinite(d)]
+    assert np.allclose(v, np.round(v))  # no sub-pixel
+
+
+CASES = {
+    "missing": (["nope.png", RIGHT, "--max-disp", "60"], "nope.png: file not found"),
+    "size": ([LEFT, "{w}/right_small.png", "--max-disp", "60"],
+             "{w}/right_small.png: left and right images differ in size: 375x450 vs 375x400 (height x width; "
+             f"left image {LEFT})"),
+    "unreadable": ([LEFT, "{w}/broken.png", "--max-disp", "60"],
+                   "{w}/broken.png: cannot read image (not a format OpenCV or rasterio reads)"),
+    "sparse shape": ([LEFT, RIGHT, "--sparse", "{w}/small.tif"],
+                     "{w}/small.tif: sparse map is 450x100 but the images are 450x375 (WxH)"),
+    "range": ([LEFT, RIGHT, "--sparse", "{w}/sparse.tif", "--min-disp", "70", "--max-disp", "90"],
+              "{w}/sparse.tif: disparity range [70, 90] excludes all sparse disparities (they span [9.25, 55.00])"),
+    "empty": ([LEFT, RIGHT, "--sparse", "{w}/empty.tif"], "{w}/empty.tif: sparse map has no valid disparities"),
+    "no range": ([LEFT, RIGHT], "give --max-disp (and --min-disp) or --sparse to derive the disparity range from"),
+    "format": ([LEFT, RIGHT, "--max-disp", "50", "-o", "{w}/d.xyz"],
+               "{w}/d.xyz: unsupported disparity format '.xyz' (use .pfm, .png or .tif)"),
+    "guide": ([LEFT, RIGHT, "--max-disp", "50", "--guide", "gauss"], "--guide gauss needs --sparse"),
+}
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_bad_input_one_line_error_and_no_output(work, case):
+    args, msg = CASES[case]
+    args = [a.format(w=work) for a in args]
+    out = work / "out.tif"
+    if "-o" not in args:
+        args += ["-o", str(out)]
+    r = run(["match", *args])
+    assert r.exit_code == 1
+    assert r.output == f"riverbed: error: {msg.format(w=work)}\n"
+    assert "Traceback" not in r.output
+    assert not out.exists() and not (work / "d.xyz").exists()
+    assert not list(work.glob(".*tmp*"))
+
+
+def test_existing_output_is_kept_without_overwrite(work):
+    out = work / "d.tif"
+    out.write_bytes(b"precious")
+    r = run(["match", LEFT, RIGHT, "--max-disp", "59", "-o", str(out)])
+    assert r.exit_code == 1 and r.output == f"riverbed: error: {out}: output exists; pass --overwrite to replace it\n"
+    assert out.read_bytes() == b"precious"
+    assert run(["match", LEFT, RIGHT, "--max-disp", "59", "-o", str(out), "--overwrite"]).exit_code == 0
+    assert read_disparity(out).shape == (375, 450)
+
+
+def test_installed_command_runs_the_pair(work):
+    exe = Path(sys.executable).parent / "riverbed"
+    assert exe.exists(), "the riverbed console script is not installed next to this Python"
+    out = work / "cmd.tif"
+    p = subprocess.run([str(exe), "match", LEFT, RIGHT, "--sparse", str(work / "sparse.tif"), "-o", str(out),
+                        "--json"], capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr
+    assert json.loads(p.stdout)["output"] == str(out)
+    assert p.stderr == ""  # quiet in a pipe: no progress bar, no log lines
+    p = subprocess.run([str(exe), "match", "nope.png", RIGHT, "--max-disp", "9", "-o", str(work / "x.tif")],
+                       capture_output=True, text=True, timeout=600)
+    assert p.returncode == 1 and p.stderr == "riverbed: error: nope.png: file not found\n"
