@@ -1,0 +1,1 @@
+"""Products made from disparity maps: evaluation against ground truth and visualisations (later: DSMs)."""
