@@ -124,7 +124,9 @@ def test_max_pixels(tmp_path):
     assert read_image(p, max_pixels=1200).shape == (30, 40)
     with pytest.raises(RiverbedError) as e:
         read_image(p, max_pixels=1199)
-    assert str(e.value) == f"{p}: image is 30x40 = 1200 pixels, more than the limit 1199; raise --max-pixels to allow it"
+    assert str(e.value) == (
+        f"{p}: image is 30x40 = 1200 pixels, more than the limit 1199; raise --max-pixels to allow it"
+    )
     t = tmp_path / "big.tif"
     _write_raster(t, np.zeros((3, 30, 40), np.uint8))
     with pytest.raises(RiverbedError, match="--max-pixels"):

@@ -23,7 +23,7 @@ def _asym():
     return d
 
 
-# --- PFM -----------------------------------------------------------------------------------------------------------
+# --- PFM ------------------------------------------------------------------------------------------
 
 def test_pfm_round_trip_with_nan(tmp_path):
     d = _asym()
@@ -103,7 +103,7 @@ def test_pfm_colour_and_garbage(tmp_path):
         read_disparity(z)
 
 
-# --- PNG -----------------------------------------------------------------------------------------------------------
+# --- PNG ------------------------------------------------------------------------------------------
 
 def test_png_round_trip(tmp_path):
     d = np.array([[0.0, 0.001, 1.5, 100.123], [NAN, 255.99, 3.14159, 7.0]], np.float32)
@@ -167,7 +167,7 @@ def test_real_middlebury_cones_gt():
     assert np.nansum(d.astype(np.float64)) == 21908588 / 4
 
 
-# --- TIFF ----------------------------------------------------------------------------------------------------------
+# --- TIFF -----------------------------------------------------------------------------------------
 
 def test_tif_exact_round_trip_and_tags(tmp_path):
     rng = np.random.default_rng(1)
@@ -203,9 +203,25 @@ def test_tif_nodata_value_becomes_nan(tmp_path):
     p = tmp_path / "n.tif"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
-        with rasterio.open(p, "w", driver="GTiff", width=3, height=1, count=1, dtype="int16", nodata=-9999) as ds:
+        with rasterio.open(p, "w", driver="GTiff", width=3, height=1, count=1, dtype="int16",
+                           nodata=-9999) as ds:
             ds.write(np.array([[5, -9999, -3]], np.int16), 1)
     np.testing.assert_array_equal(read_disparity(p), [[5, NAN, -3]])
+
+
+def test_tif_corrupt_and_not_a_tiff(tmp_path):
+    good = tmp_path / "good.tif"
+    write_disparity(good, np.random.default_rng(2).random((600, 600)).astype(np.float32))
+    cut = tmp_path / "cut.tif"
+    cut.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    with pytest.raises(RiverbedError) as e:
+        read_disparity(cut)
+    assert str(e.value) == f"{cut}: cannot read TIFF disparity (corrupt or truncated data)"
+    junk = tmp_path / "junk.tif"
+    junk.write_bytes(b"junk" * 100)
+    with pytest.raises(RiverbedError) as e:
+        read_disparity(junk)
+    assert str(e.value) == f"{junk}: cannot read TIFF disparity (not a TIFF rasterio reads)"
 
 
 def test_tags_of_other_formats_are_empty(tmp_path):
@@ -214,7 +230,7 @@ def test_tags_of_other_formats_are_empty(tmp_path):
     assert read_disparity_tags(p) == {}
 
 
-# --- common ----------------------------------------------------------------------------------------------------------
+# --- common ---------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("name", ["d.pfm", "d.png", "d.tif"])
 def test_refuses_to_overwrite(tmp_path, name):
@@ -238,7 +254,9 @@ def test_unsupported_extension(tmp_path):
     assert str(e.value) == f"{p}: unsupported disparity format '.xyz' (use .pfm, .png or .tif)"
     with pytest.raises(RiverbedError) as e:
         write_disparity(tmp_path / "o.JPG", np.ones((2, 2)))
-    assert str(e.value) == f"{tmp_path / 'o.JPG'}: unsupported disparity format '.jpg' (use .pfm, .png or .tif)"
+    assert str(e.value) == (
+        f"{tmp_path / 'o.JPG'}: unsupported disparity format '.jpg' (use .pfm, .png or .tif)"
+    )
 
 
 def test_missing_file_and_bad_shape(tmp_path):

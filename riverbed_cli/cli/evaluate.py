@@ -29,14 +29,16 @@ _ROWS = {
 @click.argument("gt", type=input_path())
 @click.option("--exclude", type=input_path(), default=None,
               help="Sparse disparity map (e.g. the LiDAR guidance) whose valid pixels are left out.")
-@click.option("--max-disp", type=float, default=None, help="Leave out ground truth above this disparity (px).")
+@click.option("--max-disp", type=float, default=None,
+              help="Leave out ground truth above this disparity (px).")
 @click.option("--gt-scale", type=float, default=None,
               help="GT stored value per pixel of disparity, d = value / S. Needed for 8-bit PNG (4 for "
                    "Middlebury quarter size, 2 for half size); default 256 for 16-bit PNG, 1 for PFM/TIFF.")
 @click.option("--disp-scale", type=float, default=None, help="Same as --gt-scale, for DISP.")
 @json_opt
 @click.option("--error-map", "error_png", type=click.Path(dir_okay=False), default=None,
-              help="Write a colour error map PNG (blue small ... red large, magenta no prediction, black no GT).")
+              help="Write a colour error map PNG (blue small ... red large, magenta no prediction, "
+                   "black no GT).")
 @overwrite_opt
 def evaluate_cmd(disp, gt, exclude, max_disp, gt_scale, disp_scale, as_json, error_png, overwrite):
     """Compare disparity map DISP with ground truth GT (.pfm, .png or .tif).
@@ -70,7 +72,8 @@ def evaluate_cmd(disp, gt, exclude, max_disp, gt_scale, disp_scale, as_json, err
         ex = read_disparity(exclude, scale=1.0)
         if ex.shape != g.shape:
             raise RiverbedError(
-                f"exclusion map is {ex.shape[0]}x{ex.shape[1]} but ground truth {gt} is {g.shape[0]}x{g.shape[1]}",
+                f"exclusion map is {ex.shape[0]}x{ex.shape[1]} but ground truth {gt} is "
+                f"{g.shape[0]}x{g.shape[1]}",
                 exclude,
             )
 

@@ -2,9 +2,10 @@
 
 Conventions
 -----------
-- In memory a disparity map is ``float32``, ``H x W``, indexed ``[row, col]``, on the left (reference) image, with
-  ``d = x_left - x_right`` in pixels and ``NaN`` for invalid / unknown.
-- On disk the invalid marker is the format's own: ``inf`` in PFM, ``0`` in PNG, ``NaN`` (the nodata value) in TIFF.
+- In memory a disparity map is ``float32``, ``H x W``, indexed ``[row, col]``, on the left (reference) image,
+  with ``d = x_left - x_right`` in pixels and ``NaN`` for invalid / unknown.
+- On disk the invalid marker is the format's own: ``inf`` in PFM, ``0`` in PNG, ``NaN`` (the nodata value) in
+  TIFF.
 - The format is chosen by the file extension, case-insensitively: ``.pfm``, ``.png``, ``.tif`` / ``.tiff``.
 """
 
@@ -53,8 +54,8 @@ def read_disparity(path, scale=None):
     scale : float, optional
         Stored value per pixel of disparity: ``d = stored / scale``.
 
-        - PNG, 16-bit: default 256 (KITTI). 8-bit: required, e.g. 4 for Middlebury 2003 quarter-size GT (Cones,
-          Teddy), 2 for the half-size 2005/2006 scenes. In both, 0 means unknown.
+        - PNG, 16-bit: default 256 (KITTI). 8-bit: required, e.g. 4 for Middlebury 2003 quarter-size GT
+          (Cones, Teddy), 2 for the half-size 2005/2006 scenes. In both, 0 means unknown.
         - PFM and TIFF: default 1 (values are disparities already).
 
     Returns
@@ -64,11 +65,12 @@ def read_disparity(path, scale=None):
 
     Notes
     -----
-    PFM: the header is ``Pf`` (one channel; ``PF``, three channels, is refused), ``width height``, then a scale
-    line whose sign gives the byte order (negative: little endian, positive: big endian). Rows are stored bottom
-    to top. The magnitude of the scale line is honoured as a multiplier: ``d = stored * |scale|`` (Middlebury and
-    SceneFlow files use 1.0, so this only matters for files that set another factor). Non-finite values
-    (Middlebury writes ``inf``) become NaN.
+    PFM: the header is ``Pf`` (one channel; ``PF``, three channels, is refused), ``width height``, then a
+    scale line whose sign gives the byte order (negative: little endian, positive: big endian). Rows are
+    stored bottom to top. The magnitude of the scale line is honoured as a multiplier:
+    ``d = stored * |scale|`` (Middlebury and SceneFlow files use 1.0, so this only matters for files that set
+    another factor). Non-finite values (Middlebury writes ``inf``) become NaN. The ``scale`` argument then
+    divides as for the other formats.
 
     TIFF: band 1 as float32; the nodata value, if set, and non-finite values become NaN.
     """
@@ -92,8 +94,8 @@ def _read_pfm(path):
     with open(path, "rb") as f:
         head = f.read(256)
 
-    # Header: four whitespace-separated tokens, then exactly one whitespace byte before the binary data (the data
-    # may itself begin with bytes that look like whitespace, so no more may be skipped).
+    # Header: four whitespace-separated tokens, then exactly one whitespace byte before the binary data (the
+    # data may itself begin with bytes that look like whitespace, so no more may be skipped).
     tokens, pos = [], 0
     while len(tokens) < 4:
         while pos < len(head) and head[pos] in _WHITESPACE:
@@ -101,13 +103,13 @@ def _read_pfm(path):
         start = pos
         while pos < len(head) and head[pos] not in _WHITESPACE and pos - start <= 32:
             pos += 1
-        if pos == start or pos >= len(head) or head[pos] not in _WHITESPACE:
-            if not tokens and head[:2] not in (b"Pf", b"PF"):
-                raise RiverbedError("not a PFM file (it must start with 'Pf')", path)
-            raise RiverbedError("truncated or malformed PFM header (expected 'Pf', width, height, scale)", path)
-        tokens.append(head[start:pos])
-        if len(tokens) == 1 and tokens[0] not in (b"Pf", b"PF"):
+        complete = start < pos < len(head) and head[pos] in _WHITESPACE
+        if not tokens and (not complete or head[start:pos] not in (b"Pf", b"PF")):
             raise RiverbedError("not a PFM file (it must start with 'Pf')", path)
+        if not complete:
+            raise RiverbedError("truncated or malformed PFM header (expected 'Pf', width, height, scale)",
+                                path)
+        tokens.append(head[start:pos])
     offset = pos + 1
 
     if tokens[0] == b"PF":
@@ -120,15 +122,17 @@ def _read_pfm(path):
     if width <= 0 or height <= 0:
         raise RiverbedError(f"malformed PFM header: size {width}x{height}", path)
     if not np.isfinite(pfm_scale) or pfm_scale == 0:
-        raise RiverbedError(f"malformed PFM header: scale {pfm_scale} (must be non-zero; its sign is the byte order)",
-                            path)
+        raise RiverbedError(
+            f"malformed PFM header: scale {pfm_scale} (must be non-zero; its sign is the byte order)", path
+        )
 
     # Check the size before allocating, so a forged header cannot ask for gigabytes.
     needed = width * height * 4
     available = size - offset
     if available < needed:
         raise RiverbedError(
-            f"truncated PFM: {width}x{height} needs {needed} data bytes, the file has {max(available, 0)}", path
+            f"truncated PFM: {width}x{height} needs {needed} data bytes, the file has {max(available, 0)}",
+            path,
         )
     dtype = "<f4" if pfm_scale < 0 else ">f4"
     data = np.fromfile(path, dtype=dtype, count=width * height, offset=offset)
@@ -149,7 +153,9 @@ def _read_png(path, scale):
         raise RiverbedError("cannot read PNG disparity (not a PNG OpenCV reads)", path)
     if raw.ndim != 2:
         raise RiverbedError(
-            f"colour PNG ({raw.shape[2]} channels) is not a disparity map (expected one 8- or 16-bit channel)", path
+            f"colour PNG ({raw.shape[2]} channels) is not a disparity map "
+            "(expected one 8- or 16-bit channel)",
+            path,
         )
     if raw.dtype == np.uint8:
         if scale is None:
@@ -170,7 +176,9 @@ def _open_tif(path):
 
     try:
         return rasterio.open(path)
-    except Exception:
+    except MemoryError:
+        raise
+    except Exception:  # noqa: BLE001 - GDAL drivers raise many types; any of them means "cannot read"
         raise RiverbedError("cannot read TIFF disparity (not a TIFF rasterio reads)", path) from None
 
 
@@ -184,7 +192,9 @@ def _read_tif(path):
                 raise RiverbedError(f"TIFF disparity must be real-valued, got {ds.dtypes[0]}", path)
             try:
                 raw = ds.read(1)
-            except Exception:
+            except MemoryError:
+                raise
+            except Exception:  # noqa: BLE001 - as in _open_tif
                 raise RiverbedError("cannot read TIFF disparity (corrupt or truncated data)", path) from None
             nodata = ds.nodata
     disp = raw.astype(np.float32)
@@ -230,11 +240,11 @@ def write_disparity(path, disp, overwrite=False, tags=None):
     Notes
     -----
     - PFM: ``Pf``, little endian (scale line ``-1.0``), rows bottom to top, invalid as ``inf``. Exact.
-    - PNG: KITTI 16-bit, ``round(d * 256)``, invalid as 0; a valid disparity that would round to 0 is stored as 1
-      (1/256 px) so it stays valid. Negative disparities and disparities above 65535/256 (~256 px) cannot be
-      stored and raise :class:`RiverbedError`. Precision 1/512 px.
-    - TIFF: float32, nodata NaN, DEFLATE with the floating-point predictor, 256 x 256 tiles when both sides are at
-      least 256 px, no georeference. Exact.
+    - PNG: KITTI 16-bit, ``round(d * 256)``, invalid as 0; a valid disparity that would round to 0 is stored
+      as 1 (1/256 px) so it stays valid. Negative disparities and disparities above 65535/256 (~256 px) cannot
+      be stored and raise :class:`RiverbedError`. Precision 1/512 px.
+    - TIFF: float32, nodata NaN, DEFLATE with the floating-point predictor, 256 x 256 tiles when both sides
+      are at least 256 px, no georeference. Exact.
     """
     path = Path(path)
     kind = _kind(path)
@@ -273,7 +283,8 @@ def _encode_png(path, disp, valid):
         )
     if d.size and d.max() > _PNG_MAX:
         raise RiverbedError(
-            f"disparity {d.max():.3f} exceeds the KITTI PNG maximum {_PNG_MAX:.3f} (65535/256); use .pfm or .tif",
+            f"disparity {d.max():.3f} exceeds the KITTI PNG maximum {_PNG_MAX:.3f} (65535/256); "
+            "use .pfm or .tif",
             path,
         )
     out = np.zeros(disp.shape, np.uint16)

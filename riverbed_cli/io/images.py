@@ -5,8 +5,8 @@ Conventions
 - Images are ``H x W`` (grey) or ``H x W x 3`` (RGB order, not OpenCV's BGR), indexed ``[row, col]``.
 - :func:`read_image` returns the stored samples unchanged: ``uint8`` or ``uint16``.
 - :func:`to_grey` and :func:`to_guide` return ``float32`` on a 0..255 scale. 16-bit data is divided by
-  ``2 ** (bits - 8)`` where ``bits`` is the *effective* bit depth (see :func:`effective_bits`), so 12-bit data in a
-  16-bit container keeps its contrast instead of being squeezed into 0..16.
+  ``2 ** (bits - 8)`` where ``bits`` is the *effective* bit depth (see :func:`effective_bits`), so 12-bit
+  data in a 16-bit container keeps its contrast instead of being squeezed into 0..16.
 """
 
 import struct
@@ -28,23 +28,24 @@ _TIFF_MAGIC = (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
 def read_image(path, max_pixels=MAX_PIXELS):
     """Read an 8- or 16-bit grey or RGB image, samples unchanged.
 
-    OpenCV reads most formats (``IMREAD_UNCHANGED``: no EXIF rotation, no depth conversion); files it cannot decode
-    are read with rasterio (e.g. JPEG 2000, ERDAS .img), bands becoming channels. TIFF is read with rasterio first
-    (OpenCV would mix a multi-band GeoTIFF down to grey) and with OpenCV if rasterio fails or it is a palette image.
+    OpenCV reads most formats (``IMREAD_UNCHANGED``: no EXIF rotation, no depth conversion); files it cannot
+    decode are read with rasterio (e.g. JPEG 2000, ERDAS .img), bands becoming channels. TIFF is read with
+    rasterio first (OpenCV would mix a multi-band GeoTIFF down to grey) and with OpenCV if rasterio fails or
+    it is a palette image.
 
     Parameters
     ----------
     path : str or path-like
         Image file.
     max_pixels : int, optional
-        Refuse images with more than this many pixels (width x height), checked from the header before decoding
-        for PNG and TIFF, and after decoding otherwise. None: no limit.
+        Refuse images with more than this many pixels (width x height), checked from the header before
+        decoding for PNG and TIFF, and after decoding otherwise. None: no limit.
 
     Returns
     -------
     img : ndarray of uint8 or uint16
-        ``H x W`` (grey) or ``H x W x 3`` (RGB order). An alpha channel is dropped; with four or more bands from
-        rasterio the first three are taken as RGB.
+        ``H x W`` (grey) or ``H x W x 3`` (RGB order). An alpha channel is dropped; with four or more bands
+        from rasterio the first three are taken as RGB.
 
     Raises
     ------
@@ -120,9 +121,9 @@ def _read_rasterio(path, max_pixels, required):
                 # 1 band: grey; 2: grey + alpha; 3: RGB; 4+: RGB + alpha/NIR/...
                 bands = [1] if ds.count < 3 else [1, 2, 3]
                 data = ds.read(bands)
-    except RiverbedError:
+    except (RiverbedError, MemoryError):
         raise
-    except Exception:
+    except Exception:  # noqa: BLE001 - GDAL drivers raise many types; any of them means "cannot read"
         if not required:
             return None
         raise RiverbedError(_UNREADABLE, path) from None
@@ -134,8 +135,8 @@ def _read_rasterio(path, max_pixels, required):
 def effective_bits(*images):
     """Effective bit depth of one or more images: ``max(8, ceil(log2(max + 1)))``.
 
-    ``uint8`` images are 8 bits. For ``uint16`` the largest sample decides, so 12-bit camera data stored in 16-bit
-    containers (max <= 4095) is 12 bits. Pass *both* images of a stereo pair so they are scaled alike.
+    ``uint8`` images are 8 bits. For ``uint16`` the largest sample decides, so 12-bit camera data stored in
+    16-bit containers (max <= 4095) is 12 bits. Pass *both* images of a stereo pair so they are scaled alike.
 
     Parameters
     ----------
@@ -178,8 +179,8 @@ def to_grey(img, bits=None):
     Parameters
     ----------
     img : ndarray
-        ``H x W`` or ``H x W x 3`` (RGB; a 4th alpha channel is ignored), ``uint8``, ``uint16`` or float (float is
-        assumed to be on a 0..255 scale already and is not rescaled).
+        ``H x W`` or ``H x W x 3`` (RGB; a 4th alpha channel is ignored), ``uint8``, ``uint16`` or float
+        (float is assumed to be on a 0..255 scale already and is not rescaled).
     bits : int, optional
         Bit depth of 16-bit data. Default: :func:`effective_bits` of ``img`` alone, i.e.
         ``max(8, ceil(log2(max + 1)))``; values are divided by ``2 ** (bits - 8)``. For a stereo pair pass
@@ -188,8 +189,8 @@ def to_grey(img, bits=None):
     Returns
     -------
     grey : ndarray of float32, ``H x W``
-        RGB is combined with the ITU-R BT.601 luma weights ``0.299 R + 0.587 G + 0.114 B`` (``cv2.COLOR_RGB2GRAY``),
-        computed in float32 (not rounded to integers).
+        RGB is combined with the ITU-R BT.601 luma weights ``0.299 R + 0.587 G + 0.114 B``
+        (``cv2.COLOR_RGB2GRAY``), computed in float32 (not rounded to integers).
     """
     f = _to_float255(img, bits)
     if f.ndim == 2:
@@ -229,7 +230,8 @@ def to_guide(img, bits=None):
 def check_pair(left, right, left_path=None, right_path=None):
     """Raise :class:`RiverbedError` (naming ``right_path``) if the two images differ in height or width.
 
-    Rectified pairs must have the same size; the number of channels may differ (grey and colour can be matched).
+    Rectified pairs must have the same size; the number of channels may differ (grey and colour can be
+    matched).
     """
     if left.shape[:2] != right.shape[:2]:
         (hl, wl), (hr, wr) = left.shape[:2], right.shape[:2]

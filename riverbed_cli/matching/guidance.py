@@ -67,7 +67,7 @@ def auto_window(share, target=1.0, smallest=5, largest=25):
 
 
 @njit(cache=True)
-def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma):
+def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
     H, W, C = guide.shape
     owner = np.full((H, W), -1, dtype=np.int32)
     dissim = np.full((H, W), np.inf, dtype=np.float32)
@@ -90,13 +90,14 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma):
                     t = guide[r, c, ch] - guide[r0, c0, ch]
                     dd += t * t
                 w = 1.0 - math.exp(-((r - r0) ** 2 + (c - c0) ** 2) * a - dd * b)
-                if w <= wmax and w < dissim[r, c]:
+                keep = w > gamma if literal else w <= wmax
+                if keep and w < dissim[r, c]:
                     dissim[r, c] = w
                     owner[r, c] = j
     return owner, dissim
 
 
-def homogeneous_owners(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0.3):
+def homogeneous_owners(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0.3, literal_eq3=False):
     """Ownership image of the riverbed enhancement.
 
     Parameters
@@ -107,6 +108,9 @@ def homogeneous_owners(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0
         Left image on a 0..255 scale (colour differences are averaged over channels).
     window : int
         Odd side ``s`` of the square window around each LiDAR point.
+    literal_eq3 : bool
+        Select pixels with ``W > gamma`` as eq. 3 is printed (the *least* similar ones), only to reproduce that
+        reading; the default keeps the similar ones, ``1 - W >= gamma``.
 
     Returns
     -------
@@ -125,7 +129,7 @@ def homogeneous_owners(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0
         raise RiverbedError(f"guide image {guide.shape[:2]} and sparse map {sparse.shape} differ in size")
     rows, cols, _ = lidar_points(sparse)
     return _owners_kernel(rows, cols, np.ascontiguousarray(guide), window // 2,
-                          float(sigma_xy), float(sigma_i), float(gamma))
+                          float(sigma_xy), float(sigma_i), float(gamma), bool(literal_eq3))
 
 
 @njit(cache=True, parallel=True)
@@ -223,7 +227,8 @@ def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_sca
 
 
 def riverbed_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, sigma_xy=8.0, sigma_i=8.0, gamma=0.3,
-                      band=3.0, form="additive", cost_scale=4, cap=65535, owners=None, inplace=False):
+                      band=3.0, form="additive", cost_scale=4, cap=65535, owners=None, inplace=False,
+                      literal_eq3=False):
     """Riverbed enhancement (paper eqs. 2, 3, 6): Gauss at LiDAR pixels, band-and-walls at homogeneous pixels.
 
     Parameters are those of :func:`gauss_modulate` plus: ``guide`` the left image (0..255 scale) for the colour
@@ -237,7 +242,8 @@ def riverbed_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, sigma_x
     """
     _check_inputs(cost, sparse)
     rows, cols, values = lidar_points(sparse)
-    owner, dissim = owners if owners is not None else homogeneous_owners(sparse, guide, window, sigma_xy, sigma_i,
-                                                                        gamma)
+    if owners is None:
+        owners = homogeneous_owners(sparse, guide, window, sigma_xy, sigma_i, gamma, literal_eq3)
+    owner, dissim = owners
     out = _scaled(cost, cost_scale, inplace)
     return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, cap)

@@ -40,6 +40,7 @@ class MatchParams:
     form: str = "additive"
     cost_scale: int = 4  # guided costs are kept in uint16 at this resolution (1/4 of a Hamming unit)
     window_target: float = 1.0  # auto window: smallest odd s with s*s*p >= window_target
+    literal_eq3: bool = False  # homogeneous pixels by eq. 3 as printed (W > gamma); only to reproduce that reading
 
 
 @dataclass
@@ -163,7 +164,8 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, **
         else:
             window = guidance.auto_window(share, p.window_target) if p.window == "auto" else int(p.window)
             cost = guidance.riverbed_modulate(cost, sparse, to_guide(left), d_min, window, p.k, p.c, p.sigma_xy,
-                                              p.sigma_i, p.gamma, p.band, p.form, scale, cap, inplace=True)
+                                              p.sigma_i, p.gamma, p.band, p.form, scale, cap, inplace=True,
+                                              literal_eq3=p.literal_eq3)
         max_cost = cap
     lap("guidance", t0)
 

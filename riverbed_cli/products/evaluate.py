@@ -1,7 +1,9 @@
-"""Compare a disparity map with ground truth: Middlebury-style bad-pixel rates, mean error, RMSE, density, KITTI D1.
+"""Compare a disparity map with ground truth.
 
-Conventions: arrays ``H x W`` indexed ``[row, col]``, disparity ``d = x_left - x_right`` in pixels, NaN marks an
-invalid prediction or a pixel without ground truth.
+Middlebury-style bad-pixel rates, mean absolute error, RMSE, density and KITTI D1.
+
+Conventions: arrays ``H x W`` indexed ``[row, col]``, disparity ``d = x_left - x_right`` in pixels, NaN marks
+an invalid prediction or a pixel without ground truth.
 """
 
 import numpy as np
@@ -25,8 +27,8 @@ def evaluation_mask(gt, exclude=None, max_disp=None):
         Ground-truth disparity in pixels, NaN where unknown (0 is a valid disparity here; readers turn the
         formats' "unknown" markers into NaN).
     exclude : array_like, ``H x W``, optional
-        Pixels to leave out, typically the sparse LiDAR disparities used as guidance: a disparity map (its finite
-        pixels are excluded) or a boolean mask (True = excluded).
+        Pixels to leave out, typically the sparse LiDAR disparities used as guidance: a disparity map (its
+        finite pixels are excluded) or a boolean mask (True = excluded).
     max_disp : float, optional
         Leave out ground truth above this disparity (e.g. beyond the search range).
 

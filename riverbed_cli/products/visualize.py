@@ -1,7 +1,7 @@
-"""Pictures of disparity maps for people: colourised disparity and error maps (RGB ``uint8``), and a PNG writer.
+"""Pictures of disparity maps: colourised disparity and error maps (RGB ``uint8``), and a PNG writer.
 
-Conventions: arrays ``H x W`` indexed ``[row, col]``, disparity ``d = x_left - x_right`` in pixels, NaN invalid;
-colour images are ``H x W x 3`` in RGB order.
+Conventions: arrays ``H x W`` indexed ``[row, col]``, disparity ``d = x_left - x_right`` in pixels, NaN
+invalid; colour images are ``H x W x 3`` in RGB order.
 """
 
 from pathlib import Path
@@ -45,8 +45,8 @@ def colorize_disparity(disp, vmin=None, vmax=None):
     Returns
     -------
     rgb : ndarray of uint8, ``H x W x 3``
-        Turbo colours (dark blue = ``vmin`` = far, dark red = ``vmax`` = near); invalid pixels black (Turbo itself
-        never reaches pure black).
+        Turbo colours (dark blue = ``vmin`` = far, dark red = ``vmax`` = near); invalid pixels black (Turbo
+        itself never reaches pure black).
     """
     disp = np.asarray(disp, dtype=np.float64)
     if disp.ndim != 2:
@@ -75,16 +75,16 @@ def error_map(disp, gt, mask=None):
     gt : array_like, ``H x W``
         Ground-truth disparity in pixels, NaN where unknown.
     mask : array_like of bool, ``H x W``, optional
-        Pixels to show (e.g. :func:`riverbed_cli.products.evaluate.evaluation_mask`, which leaves out the LiDAR
-        pixels used as guidance); others are drawn black like pixels without ground truth.
+        Pixels to show (e.g. :func:`riverbed_cli.products.evaluate.evaluation_mask`, which leaves out the
+        LiDAR pixels used as guidance); others are drawn black like pixels without ground truth.
 
     Returns
     -------
     rgb : ndarray of uint8, ``H x W x 3``
-        ``|disp - gt|`` in the bins of :data:`ERROR_BINS` (dark blue < 1/16 px, light blue <= 1 px, yellow to red
-        above 1 px, dark red > 16 px; a bin holds errors up to and including its bound). Ground-truth pixels with
-        no valid prediction are magenta (:data:`MISSING_COLOUR`); pixels without ground truth (or outside
-        ``mask``) are black.
+        ``|disp - gt|`` in the bins of :data:`ERROR_BINS` (dark blue <= 1/16 px, light blue <= 1 px, yellow
+        to red above 1 px, dark red > 16 px; a bin holds errors up to and including its bound). Ground-truth
+        pixels with no valid prediction are magenta (:data:`MISSING_COLOUR`); pixels without ground truth (or
+        outside ``mask``) are black.
     """
     disp = np.asarray(disp, dtype=np.float64)
     gt = np.asarray(gt, dtype=np.float64)
@@ -101,7 +101,7 @@ def error_map(disp, gt, mask=None):
     bounds = np.array([b for b, _ in ERROR_BINS])
     colours = np.array([c for _, c in ERROR_BINS], np.uint8)
     rgb = np.zeros(gt.shape + (3,), np.uint8)
-    # searchsorted(side="left"): an error equal to a bound falls in that bound's bin (bin i is (b[i-1], b[i]]).
+    # searchsorted(side="left"): an error equal to a bound falls in that bound's bin, (b[i-1], b[i]].
     rgb[predicted] = colours[np.searchsorted(bounds, err, side="left")]
     rgb[shown & ~predicted] = MISSING_COLOUR
     return rgb
@@ -122,7 +122,8 @@ def write_png(path, rgb, overwrite=False):
     """
     path = Path(path)
     if path.suffix.lower() != ".png":
-        raise RiverbedError(f"image output must be a .png file, not '{path.suffix or '(no extension)'}'", path)
+        shown = path.suffix or "(no extension)"
+        raise RiverbedError(f"image output must be a .png file, not '{shown}'", path)
     rgb = np.asarray(rgb)
     if rgb.dtype != np.uint8 or not (rgb.ndim == 2 or (rgb.ndim == 3 and rgb.shape[2] == 3)):
         raise RiverbedError(f"PNG output needs uint8 HxW or HxWx3, got {rgb.dtype} {rgb.shape}", path)
