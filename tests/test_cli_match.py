@@ -38,7 +38,7 @@ def test_match_guided_json_and_accuracy(work):
              "--color", str(work / "d.png")])
     assert r.exit_code == 0, r.output
     s = json.loads(r.output)
-    assert s["guide"] == "riverbed" and s["window"] == 5
+    assert s["guide"] == "riverbed" and s["window"] == 9
     assert set(s["stages"]) == {"cost", "guidance", "aggregation", "selection", "refinement"}
     assert 0 < s["seconds"] and abs(s["lidar_share"] - 0.05) < 0.002
     assert s["d_min"] <= 9 and s["d_max"] >= 55  # derived from the sparse map (9.25 .. 55) with a margin

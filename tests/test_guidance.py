@@ -114,6 +114,6 @@ def test_lidar_share_uses_covered_area():
     assert lidar_share(sparse2) == pytest.approx(100 / 8281)
 
 
-@pytest.mark.parametrize("p,s", [(0.05, 5), (0.0123, 11), (0.0016, 25), (0.5, 5), (1e-6, 25)])
+@pytest.mark.parametrize("p,s", [(0.05, 9), (0.0123, 19), (0.0016, 25), (0.5, 5), (1e-6, 25)])
 def test_auto_window(p, s):
     assert auto_window(p) == s

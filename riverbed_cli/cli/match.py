@@ -39,7 +39,7 @@ def _window(ctx, param, value):
 @click.option("--guide", type=click.Choice(GUIDES), default=None,
               help="Cost-volume guidance. Default: riverbed with --sparse, else none.")
 @click.option("--window", default="auto", callback=_window, show_default=True,
-              help="Riverbed window side s (odd), or auto: smallest odd s with s*s*p >= 1 (p = LiDAR share), "
+              help="Riverbed window side s (odd), or auto: smallest odd s with s*s*p >= 4 (p = LiDAR share), "
                    "within [5, 25].")
 @click.option("--min-disp", type=int, default=None,
               help="Smallest disparity searched (px, inclusive; default: from --sparse, else 0).")

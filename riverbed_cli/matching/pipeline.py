@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import RiverbedError
-from ..io.images import to_grey, to_guide
+from ..io.images import effective_bits, to_grey, to_guide
 from . import census, disparity, guidance, sgm
 
 log = logging.getLogger(__name__)
@@ -39,7 +39,7 @@ class MatchParams:
     band: float = 3.0
     form: str = "additive"
     cost_scale: int = 4  # guided costs are kept in uint16 at this resolution (1/4 of a Hamming unit)
-    window_target: float = 1.0  # auto window: smallest odd s with s*s*p >= window_target
+    window_target: float = 4.0  # auto window: smallest odd s with s*s*p >= window_target (measured, docs/method.md)
     literal_eq3: bool = False  # homogeneous pixels by eq. 3 as printed (W > gamma); only to reproduce that reading
 
 
@@ -144,8 +144,9 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, **
     nbits = win[0] * win[1] - 1
     outside = nbits // 4 if p.outside_cost == "auto" else int(p.outside_cost)
     scale = 1 if p.guide == "none" else int(p.cost_scale)
-    cl = census.census_transform(to_grey(left), win)
-    cr = census.census_transform(to_grey(right), win)
+    bits = effective_bits(left, right)  # one scale for both images of a 16-bit pair
+    cl = census.census_transform(to_grey(left, bits), win)
+    cr = census.census_transform(to_grey(right, bits), win)
     cost = census.census_cost(cl, cr, d_min, d_max, outside, scale)
     del cl, cr
     lap("cost", t0)
@@ -163,7 +164,7 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, **
             max_cost = cap
         else:
             window = guidance.auto_window(share, p.window_target) if p.window == "auto" else int(p.window)
-            cost = guidance.riverbed_modulate(cost, sparse, to_guide(left), d_min, window, p.k, p.c, p.sigma_xy,
+            cost = guidance.riverbed_modulate(cost, sparse, to_guide(left, bits), d_min, window, p.k, p.c, p.sigma_xy,
                                               p.sigma_i, p.gamma, p.band, p.form, scale, cap, inplace=True,
                                               literal_eq3=p.literal_eq3)
         max_cost = cap
