@@ -27,6 +27,10 @@ _ROWS = {
 @click.command("evaluate")
 @click.argument("disp", type=input_path())
 @click.argument("gt", type=input_path())
+@click.option("--dsm", "dsm_mode", is_flag=True,
+              help="Compare two DSM GeoTIFFs instead (DISP is the DSM, GT the reference DSM).")
+@click.option("--thresholds", default="0.5,1,2", show_default=True,
+              help="With --dsm: |dz| thresholds (height units) for the shares of large differences.")
 @click.option("--exclude", type=input_path(), default=None,
               help="Sparse disparity map (e.g. the LiDAR guidance) whose valid pixels are left out.")
 @click.option("--max-disp", type=float, default=None,
@@ -40,7 +44,8 @@ _ROWS = {
               help="Write a colour error map PNG (blue small ... red large, magenta no prediction, "
                    "black no GT).")
 @overwrite_opt
-def evaluate_cmd(disp, gt, exclude, max_disp, gt_scale, disp_scale, as_json, error_png, overwrite):
+def evaluate_cmd(disp, gt, dsm_mode, thresholds, exclude, max_disp, gt_scale, disp_scale, as_json, error_png,
+                 overwrite):
     """Compare disparity map DISP with ground truth GT (.pfm, .png or .tif).
 
     The metrics are taken over the GT pixels, minus the --exclude pixels and GT above --max-disp, with
@@ -53,12 +58,18 @@ def evaluate_cmd(disp, gt, exclude, max_disp, gt_scale, disp_scale, as_json, err
       density           % with a prediction
       d1                KITTI D1: % with e > 3 px and e > 5 % of GT, or no prediction
       n                 number of pixels evaluated
+
+    With --dsm, DISP and GT are DSMs (GeoTIFF) compared on GT's grid (DISP is reprojected with rasterio when the
+    grids differ): mean, median, rmse, nmad and std of dz = DSM - REF, the % of cells with |dz| above each threshold
+    and above 3 cell sizes, completeness (% of REF cells the DSM covers) and n; --error-map writes the dz map.
     """
     if error_png is not None:
         # Refuse before the work, not after it.
         if not error_png.lower().endswith(".png"):
             raise RiverbedError("error map must be a .png file", error_png)
         check_output(error_png, overwrite)
+    if dsm_mode:
+        return _evaluate_dsm(disp, gt, thresholds, as_json, error_png, overwrite)
 
     d = read_disparity(disp, scale=disp_scale)
     g = read_disparity(gt, scale=gt_scale)
@@ -90,3 +101,23 @@ def evaluate_cmd(disp, gt, exclude, max_disp, gt_scale, disp_scale, as_json, err
             unit, what = _ROWS[name]
             shown = f"{value:d}" if name == "n" else ("n/a" if math.isnan(value) else f"{value:.3f}")
             click.echo(f"{name:<8}{shown:>12} {unit:<3} {what}")
+
+
+def _evaluate_dsm(dsm_path, ref_path, thresholds, as_json, error_png, overwrite):
+    from ..products.dsm_compare import compare_dsm, difference_map, read_dsm_on_grid
+
+    try:
+        ts = tuple(float(t) for t in thresholds.split(",") if t.strip())
+    except ValueError:
+        raise RiverbedError(f"--thresholds '{thresholds}' is not a comma-separated list of numbers") from None
+    dsm, ref, res = read_dsm_on_grid(dsm_path, ref_path)
+    metrics = compare_dsm(dsm, ref, ts, resolution=res)
+    if error_png is not None:
+        write_png(error_png, difference_map(dsm, ref), overwrite=overwrite)
+    if as_json:
+        print_json({k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in metrics.items()})
+    else:
+        for name, value in metrics.items():
+            unit = "" if name == "n" else ("%" if name.startswith("over") or name == "completeness" else "m")
+            shown = f"{value:d}" if name == "n" else ("n/a" if math.isnan(value) else f"{value:.3f}")
+            click.echo(f"{name:<13}{shown:>12} {unit}")
