@@ -41,10 +41,11 @@ def cli(verbose, quiet):
 
 
 def _register():
-    from . import evaluate, match
+    from . import dsm, evaluate, match
 
     cli.add_command(match.match_cmd)
     cli.add_command(evaluate.evaluate_cmd)
+    cli.add_command(dsm.dsm_cmd)
 
 
 _register()

@@ -43,6 +43,7 @@ def write_geotiff(path, bands, transform, crs=None, nodata=None, creation_option
         for float rasters unless given).
     """
     import rasterio
+    import rasterio.shutil
     from rasterio.io import MemoryFile
 
     data = np.asarray(bands)

@@ -216,3 +216,168 @@ def hillshade(dsm, resolution, azimuth=315.0, altitude=45.0, z_factor=1.0):
     out = np.clip(255 * shade, 0, 255).astype(np.uint8)
     out[np.isnan(z)] = 0
     return out
+
+
+# -- from disparities and LiDAR to a DSM ---------------------------------------------------------------------------
+
+NOISE_CLASSES = (7, 18)  # ASPRS low and high noise
+
+
+def disparity_points(disp, pair, rows=None, image=None):
+    """Triangulate the valid disparities of a left-image disparity map (or a block of its rows).
+
+    Parameters
+    ----------
+    disp : (H, W) float
+        Disparity of the left image, ``d = x_left - x_right``, NaN invalid.
+    pair : PairGeometry
+        The rectified cameras (world minus origin -> pixels).
+    rows : slice, optional
+        Only these rows (row indices are image rows; used to stream large maps in blocks).
+    image : (H, W) or (H, W, 3) array, optional
+        Left image whose colours go with the points.
+
+    Returns
+    -------
+    xyz : (N, 3) float64
+        World coordinates, the pair's origin added back (exact float64).
+    depth : (N,) float64
+        Depth along the left optical axis.
+    rgb : (N, 3) array or None
+        Colours of the left image at the points.
+    """
+    rows = rows or slice(0, disp.shape[0])
+    block = np.asarray(disp[rows], np.float64)
+    r, c = np.nonzero(np.isfinite(block))
+    r_img = r + (rows.start or 0)
+    local = pair.triangulate(c.astype(np.float64), r_img.astype(np.float64), block[r, c])
+    depth = pair.project(local)[3]
+    rgb = None
+    if image is not None:
+        img = image[r_img, c]
+        rgb = np.repeat(img[:, None], 3, axis=1) if img.ndim == 1 else img[:, :3]
+    return local + pair.origin, depth, rgb
+
+
+def default_resolution(depths, focal):
+    """Ground sample distance of the left image at the median depth: ``median(depth) / focal``, 3 significant digits."""
+    gsd = float(np.median(depths)) / float(focal)
+    if not gsd > 0 or not math.isfinite(gsd):
+        raise RiverbedError("cannot derive a DSM resolution from the depths; give --resolution")
+    return float(f"{gsd:.3g}")
+
+
+@dataclass
+class DsmResult:
+    dsm: np.ndarray  # (H, W) float32, NaN empty
+    grid: Grid
+    filled: np.ndarray  # (H, W) uint8: 1 where --fill-holes filled a cell
+    stats: dict
+
+
+def build_dsm(sources=(), lidar=(), resolution=None, agg="max", bounds=None, fill=0, block_rows=256,
+              point_sink=None, lidar_registration=None, drop_classes=NOISE_CLASSES, progress=None):
+    """Merge the points of several disparity maps (and optionally LiDAR clouds) into one DSM.
+
+    Parameters
+    ----------
+    sources : sequence of (disp, pair, image)
+        Left-image disparity maps with their :class:`PairGeometry` (and left images for colours, or None).
+    lidar : sequence of paths
+        LAS/LAZ/KITTI-bin clouds (read in chunks). LiDAR coordinates go to the world through
+        ``lidar_registration`` (4 x 4; default: the first pair's registration, identity without pairs).
+    resolution : float, optional
+        Cell size in CRS units; default the ground sample distance of the first pair's left image at the median
+        depth (LiDAR alone: twice the mean point spacing).
+    agg : {"max", "mean", "median", "idw"}
+        Per-cell aggregation, applied to image points and LiDAR points separately.
+    bounds : (xmin, ymin, xmax, ymax), optional
+        Default: the extent of all points.
+    fill : int
+        Fill enclosed gaps up to this many cells across (:func:`fill_holes`).
+    point_sink : callable, optional
+        Called as ``point_sink(xyz, rgb)`` with every block of image points (to write a point cloud).
+
+    Notes
+    -----
+    Merging rule: where a cell has LiDAR points its height comes from the LiDAR only ("LiDAR wins": it measures
+    heights directly, to a few cm); the image points fill the cells LiDAR does not reach.
+    """
+    from ..io.lidar import iter_lidar, lidar_info
+
+    sources = list(sources)
+    lidar = list(lidar)
+    if not sources and not lidar:
+        raise RiverbedError("nothing to rasterise: give DISP PAIR couples or --lidar clouds")
+    reg = lidar_registration
+    if reg is None:
+        reg = sources[0][1].registration if sources else np.eye(4)
+
+    def lidar_chunks(path):
+        for ch in iter_lidar(path):
+            keep = ~np.isin(ch["classification"], drop_classes)
+            xyz = ch["xyz"][keep]
+            yield xyz @ reg[:3, :3].T + reg[:3, 3]
+
+    # Pass 1: extent, depths (for the default resolution) and counts.
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    depths = []
+    n_img = 0
+    for disp, pair, _ in sources:
+        for r0 in range(0, disp.shape[0], block_rows):
+            xyz, depth, _ = disparity_points(disp, pair, slice(r0, r0 + block_rows))
+            xyz = xyz[np.isfinite(xyz).all(axis=1)]
+            if len(xyz):
+                lo, hi = np.minimum(lo, xyz.min(axis=0)), np.maximum(hi, xyz.max(axis=0))
+                depths.append(depth[:: max(1, len(depth) // 2000)])
+                n_img += len(xyz)
+    n_lidar_total = 0
+    for path in lidar:
+        info = lidar_info(path)
+        n_lidar_total += info.point_count
+        if info.point_count:
+            corners = np.array(np.meshgrid(*zip(info.mins, info.maxs))).T.reshape(-1, 3)
+            w = corners @ reg[:3, :3].T + reg[:3, 3]
+            lo, hi = np.minimum(lo, w.min(axis=0)), np.maximum(hi, w.max(axis=0))
+    if not np.isfinite(lo).all():
+        raise RiverbedError("no valid points to rasterise (all disparities invalid and no LiDAR points)")
+    if resolution is None:
+        if depths:
+            resolution = default_resolution(np.concatenate(depths), sources[0][1].focal)
+        else:
+            area = max((hi[0] - lo[0]) * (hi[1] - lo[1]), 1e-12)
+            resolution = float(f"{2 * math.sqrt(area / max(n_lidar_total, 1)):.2g}")
+    grid = Grid.from_bounds(*(bounds if bounds is not None else (lo[0], lo[1], hi[0], hi[1])), resolution)
+
+    # Pass 2: rasterise image points, then LiDAR points, each into its own accumulator.
+    img_acc = Accumulator(grid, agg)
+    for disp, pair, image in sources:
+        for r0 in range(0, disp.shape[0], block_rows):
+            xyz, _, rgb = disparity_points(disp, pair, slice(r0, r0 + block_rows), image)
+            ok = np.isfinite(xyz).all(axis=1)
+            xyz = xyz[ok]
+            img_acc.add(xyz[:, 0], xyz[:, 1], xyz[:, 2])
+            if point_sink is not None:
+                point_sink(xyz, None if rgb is None else rgb[ok])
+            if progress:
+                progress(min(block_rows, disp.shape[0] - r0))
+    dsm = img_acc.result() if sources else np.full((grid.height, grid.width), np.nan, np.float32)
+    n_lidar = 0
+    if lidar:
+        lid_acc = Accumulator(grid, agg)
+        for path in lidar:
+            for xyz in lidar_chunks(path):
+                lid_acc.add(xyz[:, 0], xyz[:, 1], xyz[:, 2])
+                n_lidar += len(xyz)
+        lid = lid_acc.result()
+        has = np.isfinite(lid)
+        dsm = np.where(has, lid, dsm)  # LiDAR wins where both exist
+    filled = np.zeros(dsm.shape, np.uint8)
+    if fill:
+        dsm, filled = fill_holes(dsm, fill)
+    stats = {"resolution": grid.resolution, "width": grid.width, "height": grid.height,
+             "bounds": list(grid.bounds), "image_points": int(n_img), "lidar_points": int(n_lidar),
+             "cells_with_data": float(100.0 * np.isfinite(dsm).mean()), "cells_filled": int(filled.sum()),
+             "aggregation": agg}
+    return DsmResult(dsm.astype(np.float32), grid, filled, stats)
