@@ -69,34 +69,45 @@ def auto_window(share, target=4.0, smallest=5, largest=25):
     return int(min(max(s, smallest), largest))
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
+    # Pixel-centric, so rows run in parallel without races: each pixel looks for LiDAR points in the s x s window
+    # around it (the same pairs as the windows around the points) and keeps the most similar one; ties go to the
+    # lower point index.
     H, W, C = guide.shape
+    index = np.full((H, W), -1, dtype=np.int64)
+    for j in range(rows.shape[0]):
+        index[rows[j], cols[j]] = j
     owner = np.full((H, W), -1, dtype=np.int32)
     dissim = np.full((H, W), np.inf, dtype=np.float32)
-    n = rows.shape[0]
-    for j in range(n):
-        owner[rows[j], cols[j]] = j
-        dissim[rows[j], cols[j]] = 0.0
     a = 1.0 / (2.0 * sigma_xy * sigma_xy)
     b = 1.0 / (2.0 * sigma_i * sigma_i * C)  # mean over channels of the squared colour difference
     wmax = 1.0 - gamma
-    for j in range(n):
-        r0 = rows[j]
-        c0 = cols[j]
-        for r in range(max(0, r0 - half), min(H, r0 + half + 1)):
-            for c in range(max(0, c0 - half), min(W, c0 + half + 1)):
-                if dissim[r, c] == 0.0:
-                    continue  # a LiDAR pixel keeps its own disparity
-                dd = 0.0
-                for ch in range(C):
-                    t = guide[r, c, ch] - guide[r0, c0, ch]
-                    dd += t * t
-                w = 1.0 - math.exp(-((r - r0) ** 2 + (c - c0) ** 2) * a - dd * b)
-                keep = w > gamma if literal else w <= wmax
-                if keep and w < dissim[r, c]:
-                    dissim[r, c] = w
-                    owner[r, c] = j
+    for r in prange(H):
+        for c in range(W):
+            if index[r, c] >= 0:
+                owner[r, c] = index[r, c]  # a LiDAR pixel keeps its own disparity
+                dissim[r, c] = 0.0
+                continue
+            best = np.inf
+            best_j = -1
+            for r0 in range(max(0, r - half), min(H, r + half + 1)):
+                for c0 in range(max(0, c - half), min(W, c + half + 1)):
+                    j = index[r0, c0]
+                    if j < 0:
+                        continue
+                    dd = 0.0
+                    for ch in range(C):
+                        t = guide[r, c, ch] - guide[r0, c0, ch]
+                        dd += t * t
+                    w = 1.0 - math.exp(-((r - r0) ** 2 + (c - c0) ** 2) * a - dd * b)
+                    keep = w > gamma if literal else w <= wmax
+                    if keep and (w < best or (w == best and j < best_j)):
+                        best = w
+                        best_j = j
+            if best_j >= 0:
+                owner[r, c] = best_j
+                dissim[r, c] = best
     return owner, dissim
 
 

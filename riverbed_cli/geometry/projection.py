@@ -1,0 +1,331 @@
+"""Project a LiDAR point cloud into a rectified pair: the sparse disparity map that ``riverbed match --sparse`` takes.
+
+:func:`project_cloud` streams the cloud in chunks (:func:`riverbed_cli.io.lidar.iter_lidar`), so its memory is
+bounded by the image size, not the cloud size:
+
+1. class filter (default: drop ASPRS noise classes 7 and 18);
+2. per point, in float64 (one Numba pass): LiDAR -> world by the registration, minus the pair's origin, project
+   into both cameras; drop points behind either camera, outside either image (``round(x)``, ``round(y)`` off
+   the ``W x H`` grid), and, for a pair whose right camera is slightly off the baseline (KITTI), points whose
+   right-image row differs from the left one by more than half a pixel;
+3. keep per left pixel the two nearest points (a two-layer z-buffer holding the points' coordinates): the second
+   layer lets a true surface point take its pixel back when the nearer point turns out to be an outlier;
+4. after the last chunk, statistical outlier removal (:mod:`~riverbed_cli.geometry.outliers`) on the kept
+   candidates (at most two per pixel, neighbours across all chunks), then the nearest surviving point per pixel;
+5. hidden point removal (:mod:`~riverbed_cli.geometry.visibility`) from the left camera and, with the same test,
+   from the right camera (``side``);
+6. ``d = x_left - x_right`` at ``(round(y_left), round(x_left))``.
+
+Every point read is counted exactly once: filtered by class, behind a camera, outside the images, off the row
+(``row_offset``), beaten by a nearer point in its pixel (``same_pixel``), an outlier, occluded in the left or in the
+right view, or kept.
+"""
+
+import logging
+import math
+import time
+
+import numpy as np
+from numba import njit
+
+from ..errors import RiverbedError
+from ..matching.guidance import auto_window, lidar_share
+from ..matching.pipeline import MatchParams
+from . import visibility as vis
+from .outliers import SOR_K, SOR_SIGMA, sor_inliers
+
+log = logging.getLogger(__name__)
+
+VISIBILITY = ("zbuffer", "hpr", "none")
+SIDES = ("left", "right", "both")
+OUTLIERS = ("sor", "none")
+#: Default ASPRS classes dropped: 7 (low noise) and 18 (high noise, LAS 1.4).
+NOISE_CLASSES = (7, 18)
+#: A point whose right-image row is this far (px) from its left-image row is dropped (pairs off the baseline).
+MAX_ROW_OFFSET = 0.5
+
+_COUNT_KEYS = ("behind_camera", "outside", "row_offset")
+
+
+@njit(cache=True)
+def _project_chunk(xyz, keep, A, PL, PR, sl, sr, width, height, max_dy, idx0, idx1, store_xyz, store_z, store_pix,
+                   n_used, start, counts):
+    """Project points ``start..`` of a chunk and insert them into the two-layer z-buffer.
+
+    ``A`` (3 x 4) maps LiDAR coordinates to world minus origin. ``idx0``/``idx1`` (H*W int32): slot of the
+    nearest / second-nearest point of each pixel (-1: none). Slots hold world-minus-origin coordinates, depth and
+    pixel. Returns ``(next_point, n_used)``; ``next_point < len(xyz)`` means the slot store is full (grow it and
+    call again from there).
+    """
+    cap = store_z.shape[0]
+    n = xyz.shape[0]
+    for i in range(start, n):
+        if not keep[i]:
+            continue
+        px = xyz[i, 0]
+        py = xyz[i, 1]
+        pz = xyz[i, 2]
+        x = A[0, 0] * px + A[0, 1] * py + A[0, 2] * pz + A[0, 3]
+        y = A[1, 0] * px + A[1, 1] * py + A[1, 2] * pz + A[1, 3]
+        z = A[2, 0] * px + A[2, 1] * py + A[2, 2] * pz + A[2, 3]
+        wl = PL[2, 0] * x + PL[2, 1] * y + PL[2, 2] * z + PL[2, 3]
+        wr = PR[2, 0] * x + PR[2, 1] * y + PR[2, 2] * z + PR[2, 3]
+        depth = wl * sl
+        if not (depth > 0.0 and wr * sr > 0.0):
+            counts[0] += 1
+            continue
+        xl = (PL[0, 0] * x + PL[0, 1] * y + PL[0, 2] * z + PL[0, 3]) / wl
+        yl = (PL[1, 0] * x + PL[1, 1] * y + PL[1, 2] * z + PL[1, 3]) / wl
+        xr = (PR[0, 0] * x + PR[0, 1] * y + PR[0, 2] * z + PR[0, 3]) / wr
+        yr = (PR[1, 0] * x + PR[1, 1] * y + PR[1, 2] * z + PR[1, 3]) / wr
+        if not (-0.5 <= xl < width - 0.5 and -0.5 <= yl < height - 0.5 and -0.5 <= xr < width - 0.5
+                and -0.5 <= yr < height - 0.5):
+            counts[1] += 1
+            continue
+        if abs(yr - yl) > max_dy:
+            counts[2] += 1
+            continue
+        pix = np.int64(math.floor(yl + 0.5)) * width + np.int64(math.floor(xl + 0.5))
+        a = idx0[pix]
+        b = idx1[pix]
+        if a >= 0 and depth >= store_z[a]:
+            # Not the nearest: maybe the second nearest.
+            if b >= 0:
+                if depth >= store_z[b]:
+                    continue
+                s = b  # replaces the old second layer
+            else:
+                if n_used >= cap:
+                    return i, n_used
+                s = n_used
+                n_used += 1
+                idx1[pix] = s
+        else:
+            # The nearest so far: the old nearest becomes the second layer, the old second layer is dropped.
+            if a >= 0 and b >= 0:
+                s = b
+            else:
+                if n_used >= cap:
+                    return i, n_used
+                s = n_used
+                n_used += 1
+            if a >= 0:
+                idx1[pix] = a
+            idx0[pix] = s
+        store_xyz[s, 0] = x
+        store_xyz[s, 1] = y
+        store_xyz[s, 2] = z
+        store_z[s] = depth
+        store_pix[s] = pix
+    return n, n_used
+
+
+def _class_mask(cls, classes, drop_classes):
+    keep = np.ones(cls.shape[0], bool)
+    if classes is not None:
+        keep &= np.isin(cls, np.asarray(sorted(classes), np.uint8))
+    if drop_classes:
+        keep &= ~np.isin(cls, np.asarray(sorted(drop_classes), np.uint8))
+    return keep
+
+
+def _check_crs(pair, cloud_crs, cloud_path):
+    """Refuse a cloud whose CRS differs from the pair's (no reprojection here)."""
+    if pair.crs is None or cloud_crs is None:
+        return
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
+    try:
+        pair_crs = CRS.from_user_input(pair.crs)
+    except CRSError:
+        raise RiverbedError(f"crs: unknown CRS '{pair.crs}' in the pair file") from None
+    if not pair_crs.equals(cloud_crs, ignore_axis_order=True):
+        raise RiverbedError(
+            f"the cloud's CRS ({cloud_crs.to_string()}) differs from the pair's ({pair_crs.to_string()}); "
+            "reproject the cloud, or pass --crs if the file states a wrong one", cloud_path)
+
+
+def image_shape(pair):
+    """``(H, W)`` of the pair's images: the pair file's ``width``/``height``, else the left image's size."""
+    if pair.image_size is not None:
+        return pair.image_size
+    if pair.left is None:
+        raise RiverbedError("the pair file gives neither width/height nor a left image to take the size from")
+    from ..io.images import read_image
+
+    img = read_image(pair.left)
+    return img.shape[:2]
+
+
+def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classes=NOISE_CLASSES, outliers="sor",
+                  side="both", visibility="zbuffer", footprint=vis.ZBUFFER_RADIUS,
+                  depth_tolerance=vis.ZBUFFER_TOLERANCE, hpr_gamma=vis.HPR_GAMMA, crs=None, shape=None,
+                  chunk_size=1_000_000, progress=None):
+    """Project a LiDAR cloud into the pair's left image as sparse disparities.
+
+    Parameters
+    ----------
+    cloud_path : str or path-like
+        LAS/LAZ/COPC or KITTI ``.bin``, read in chunks of ``chunk_size`` points.
+    pair : PairGeometry
+    registration : (4, 4) array, optional
+        LiDAR -> world transform overriding the pair's.
+    classes : iterable of int, optional
+        Keep only these ASPRS classes (default: all).
+    drop_classes : iterable of int
+        Drop these classes (default 7 and 18, noise).
+    outliers : {"sor", "none"}
+        Statistical outlier removal on the points that land in the image.
+    side : {"left", "right", "both"}
+        Which views the hidden point test runs in (both: drop points hidden in either image).
+    visibility : {"zbuffer", "hpr", "none"}
+        Hidden point removal method (the nearest point per pixel is always kept, whatever the method).
+    footprint, depth_tolerance : int, float
+        Z-buffer splat radius (px) and relative depth tolerance.
+    hpr_gamma : float
+        HPR flipping radius exponent (``R = max|p| * 10**gamma``).
+    crs : str, optional
+        CRS of the cloud when its file states none (or a wrong one); compared with the pair's CRS.
+    shape : (H, W), optional
+        Image size; default from the pair (see :func:`image_shape`).
+    progress : callable, optional
+        Called with the number of points of each chunk once it is processed.
+
+    Returns
+    -------
+    sparse : (H, W) float32
+        ``d = x_left - x_right`` (px) at LiDAR pixels, NaN elsewhere.
+    stats : dict
+        Counts (every point read lands in exactly one of them), ``lidar_share``, ``window`` (what
+        ``match --window auto`` would use), ``d_range``, ``row_offset_px`` (pairs off the baseline), ``crs``,
+        ``seconds``.
+    """
+    from ..io.lidar import iter_lidar, lidar_info, resolve_crs
+
+    t0 = time.perf_counter()
+    if outliers not in OUTLIERS:
+        raise RiverbedError(f"outliers must be one of {', '.join(OUTLIERS)}, got '{outliers}'")
+    if side not in SIDES:
+        raise RiverbedError(f"side must be one of {', '.join(SIDES)}, got '{side}'")
+    if visibility not in VISIBILITY:
+        raise RiverbedError(f"visibility must be one of {', '.join(VISIBILITY)}, got '{visibility}'")
+    info = lidar_info(cloud_path)
+    cloud_crs = resolve_crs(info, crs)
+    _check_crs(pair, cloud_crs, cloud_path)
+    H, W = shape if shape is not None else image_shape(pair)
+
+    reg = pair.registration if registration is None else np.asarray(registration, np.float64)
+    A = np.ascontiguousarray(np.hstack([reg[:3, :3], (reg[:3, 3] - pair.origin)[:, None]]))
+    PL, PR = np.ascontiguousarray(pair.P_left), np.ascontiguousarray(pair.P_right)
+    sl, sr = pair._depth_scale(PL), pair._depth_scale(PR)
+    max_dy = np.inf if pair.exactly_rectified else MAX_ROW_OFFSET
+
+    idx0 = np.full(H * W, -1, np.int32)
+    idx1 = np.full(H * W, -1, np.int32)
+    cap = max(1024, min(2 * H * W, 1 << 20))
+    store_xyz = np.empty((cap, 3), np.float64)
+    store_z = np.empty(cap, np.float64)
+    store_pix = np.empty(cap, np.int64)
+    n_used = 0
+    counts = np.zeros(3, np.int64)
+    n_read = n_class = n_inside = 0
+    for chunk in iter_lidar(cloud_path, chunk_size=chunk_size):
+        xyz = np.ascontiguousarray(chunk["xyz"], np.float64)
+        keep = _class_mask(chunk["classification"], classes, drop_classes)
+        n_read += xyz.shape[0]
+        n_class += int(xyz.shape[0] - keep.sum())
+        start = 0
+        while True:
+            start, n_used = _project_chunk(xyz, keep, A, PL, PR, sl, sr, W, H, max_dy, idx0, idx1, store_xyz,
+                                           store_z, store_pix, n_used, start, counts)
+            if start >= xyz.shape[0]:
+                break
+            cap = min(2 * cap, 2 * H * W)  # at most two slots per pixel are ever in use
+            store_xyz = np.resize(store_xyz, (cap, 3))
+            store_z = np.resize(store_z, cap)
+            store_pix = np.resize(store_pix, cap)
+        if progress is not None:
+            progress(xyz.shape[0])
+    n_behind, n_outside, n_row = (int(c) for c in counts)
+    n_inside = n_read - n_class - n_behind - n_outside - n_row
+
+    stats = {"points_read": n_read, "filtered": {"class": n_class, "outliers": 0}, "behind_camera": n_behind,
+             "outside": n_outside, "row_offset": n_row,
+             "occluded": {"same_pixel": 0, "left": 0, "right": 0}, "kept": 0}
+    pix0 = np.flatnonzero(idx0 >= 0)
+    if pix0.size == 0:
+        raise RiverbedError(
+            f"no point lands in the images ({n_read} read: {n_class} filtered by class, {n_behind} behind a camera,"
+            f" {n_outside} outside the {W}x{H} images, {n_row} off the row)", cloud_path)
+    pix1 = np.flatnonzero(idx1 >= 0)
+    s0, s1 = idx0[pix0], idx1[pix1]
+    n_cand = s0.size + s1.size
+    same_pixel = n_inside - n_cand  # beaten by two nearer points of their pixel while streaming
+
+    # Outliers among all candidates (both layers), then the nearest surviving point per pixel.
+    inlier = np.ones(n_used, bool)
+    if outliers == "sor":
+        slots = np.concatenate([s0, s1])
+        inlier[slots] = sor_inliers(store_xyz[slots], store_z[slots], SOR_K, SOR_SIGMA)
+    n_outliers = int(n_cand - inlier[s0].sum() - inlier[s1].sum())
+    win = s0.copy()
+    lost = ~inlier[s0]
+    second = idx1[pix0[lost]]
+    second_ok = second >= 0
+    second_ok[second_ok] = inlier[second[second_ok]]
+    fallback = np.where(second_ok, second, -1)
+    win[lost] = fallback
+    win = win[win >= 0]
+    same_pixel += int(inlier[s1].sum()) - int(second_ok.sum())
+
+    xyz = store_xyz[win]
+    xl, yl, xr, zl, yr, zr = pair.project(xyz, full=True)
+    pix = store_pix[win]
+    rows, cols = pix // W, pix % W
+    d = xl - xr
+
+    visible = np.ones(win.size, bool)
+    if visibility != "none" and side in ("left", "both"):
+        visible = _visible(visibility, rows, cols, zl, xyz, pair.centres[0], (H, W), footprint, depth_tolerance,
+                           hpr_gamma)
+    n_occ_left = int((~visible).sum())
+    if visibility != "none" and side in ("right", "both"):
+        rr = np.floor(yr + 0.5).astype(np.int64)
+        cr = np.floor(xr + 0.5).astype(np.int64)
+        visible &= _visible(visibility, rr, cr, zr, xyz, pair.centres[1], (H, W), footprint, depth_tolerance,
+                            hpr_gamma)
+    n_occ_right = int(win.size - visible.sum()) - n_occ_left
+
+    sparse = np.full((H, W), np.nan, np.float32)
+    sparse[rows[visible], cols[visible]] = d[visible].astype(np.float32)
+    kept = int(visible.sum())
+    share = lidar_share(sparse)
+    window = auto_window(share, MatchParams.window_target)
+    dv = d[visible]
+    stats.update({
+        "filtered": {"class": n_class, "outliers": n_outliers},
+        "occluded": {"same_pixel": same_pixel, "left": n_occ_left, "right": n_occ_right},
+        "kept": kept, "lidar_share": share, "window": window,
+        "d_range": [float(dv.min()), float(dv.max())] if kept else None,
+        "size": [W, H],
+    })
+    if not pair.exactly_rectified and kept:
+        dy = np.abs(yr - yl)[visible]
+        stats["row_offset_px"] = {"median": float(np.median(dy)), "max": float(dy.max())}
+        log.warning("the pair's right camera is off the baseline: right-image rows differ by %.3f px (median, "
+                    "max %.3f) at the kept points; %d points off by more than %.1f px dropped",
+                    float(np.median(dy)), float(dy.max()), n_row, MAX_ROW_OFFSET)
+    stats["crs"] = cloud_crs.to_string() if cloud_crs is not None else pair.crs
+    stats["seconds"] = time.perf_counter() - t0
+    total = (n_class + n_outliers + n_behind + n_outside + n_row + same_pixel + n_occ_left + n_occ_right + kept)
+    assert total == n_read, (total, n_read)
+    if kept == 0:
+        raise RiverbedError(f"no point is left after outlier and hidden point removal ({n_read} read)", cloud_path)
+    return sparse, stats
+
+
+def _visible(method, rows, cols, depth, xyz, centre, shape, footprint, tolerance, gamma):
+    if method == "zbuffer":
+        return vis.zbuffer_visible(rows, cols, depth, shape, footprint, tolerance)
+    return vis.hpr_visible(xyz, centre, gamma)

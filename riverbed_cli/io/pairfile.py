@@ -1,0 +1,176 @@
+"""Read and write pair files: the one description of a rectified pair's geometry (YAML or JSON).
+
+```yaml
+left: im0.png            # optional; paths are relative to the pair file
+right: im1.png
+width: 2964              # optional image size (px); read from the left image when needed and absent
+height: 1988
+P_left:  [[f, 0, cx, 0], [0, f, cy, 0], [0, 0, 1, 0]]   # 3x4, world minus origin -> left pixels
+P_right: [[f, 0, cx1, -f*B], [0, f, cy, 0], [0, 0, 1, 0]]
+origin: [x0, y0, z0]     # optional, default 0: subtracted from world coordinates before any projection
+crs: EPSG:32632          # optional: CRS of world coordinates
+registration: [[...4...], [...4...], [...4...], [0, 0, 0, 1]]   # optional LiDAR -> world (default identity)
+```
+
+Both formats go through :func:`load_pairfile`: ``.json`` files (or text starting with ``{``) with :mod:`json`,
+everything else with ``yaml.safe_load`` (never the unsafe loader: pair files come from strangers). Errors are
+one line naming the file and the key. See :mod:`riverbed_cli.geometry.cameras` for the rectified-pair rule.
+"""
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..errors import RiverbedError
+from ..geometry.cameras import PairGeometry, as_matrix, check_registration
+from .atomic import atomic_output
+
+#: Pair files and registration files larger than this are refused before parsing.
+MAX_BYTES = 1_000_000
+KEYS = ("left", "right", "width", "height", "P_left", "P_right", "origin", "crs", "registration")
+
+
+def _parse(path, what):
+    path = Path(path)
+    if not path.exists():
+        raise RiverbedError("file not found", path)
+    if not path.is_file():
+        raise RiverbedError("not a file", path)
+    size = path.stat().st_size
+    if size > MAX_BYTES:
+        raise RiverbedError(f"too large for a {what} ({size} bytes, limit {MAX_BYTES})", path)
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError:
+        raise RiverbedError(f"not a {what} (not UTF-8 text)", path) from None
+    if path.suffix.lower() == ".json" or text.lstrip().startswith("{"):
+        try:
+            return json.loads(text), text
+        except json.JSONDecodeError as e:
+            raise RiverbedError(f"invalid JSON at line {e.lineno}, column {e.colno}: {e.msg}", path) from None
+    try:
+        return yaml.safe_load(text), text
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(e, "problem", None) or type(e).__name__
+        raise RiverbedError(f"invalid YAML{where}: {problem}", path) from None
+
+
+def load_pairfile(path):
+    """Read a pair file (YAML or JSON) into a validated :class:`PairGeometry`.
+
+    Image paths are resolved relative to the pair file's folder. Raises :class:`RiverbedError` (``PATH: KEY:
+    problem``) for a missing or unreadable file, unknown keys, wrong shapes, non-finite numbers, a pair that is
+    not rectified, or a singular registration.
+    """
+    path = Path(path)
+    data, _ = _parse(path, "pair file")
+    if not isinstance(data, dict):
+        raise RiverbedError("not a pair file (expected a mapping with P_left and P_right)", path)
+    unknown = [str(k) for k in data if k not in KEYS]
+    if unknown:
+        raise RiverbedError(f"unknown key '{unknown[0]}' (pair file keys: {', '.join(KEYS)})", path)
+    for key in ("P_left", "P_right"):
+        if key not in data:
+            raise RiverbedError(f"{key}: missing (a 3x4 projection matrix)", path)
+    fields = {k: data[k] for k in ("P_left", "P_right", "width", "height") if data.get(k) is not None}
+    for key in ("origin", "registration"):
+        if data.get(key) is not None:
+            fields[key] = data[key]
+    if data.get("crs") is not None:
+        crs = data["crs"]
+        if isinstance(crs, int) and not isinstance(crs, bool):
+            crs = f"EPSG:{crs}"
+        fields["crs"] = crs
+    for key in ("left", "right"):
+        value = data.get(key)
+        if value is not None:
+            if not isinstance(value, str) or not value:
+                raise RiverbedError(f"{key}: expected a file name, got {value!r}", path)
+            fields[key] = (path.parent / value).absolute()
+    try:
+        return PairGeometry(**fields)
+    except RiverbedError as e:
+        if e.path is None:
+            raise RiverbedError(str(e), path) from None
+        raise
+
+
+def load_registration(path):
+    """A 4 x 4 LiDAR -> world transform from a file.
+
+    Accepted: plain text with 16 numbers (4 rows of 4) or 12 (3 rows of 4, KITTI ``Tr_*`` style; ``0 0 0 1``
+    appended), separated by spaces, commas or new lines; or YAML/JSON holding the matrix, bare or under the key
+    ``registration`` (so a pair file can lend its registration).
+    """
+    path = Path(path)
+    data, text = _parse(path, "registration file")
+    if isinstance(data, dict):
+        if "registration" not in data:
+            raise RiverbedError("registration: missing (expected a 4x4 matrix)", path)
+        data = data["registration"]
+    if not isinstance(data, list):
+        tokens = text.replace(",", " ").split()
+        if len(tokens) not in (12, 16):
+            raise RiverbedError(f"registration: expected 16 numbers (4x4) or 12 (3x4), got {len(tokens)} values",
+                                path)
+        data = [tokens[i:i + 4] for i in range(0, len(tokens), 4)]
+    if isinstance(data, list) and len(data) == 3:
+        data = [*data, [0, 0, 0, 1]]
+    try:
+        reg = as_matrix(data, 4, 4, "registration")
+        check_registration(reg)
+    except RiverbedError as e:
+        raise RiverbedError(str(e), path) from None
+    return reg
+
+
+def _relative(target, folder):
+    target = Path(target).absolute()
+    try:
+        return Path(os.path.relpath(target, Path(folder).absolute())).as_posix()
+    except ValueError:  # another drive (Windows)
+        return target.as_posix()
+
+
+def pair_to_dict(pair, folder=None):
+    """A plain dict of a pair (lists of floats); image paths relative to ``folder`` when given."""
+    out = {}
+    for key in ("left", "right"):
+        value = getattr(pair, key)
+        if value is not None:
+            out[key] = _relative(value, folder) if folder is not None else str(value)
+    if pair.width is not None:
+        out["width"] = pair.width
+    if pair.height is not None:
+        out["height"] = pair.height
+    out["P_left"] = pair.P_left.tolist()
+    out["P_right"] = pair.P_right.tolist()
+    if np.any(pair.origin != 0):
+        out["origin"] = pair.origin.tolist()
+    if pair.crs is not None:
+        out["crs"] = pair.crs
+    if np.any(pair.registration != np.eye(4)):
+        out["registration"] = pair.registration.tolist()
+    return out
+
+
+def write_pairfile(path, pair, overwrite=False, comment=None):
+    """Write ``pair`` as YAML (JSON for a ``.json`` suffix), atomically; paths relative to the file.
+
+    Floats are written with ``repr`` precision, so :func:`load_pairfile` reads back the exact matrices.
+    """
+    path = Path(path)
+    data = pair_to_dict(pair, path.parent)
+    if path.suffix.lower() == ".json":
+        text = json.dumps(data, indent=2) + "\n"
+    else:
+        head = "".join(f"# {line}\n" for line in (comment or "").splitlines())
+        text = head + yaml.safe_dump(data, default_flow_style=None, sort_keys=False, width=200)
+    with atomic_output(path, overwrite) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return path
