@@ -67,32 +67,54 @@ def grid_indices(grid, x, y):
 
 
 @njit(cache=True)
-def _max_kernel(row, col, z, out):
-    for i in range(z.shape[0]):
-        r = row[i]
-        if r < 0:
+def _accumulate(x, y, z, xmin, ymax, res, mode, counts, value, sums, weights, keys):
+    # One pass per chunk: cell index, count and the aggregation state (mode 0 max, 1 mean, 2 idw, 3 median keys).
+    H, W = counts.shape
+    inv = 1.0 / res
+    eps2 = (res / 4.0) ** 2
+    for i in range(x.shape[0]):
+        fc = np.floor((x[i] - xmin) * inv)
+        fr = np.floor((ymax - y[i]) * inv)
+        if not (fc >= 0 and fc < W and fr >= 0 and fr < H):  # also false for NaN
+            if mode == 3:
+                keys[i] = -1
             continue
-        c = col[i]
-        if np.isnan(out[r, c]) or z[i] > out[r, c]:
-            out[r, c] = z[i]
+        r = int(fr)
+        c = int(fc)
+        counts[r, c] += 1
+        if mode == 0:
+            if counts[r, c] == 1 or z[i] > value[r, c]:
+                value[r, c] = z[i]
+        elif mode == 1:
+            sums[r, c] += z[i]  # the count is the weight
+        elif mode == 2:
+            dx = x[i] - (xmin + (c + 0.5) * res)
+            dy = y[i] - (ymax - (r + 0.5) * res)
+            w = 1.0 / (dx * dx + dy * dy + eps2)
+            sums[r, c] += w * z[i]
+            weights[r, c] += w
+        else:
+            keys[i] = r * W + c
 
 
 @njit(cache=True)
-def _sum_kernel(row, col, z, w, sums, weights):
-    for i in range(z.shape[0]):
-        r = row[i]
-        if r < 0:
-            continue
-        c = col[i]
-        sums[r, c] += w[i] * z[i]
-        weights[r, c] += w[i]
-
-
-@njit(cache=True)
-def _count_kernel(row, col, counts):
-    for i in range(row.shape[0]):
-        if row[i] >= 0:
-            counts[row[i], col[i]] += 1
+def _median_kernel(keys, heights, out):
+    # Counting sort of the heights by cell (O(N)), then the median of each cell's bucket.
+    n_cells = out.shape[0]
+    starts = np.zeros(n_cells + 1, np.int64)
+    for k in keys:
+        starts[k + 1] += 1
+    for i in range(n_cells):
+        starts[i + 1] += starts[i]
+    pos = starts[:-1].copy()
+    buf = np.empty(heights.shape[0], np.float32)
+    for i in range(keys.shape[0]):
+        buf[pos[keys[i]]] = heights[i]
+        pos[keys[i]] += 1
+    for c in range(n_cells):
+        a, b = starts[c], starts[c + 1]
+        if b > a:
+            out[c] = np.median(buf[a:b])
 
 
 class Accumulator:
@@ -107,32 +129,28 @@ class Accumulator:
             raise RiverbedError(f"unknown aggregation '{agg}' (use one of {', '.join(AGGREGATIONS)})")
         self.grid, self.agg = grid, agg
         shape = (grid.height, grid.width)
-        self.counts = np.zeros(shape, np.int64)
+        self.counts = np.zeros(shape, np.int32)
         if agg == "max":
             self.value = np.full(shape, np.nan, np.float64)
         elif agg in ("mean", "idw"):
             self.sums = np.zeros(shape, np.float64)
-            self.weights = np.zeros(shape, np.float64)
+            self.weights = np.zeros(shape if agg == "idw" else (1, 1), np.float64)
         else:
             self.keys, self.heights = [], []
 
     def add(self, x, y, z):
-        row, col = grid_indices(self.grid, x, y)
-        z = np.asarray(z, np.float64)
-        _count_kernel(row, col, self.counts)
-        if self.agg == "max":
-            _max_kernel(row, col, z, self.value)
-        elif self.agg == "mean":
-            _sum_kernel(row, col, z, np.ones_like(z), self.sums, self.weights)
-        elif self.agg == "idw":
-            r = self.grid.resolution
-            cx = self.grid.xmin + (col + 0.5) * r
-            cy = self.grid.ymax - (row + 0.5) * r
-            d2 = (np.asarray(x) - cx) ** 2 + (np.asarray(y) - cy) ** 2
-            _sum_kernel(row, col, z, 1.0 / (d2 + (r / 4) ** 2), self.sums, self.weights)
-        else:
-            ok = row >= 0
-            self.keys.append(row[ok] * self.grid.width + col[ok])
+        x = np.ascontiguousarray(x, np.float64)
+        y = np.ascontiguousarray(y, np.float64)
+        z = np.ascontiguousarray(z, np.float64)
+        mode = {"max": 0, "mean": 1, "idw": 2, "median": 3}[self.agg]
+        dummy = np.zeros((1, 1), np.float64)
+        keys = np.empty(x.shape[0] if mode == 3 else 0, np.int64)
+        _accumulate(x, y, z, float(self.grid.xmin), float(self.grid.ymax), float(self.grid.resolution), mode,
+                    self.counts, self.value if mode == 0 else dummy, self.sums if mode in (1, 2) else dummy,
+                    self.weights if mode in (1, 2) else dummy, keys)
+        if mode == 3:
+            ok = keys >= 0
+            self.keys.append(keys[ok])
             self.heights.append(z[ok].astype(np.float32))
 
     def result(self):
@@ -141,18 +159,10 @@ class Accumulator:
             return self.value.astype(np.float32)
         if self.agg in ("mean", "idw"):
             with np.errstate(invalid="ignore", divide="ignore"):
-                return (self.sums / self.weights).astype(np.float32)
+                return (self.sums / (self.counts if self.agg == "mean" else self.weights)).astype(np.float32)
         out = np.full(self.grid.height * self.grid.width, np.nan, np.float32)
         if self.keys:
-            keys = np.concatenate(self.keys)
-            h = np.concatenate(self.heights)
-            order = np.lexsort((h, keys))
-            keys, h = keys[order], h[order]
-            starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
-            ends = np.r_[starts[1:], keys.size]
-            lo = h[starts + (ends - starts - 1) // 2]
-            hi = h[starts + (ends - starts) // 2]
-            out[keys[starts]] = 0.5 * (lo + hi)
+            _median_kernel(np.concatenate(self.keys), np.concatenate(self.heights), out)
         return out.reshape(self.grid.height, self.grid.width)
 
 
