@@ -117,3 +117,39 @@ def test_lidar_share_uses_covered_area():
 @pytest.mark.parametrize("p,s", [(0.05, 9), (0.0123, 19), (0.0016, 25), (0.5, 5), (1e-6, 25)])
 def test_auto_window(p, s):
     assert auto_window(p) == s
+
+
+def owners_reference(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0.3):
+    """Brute force: every pixel takes the most similar LiDAR point whose window covers it (ties: lower index)."""
+    H, W = sparse.shape
+    g = guide.reshape(H, W, -1).astype(np.float64)
+    rows, cols = np.nonzero(np.isfinite(sparse))
+    owner = np.full((H, W), -1)
+    dis = np.full((H, W), np.inf)
+    half = window // 2
+    for j, (r0, c0) in enumerate(zip(rows, cols)):
+        owner[r0, c0], dis[r0, c0] = j, 0.0
+    lidar = np.isfinite(sparse)
+    for r in range(H):
+        for c in range(W):
+            if lidar[r, c]:
+                continue
+            for j, (r0, c0) in enumerate(zip(rows, cols)):
+                if abs(r - r0) <= half and abs(c - c0) <= half:
+                    dd = ((g[r, c] - g[r0, c0]) ** 2).mean()
+                    w = 1 - np.exp(-((r - r0) ** 2 + (c - c0) ** 2) / (2 * sigma_xy**2) - dd / (2 * sigma_i**2))
+                    if w <= 1 - gamma and w < dis[r, c]:
+                        owner[r, c], dis[r, c] = j, w
+    return owner, dis
+
+
+@pytest.mark.parametrize("window,channels", [(5, 1), (9, 3), (25, 1)])
+def test_ownership_matches_brute_force(window, channels):
+    rng = np.random.default_rng(window)
+    H, W = 57, 41  # tall enough for several parallel bands at the small windows
+    guide = rng.integers(0, 40, (H, W, channels)).astype(np.float32)
+    sparse = np.where(rng.random((H, W)) < 0.04, rng.uniform(0, 30, (H, W)), np.nan).astype(np.float32)
+    owner, dis = homogeneous_owners(sparse, guide, window)
+    ref_owner, ref_dis = owners_reference(sparse, guide, window)
+    np.testing.assert_array_equal(owner, ref_owner)
+    np.testing.assert_allclose(dis, ref_dis, rtol=1e-5)

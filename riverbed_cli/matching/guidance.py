@@ -69,46 +69,57 @@ def auto_window(share, target=4.0, smallest=5, largest=25):
     return int(min(max(s, smallest), largest))
 
 
+@njit(cache=True, inline="always")
+def _claim(j, rows, cols, guide, half, a, b, gamma, wmax, literal, owner, dissim):
+    # Offer LiDAR point j's window to its pixels; a pixel keeps the most similar point (ties: lower index), so the
+    # result does not depend on the order in which points are offered.
+    H, W, C = guide.shape
+    r0 = rows[j]
+    c0 = cols[j]
+    for r in range(max(0, r0 - half), min(H, r0 + half + 1)):
+        for c in range(max(0, c0 - half), min(W, c0 + half + 1)):
+            if dissim[r, c] == 0.0:
+                continue  # a LiDAR pixel keeps its own disparity
+            dd = 0.0
+            for ch in range(C):
+                t = guide[r, c, ch] - guide[r0, c0, ch]
+                dd += t * t
+            w = 1.0 - math.exp(-((r - r0) ** 2 + (c - c0) ** 2) * a - dd * b)
+            keep = w > gamma if literal else w <= wmax
+            if keep and (w < dissim[r, c] or (w == dissim[r, c] and j < owner[r, c])):
+                dissim[r, c] = w
+                owner[r, c] = j
+
+
 @njit(cache=True, parallel=True)
 def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
-    # Pixel-centric, so rows run in parallel without races: each pixel looks for LiDAR points in the s x s window
-    # around it (the same pairs as the windows around the points) and keeps the most similar one; ties go to the
-    # lower point index.
+    # rows are sorted (row-major order of the points). The image is cut into horizontal bands; points whose window
+    # stays inside one band are offered in parallel (bands share no pixel), the others afterwards in sequence.
     H, W, C = guide.shape
-    index = np.full((H, W), -1, dtype=np.int64)
-    for j in range(rows.shape[0]):
-        index[rows[j], cols[j]] = j
     owner = np.full((H, W), -1, dtype=np.int32)
-    dissim = np.full((H, W), np.inf, dtype=np.float32)
+    dissim = np.full((H, W), np.inf, dtype=np.float64)  # float64 while comparing, so ties are real ties
+    n = rows.shape[0]
+    for j in range(n):
+        owner[rows[j], cols[j]] = j
+        dissim[rows[j], cols[j]] = 0.0
     a = 1.0 / (2.0 * sigma_xy * sigma_xy)
     b = 1.0 / (2.0 * sigma_i * sigma_i * C)  # mean over channels of the squared colour difference
     wmax = 1.0 - gamma
-    for r in prange(H):
-        for c in range(W):
-            if index[r, c] >= 0:
-                owner[r, c] = index[r, c]  # a LiDAR pixel keeps its own disparity
-                dissim[r, c] = 0.0
-                continue
-            best = np.inf
-            best_j = -1
-            for r0 in range(max(0, r - half), min(H, r + half + 1)):
-                for c0 in range(max(0, c - half), min(W, c + half + 1)):
-                    j = index[r0, c0]
-                    if j < 0:
-                        continue
-                    dd = 0.0
-                    for ch in range(C):
-                        t = guide[r, c, ch] - guide[r0, c0, ch]
-                        dd += t * t
-                    w = 1.0 - math.exp(-((r - r0) ** 2 + (c - c0) ** 2) * a - dd * b)
-                    keep = w > gamma if literal else w <= wmax
-                    if keep and (w < best or (w == best and j < best_j)):
-                        best = w
-                        best_j = j
-            if best_j >= 0:
-                owner[r, c] = best_j
-                dissim[r, c] = best
-    return owner, dissim
+    nb = max(1, min(64, H // (8 * half + 8)))
+    edges = np.empty(nb + 1, dtype=np.int64)
+    for k in range(nb + 1):
+        edges[k] = k * H // nb
+    inner = np.zeros(n, dtype=np.bool_)
+    for k in prange(nb):
+        lo = np.searchsorted(rows, edges[k] + half)
+        hi = np.searchsorted(rows, edges[k + 1] - half)
+        for j in range(lo, hi):
+            inner[j] = True
+            _claim(j, rows, cols, guide, half, a, b, gamma, wmax, literal, owner, dissim)
+    for j in range(n):
+        if not inner[j]:
+            _claim(j, rows, cols, guide, half, a, b, gamma, wmax, literal, owner, dissim)
+    return owner, dissim.astype(np.float32)
 
 
 def homogeneous_owners(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0.3, literal_eq3=False):
