@@ -118,3 +118,15 @@ def test_installed_command_runs_the_pair(work):
     p = subprocess.run([str(exe), "match", "nope.png", RIGHT, "--max-disp", "9", "-o", str(work / "x.tif")],
                        capture_output=True, text=True, timeout=600)
     assert p.returncode == 1 and p.stderr == "riverbed: error: nope.png: file not found\n"
+
+
+def test_16_bit_and_grey_inputs_match_like_8_bit(work):
+    grey = [cv2.imread(p, cv2.IMREAD_GRAYSCALE) for p in (LEFT, RIGHT)]
+    for name, img in zip(("l8.png", "r8.png"), grey):
+        cv2.imwrite(str(work / name), img)
+    for name, img in zip(("l16.tif", "r16.tif"), grey):
+        cv2.imwrite(str(work / name), img.astype(np.uint16) * 257)  # full 16-bit range, same ordering
+    for a, b, out in (("l8.png", "r8.png", "d8.tif"), ("l16.tif", "r16.tif", "d16.tif")):
+        r = run(["match", str(work / a), str(work / b), "--max-disp", "59", "-o", str(work / out)])
+        assert r.exit_code == 0, r.output
+    np.testing.assert_array_equal(read_disparity(work / "d8.tif"), read_disparity(work / "d16.tif"))
