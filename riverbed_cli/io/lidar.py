@@ -9,6 +9,8 @@ Conventions
   ``parse_crs``), or None; :func:`resolve_crs` lets the caller override it (``--crs``). No reprojection.
 - The format is chosen by extension, case-insensitively: ``.las``, ``.laz`` (``.copc.laz`` included) or
   ``.bin``; a ``.las`` that holds LAZ data (or the reverse) is read by what its header says.
+- Classification is the LAS class code as laspy decodes it (5 bits, 0-31, for formats 0-5; 8 bits for
+  6-10); 0/1 mean never classified / unclassified. KITTI scans have none (zeros).
 
 Untrusted input
 ---------------
@@ -59,6 +61,9 @@ _LASZIP_USER_ID = b"laszip encoded"
 _LASZIP_RECORD_ID = 22204
 _COMPRESSOR_NAMES = {0: "none", 1: "pointwise, LASzip 1.x", 2: "pointwise chunked", 3: "layered chunked"}
 _MIN_CHUNK_BYTES = 20  # a LAZ chunk starts with its first point stored raw, and a point is >= 20 bytes
+# Layers per LASzip item in layered chunks: point14 9, RGB14 1, RGBNIR14 2, wavepacket14 1, byte14 one
+# per byte (lazrs las/point6.rs, rgb.rs, nir.rs, wavepacket.rs, extra_bytes.rs).
+_LAYERS = {10: 9, 11: 1, 12: 2, 13: 1, 14: None}
 _KITTI_RECORD = 16  # float32 x, y, z, reflectance
 _UNSUPPORTED = "unsupported point cloud format '{}' (use .las, .laz or KITTI .bin)"
 
@@ -121,8 +126,12 @@ def lidar_info(path):
     Raises
     ------
     RiverbedError
-        Missing, empty, unsupported or malformed file (see the module notes for what is checked). A
-        ``.bin`` is read once in full to compute its bounds.
+        Missing, empty, unsupported or malformed file (see the module notes for what is checked).
+
+    Notes
+    -----
+    LAS/LAZ: only the header, VLRs, EVLRs and (LAZ) the chunk table and layer sizes are read, so this is
+    fast for any file size. KITTI ``.bin`` has no header: the file is read once, in chunks, for its bounds.
     """
     path, kind = _check_input(path)
     if kind == "bin":
@@ -219,7 +228,7 @@ def resolve_crs(info, override=None):
 
 def _kind(path):
     name = path.name.lower()
-    if name.endswith(".las") or name.endswith(".laz"):
+    if name.endswith((".las", ".laz")):
         return "las"
     if name.endswith(".bin"):
         return "bin"
@@ -422,7 +431,8 @@ def _check_laz(f, path, header, vlr):
         raise RiverbedError(f"malformed LAZ: unknown LASzip coder {coder}", path)
     if len(vlr) != 34 + 6 * n_items:
         raise RiverbedError(f"malformed LAZ: LASzip VLR of {len(vlr)} bytes for {n_items} items", path)
-    item_bytes = sum(struct.unpack_from("<H", vlr, 34 + 6 * k + 2)[0] for k in range(n_items))
+    items = [struct.unpack_from("<HH", vlr, 34 + 6 * k) for k in range(n_items)]  # (type, size)
+    item_bytes = sum(size for _, size in items)
     if item_bytes != header.record_length:
         raise RiverbedError(
             f"malformed LAZ: LASzip items total {item_bytes} bytes, the header's point record length is "
@@ -446,10 +456,12 @@ def _check_laz(f, path, header, vlr):
         (table,) = struct.unpack("<q", f.read(8))
         if table <= header.offset:
             raise RiverbedError("malformed LAZ: no chunk table", path)
-    if table < data_start or table + 8 > header.size:
+    if table + 8 > header.size:
         raise RiverbedError(
-            f"malformed LAZ: chunk table at byte {table}, outside the file ({header.size} bytes)", path
+            f"truncated LAZ: chunk table at byte {table}, past the end of the file ({header.size} bytes)", path
         )
+    if table < data_start:
+        raise RiverbedError(f"malformed LAZ: chunk table at byte {table}, before the point data", path)
     f.seek(table)
     _, n_chunks = struct.unpack("<II", f.read(8))
     data_bytes = table - data_start
@@ -459,8 +471,8 @@ def _check_laz(f, path, header, vlr):
         )
     if not variable and n_chunks != math.ceil(header.point_count / chunk_size):
         raise RiverbedError(
-            f"malformed LAZ: the header declares {header.point_count} points, the chunk table holds "
-            f"{n_chunks} chunks of {chunk_size}",
+            f"malformed LAZ: the header declares {header.point_count} points, but the chunk table lists "
+            f"{n_chunks} chunk(s) of {chunk_size}",
             path,
         )
 
@@ -479,6 +491,8 @@ def _check_laz(f, path, header, vlr):
             f"malformed LAZ: chunk table lists {total_bytes} compressed bytes, the file holds {data_bytes}",
             path,
         )
+    if compressor == 3:
+        _check_layers(f, path, header, items, data_start, sizes)
     if variable:
         if int(counts.max()) * header.record_length > MAX_CHUNK_BYTES:
             raise RiverbedError(f"malformed LAZ: a chunk of {int(counts.max())} points", path)
@@ -489,6 +503,28 @@ def _check_laz(f, path, header, vlr):
                 f"{total_points}",
                 path,
             )
+
+
+def _check_layers(f, path, header, items, data_start, sizes):
+    """Layered chunks (LAZ 1.4, formats 6-10) state the byte size of each layer; lazrs allocates and
+    zero-fills a buffer of that size before reading it, so a forged size costs up to 4 GiB per layer."""
+    n_layers = 0
+    for item_type, item_size in items:
+        if item_type not in _LAYERS:
+            raise RiverbedError(f"malformed LAZ: item type {item_type} in a layered-chunked file", path)
+        n_layers += item_size if item_type == 14 else _LAYERS[item_type]
+    # Each chunk: the first point raw, a u32 point count, one u32 size per layer, then the layers.
+    fixed = header.record_length + 4 + 4 * n_layers
+    start = data_start
+    for i, size in enumerate(sizes.tolist()):
+        f.seek(start + header.record_length + 4)
+        raw = f.read(4 * n_layers)
+        layers = sum(struct.unpack(f"<{n_layers}I", raw)) if len(raw) == 4 * n_layers else None
+        if layers is None or fixed + layers > size:
+            raise RiverbedError(
+                f"malformed LAZ: the layers of chunk {i + 1} of {len(sizes)} overrun its {size} bytes", path
+            )
+        start += size
 
 
 @contextmanager
