@@ -208,17 +208,24 @@ def _scaled(cost, cost_scale, inplace):
     return cost.astype(np.uint16) * np.uint16(cost_scale)
 
 
-def _apply(cost, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, cap):
+def wall_scale(cost, rows, cols, cost_scale):
+    """``F_bar`` of the additive walls: the mean plain cost at the LiDAR pixels over all disparities."""
+    return float(cost[rows, cols].mean()) / cost_scale if rows.size else 0.0
+
+
+def _apply(cost, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, cap, fbar=None):
     if form not in FORMS:
         raise RiverbedError(f"unknown guidance form '{form}' (use additive or product)")
     grows, gcols = np.nonzero(owner >= 0)
-    fbar = float(cost[rows, cols].mean()) / cost_scale if rows.size else 0.0
+    if fbar is None:
+        fbar = wall_scale(cost, rows, cols, cost_scale)
     _modulate_kernel(cost, grows.astype(np.int64), gcols.astype(np.int64), owner, dissim, values, int(d_min),
                      float(k), float(c), float(band), FORMS[form], float(cost_scale), fbar, int(cap))
     return cost
 
 
-def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_scale=4, cap=65535, inplace=False):
+def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_scale=4, cap=65535, inplace=False,
+                   fbar=None):
     """Gauss enhancement (paper eq. 5, Poggi et al. 2019) at the LiDAR pixels.
 
     Parameters
@@ -236,6 +243,10 @@ def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_sca
         Upper bound of guided costs (keeps SGM sums within uint16).
     inplace : bool
         Modulate a scaled ``uint16`` input in place instead of copying it.
+    fbar : float, optional
+        ``F_bar`` of the additive walls, in plain cost units. Default: the mean cost at the LiDAR pixels
+        (:func:`wall_scale`). A fixed value (the matcher passes half the census bits) makes the result independent
+        of which LiDAR points a tile holds; the walls' height barely matters (docs/method.md).
 
     Returns
     -------
@@ -248,12 +259,12 @@ def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_sca
     owner[rows, cols] = np.arange(rows.size, dtype=np.int32)
     dissim = np.zeros(sparse.shape, dtype=np.float32)
     out = _scaled(cost, cost_scale, inplace)
-    return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, 0.0, form, cost_scale, cap)
+    return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, 0.0, form, cost_scale, cap, fbar)
 
 
 def riverbed_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, sigma_xy=8.0, sigma_i=8.0, gamma=0.3,
                       band=3.0, form="additive", cost_scale=4, cap=65535, owners=None, inplace=False,
-                      literal_eq3=False):
+                      literal_eq3=False, fbar=None):
     """Riverbed enhancement (paper eqs. 2, 3, 6): Gauss at LiDAR pixels, band-and-walls at homogeneous pixels.
 
     Parameters are those of :func:`gauss_modulate` plus: ``guide`` the left image (0..255 scale) for the colour
@@ -271,4 +282,4 @@ def riverbed_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, sigma_x
         owners = homogeneous_owners(sparse, guide, window, sigma_xy, sigma_i, gamma, literal_eq3)
     owner, dissim = owners
     out = _scaled(cost, cost_scale, inplace)
-    return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, cap)
+    return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, cap, fbar)
