@@ -38,6 +38,7 @@ class MatchParams:
     gamma: float = 0.3
     band: float = 3.0
     form: str = "additive"
+    wall_scale: object = "auto"  # F_bar of the additive walls; auto = half the census bits (a random mismatch)
     cost_scale: int = 4  # guided costs are kept in uint16 at this resolution (1/4 of a Hamming unit)
     window_target: float = 4.0  # auto window: smallest odd s with s*s*p >= window_target (measured, docs/method.md)
     literal_eq3: bool = False  # homogeneous pixels by eq. 3 as printed (W > gamma); only to reproduce that reading
@@ -157,16 +158,20 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, **
     t0 = time.perf_counter()
     if p.guide != "none":
         cap = 65535 // p.paths - p.p2 * scale
+        # A fixed wall scale (not the mean cost at this image's LiDAR pixels) keeps tiles consistent with the whole
+        # image; the walls' height barely matters (docs/method.md).
+        fbar = nbits / 2.0 if p.wall_scale == "auto" else float(p.wall_scale)
         if cap <= nbits * scale:
             raise RiverbedError(f"P2 {p.p2} is too large for {p.paths} paths with guided uint16 costs")
         if p.guide == "gauss":
-            cost = guidance.gauss_modulate(cost, sparse, d_min, p.k, p.c, p.form, scale, cap, inplace=True)
+            cost = guidance.gauss_modulate(cost, sparse, d_min, p.k, p.c, p.form, scale, cap, inplace=True,
+                                           fbar=fbar)
             max_cost = cap
         else:
             window = guidance.auto_window(share, p.window_target) if p.window == "auto" else int(p.window)
             cost = guidance.riverbed_modulate(cost, sparse, to_guide(left, bits), d_min, window, p.k, p.c, p.sigma_xy,
                                               p.sigma_i, p.gamma, p.band, p.form, scale, cap, inplace=True,
-                                              literal_eq3=p.literal_eq3)
+                                              literal_eq3=p.literal_eq3, fbar=fbar)
         max_cost = cap
     lap("guidance", t0)
 
