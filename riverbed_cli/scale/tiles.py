@@ -114,9 +114,15 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
     if overlap < 0:
         raise RiverbedError(f"--overlap must be >= 0, got {overlap}")
     t_all = time.perf_counter()
+    from ..matching.guidance import auto_window, lidar_share
+
+    share = lidar_share(sparse) if sparse is not None else 0.0
+    if p.guide != "none" and p.window == "auto":
+        # One window for the whole image: a tile's own LiDAR share would change it from tile to tile.
+        p = MatchParams(**{**p.__dict__, "window": auto_window(share, p.window_target)})
     tiles = tile_grid(H, W, tile)
     if sparse is not None and lidar_range:
-        lidar_ranges(tiles, sparse, d_min, d_max)
+        lidar_ranges(tiles, sparse, d_min, d_max, reach=overlap)
     else:
         for t in tiles:
             t.d_min, t.d_max = d_min, d_max
@@ -133,6 +139,8 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
         sc = None
         if sparse is not None:
             sc = sparse[ya:yb, a:b] - np.float32(off)
+            # LiDAR outside the tile's range cannot guide it (match_pair would warn about every tile)
+            sc = np.where((sc >= t.d_min - off) & (sc <= t.d_max - off), sc, np.float32(np.nan))
             if p.guide != "none" and not np.isfinite(sc).any():
                 sc = None
         kw = {} if sc is not None or p.guide == "none" else {"guide": "none"}
@@ -143,10 +151,8 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
             stages[k] = round(stages.get(k, 0.0) + v, 4)
         if progress:
             progress(1)
-    from ..matching.guidance import lidar_share
-
     info = {"seconds": round(time.perf_counter() - t_all, 4), "stages": stages, "guide": p.guide,
-            "lidar_share": lidar_share(sparse) if sparse is not None else 0.0, "d_min": d_min, "d_max": d_max,
+            "lidar_share": share, "window": p.window if p.guide != "none" else None, "d_min": d_min, "d_max": d_max,
             "size": [W, H], "tiles": len(tiles), "tile": tile, "overlap": overlap,
             "disparity_evaluations": int(evaluations),
             "tile_ranges": {s: sum(1 for t in tiles if t.source == s) for s in ("lidar", "neighbours", "global")}}

@@ -1,0 +1,52 @@
+"""Tiled matching: the tiling must not show in the result, and LiDAR-driven tile ranges must hold the truth."""
+
+import numpy as np
+import pytest
+
+from riverbed_cli.errors import RiverbedError
+from riverbed_cli.matching.pipeline import match_pair
+from riverbed_cli.products.evaluate import evaluate_disparity
+from riverbed_cli.products.simulate import simulate_lidar
+from riverbed_cli.scale.tiles import Tile, lidar_ranges, match_tiled, tile_grid
+
+BORDER = 4  # census half-height/width: the image border where crops and the whole image differ anyway
+
+
+@pytest.mark.parametrize("guide", ["none", "riverbed"])
+def test_tiling_is_invisible(cones, guide):
+    left, right, gt = cones
+    sparse = simulate_lidar(gt, 0.05, seed=0)
+    full = match_pair(left, right, sparse, 0, 59, guide=guide).disparity
+    tiled = match_tiled(left, right, sparse, 0, 59, guide=guide, tile=128, overlap=160, lidar_range=False)
+    assert tiled.info["tiles"] == 12
+    inner = (slice(BORDER, -BORDER), slice(BORDER, -BORDER))
+    agree = np.abs(tiled.disparity[inner] - full[inner]) <= 0.01
+    assert agree.mean() >= 0.999, f"{100 * agree.mean():.3f} % agree"
+
+
+def test_lidar_ranges_are_tight_and_hold_the_truth(cones):
+    left, right, gt = cones
+    sparse = simulate_lidar(gt, 0.05, seed=0)
+    full = match_tiled(left, right, sparse, 0, 63, tile=128, overlap=64, lidar_range=False)
+    narrow = match_tiled(left, right, sparse, 0, 63, tile=128, overlap=64, lidar_range=True)
+    assert narrow.info["tile_ranges"]["lidar"] == 12
+    assert narrow.info["disparity_evaluations"] < 0.8 * full.info["disparity_evaluations"]
+    m_full = evaluate_disparity(full.disparity, gt, exclude=sparse)
+    m_narrow = evaluate_disparity(narrow.disparity, gt, exclude=sparse)
+    assert m_narrow["bad3"] <= m_full["bad3"] + 0.1 and m_narrow["avg"] <= m_full["avg"] + 0.02
+
+
+def test_tiles_without_lidar_inherit_from_neighbours():
+    sparse = np.full((300, 300), np.nan, np.float32)
+    sparse[10:90:7, 10:90:7] = 40.0  # LiDAR only in the top-left tile
+    tiles = lidar_ranges(tile_grid(300, 300, 100), sparse, 0, 200, reach=0)
+    by = {(t.y0, t.x0): t for t in tiles}
+    assert by[0, 0].source == "lidar" and by[0, 0].d_min < 40 < by[0, 0].d_max
+    assert by[0, 100].source == by[100, 100].source == "neighbours"
+    assert (by[200, 200].d_min, by[200, 200].d_max) == (by[0, 0].d_min, by[0, 0].d_max)
+    assert all(isinstance(t, Tile) for t in tiles)
+
+
+def test_tile_size_is_checked():
+    with pytest.raises(RiverbedError, match="--tile must be at least 16 px, got 8"):
+        tile_grid(100, 100, 8)
