@@ -1,5 +1,7 @@
 """Tiled matching: the tiling must not show in the result, and LiDAR-driven tile ranges must hold the truth."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -50,3 +52,38 @@ def test_tiles_without_lidar_inherit_from_neighbours():
 def test_tile_size_is_checked():
     with pytest.raises(RiverbedError, match="--tile must be at least 16 px, got 8"):
         tile_grid(100, 100, 8)
+
+
+def test_windowed_sources_give_the_same_result(cones, tmp_path):
+    import rasterio
+
+    from riverbed_cli.io.disparity import write_disparity
+    from riverbed_cli.scale.tiles import WindowedRaster, open_windowed
+
+    left, right, gt = cones
+    sparse = simulate_lidar(gt, 0.05, seed=0)
+    for name, img in (("l.tif", left), ("r.tif", right)):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+            ds = rasterio.open(tmp_path / name, "w", driver="GTiff", width=img.shape[1], height=img.shape[0], count=3,
+                               dtype="uint8", tiled=True, blockxsize=64, blockysize=64)
+        with ds:
+            ds.write(np.moveaxis(img, -1, 0))
+    write_disparity(tmp_path / "s.tif", sparse)
+    srcs = [open_windowed(tmp_path / n, k) for n, k in (("l.tif", "image"), ("r.tif", "image"), ("s.tif", "disparity"))]
+    assert all(isinstance(s, WindowedRaster) for s in srcs)
+    np.testing.assert_array_equal(srcs[0][10:20, 30:45], left[10:20, 30:45])
+    a = match_tiled(left, right, sparse, tile=128, overlap=64).disparity
+    b = match_tiled(*srcs, tile=128, overlap=64).disparity
+    np.testing.assert_array_equal(a, b)
+
+
+def test_16_bit_tiles_share_one_scale(cones):
+    left, right, gt = cones
+    # 12-bit data in 16-bit containers: tiles whose own maximum is lower must not be scaled differently
+    l16, r16 = ((img.astype(np.uint16) * 16) for img in (left, right))
+    sparse = simulate_lidar(gt, 0.05, seed=0)
+    full = match_pair(l16, r16, sparse, 0, 59).disparity
+    tiled = match_tiled(l16, r16, sparse, 0, 59, tile=128, overlap=160, lidar_range=False).disparity
+    inner = (slice(BORDER, -BORDER), slice(BORDER, -BORDER))
+    assert (np.abs(tiled[inner] - full[inner]) <= 0.01).mean() >= 0.999

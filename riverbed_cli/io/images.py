@@ -153,8 +153,9 @@ def effective_bits(*images):
         if img.dtype == np.uint16 and img.size:
             # int.bit_length() == ceil(log2(m + 1)) for integers m >= 0, without float rounding.
             bits = max(bits, int(img.max()).bit_length())
-        elif img.dtype not in (np.uint8, np.uint16):
-            raise RiverbedError(f"effective bit depth needs uint8 or uint16 images, got {img.dtype}")
+        elif img.dtype not in (np.uint8, np.uint16) and img.dtype.kind != "f":
+            # float images are already on a 0..255 scale (e.g. tiles of a 16-bit pair): no bits to find
+            raise RiverbedError(f"effective bit depth needs uint8, uint16 or float images, got {img.dtype}")
     return bits
 
 

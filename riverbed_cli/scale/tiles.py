@@ -12,6 +12,7 @@ d_max - off]``; ``off`` is added back. Only the tile's own pixels (not the overl
 
 import logging
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,6 +21,99 @@ from ..errors import RiverbedError
 from ..matching.pipeline import MatchParams, MatchResult, match_pair
 
 log = logging.getLogger(__name__)
+
+
+class WindowedRaster:
+    """A raster file read window by window (rasterio), sliced like a numpy array: ``src[y0:y1, x0:x1]``.
+
+    ``kind="image"``: bands become channels (H x W or H x W x 3, samples unchanged); ``kind="disparity"``: band 1
+    as float32 with nodata, inf and NaN as NaN. Only what a tile needs is ever in memory.
+    """
+
+    def __init__(self, path, kind="image"):
+        import rasterio
+
+        self.path, self.kind = str(path), kind
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+                self._ds = rasterio.open(self.path)
+        except rasterio.errors.RasterioError as e:
+            raise RiverbedError(f"cannot read raster ({str(e).splitlines()[0]})", path) from None
+        H, W = self._ds.height, self._ds.width
+        self.bands = 1 if kind == "disparity" else min(self._ds.count, 3)
+        self.shape = (H, W) if self.bands == 1 else (H, W, self.bands)
+        self.dtype = np.dtype(np.float32 if kind == "disparity" else self._ds.dtypes[0])
+        self.ndim = len(self.shape)
+
+    def __getitem__(self, key):
+        from rasterio.windows import Window
+
+        rows, cols = key[:2]
+        H, W = self.shape[:2]
+        y0, y1, _ = rows.indices(H)
+        x0, x1, _ = cols.indices(W)
+        win = Window(x0, y0, max(0, x1 - x0), max(0, y1 - y0))
+        if self.kind == "disparity":
+            a = self._ds.read(1, window=win, masked=True).astype(np.float32).filled(np.nan)
+            a[~np.isfinite(a)] = np.nan
+            return a
+        a = self._ds.read(list(range(1, self.bands + 1)), window=win)
+        return a[0] if self.bands == 1 else np.moveaxis(a, 0, -1)
+
+    def row_blocks(self, rows=512):
+        for y in range(0, self.shape[0], rows):
+            yield y, self[y:y + rows, 0:self.shape[1]]
+
+    def __getstate__(self):  # dask ships sources to workers: reopen there
+        return {"path": self.path, "kind": self.kind}
+
+    def __setstate__(self, state):
+        self.__init__(state["path"], state["kind"])
+
+
+def open_windowed(path, kind="image"):
+    """A :class:`WindowedRaster` for TIFF files (read by windows); other formats are read whole into numpy."""
+    from ..io.disparity import read_disparity
+    from ..io.images import read_image
+
+    with open(path, "rb") as f:
+        head = f.read(4)
+    if head in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+"):
+        return WindowedRaster(path, kind)
+    return read_disparity(path) if kind == "disparity" else read_image(path)
+
+
+def _blocks(a, rows=512):
+    if isinstance(a, WindowedRaster):
+        yield from a.row_blocks(rows)
+    else:
+        for y in range(0, a.shape[0], rows):
+            yield y, a[y:y + rows]
+
+
+def sparse_points_any(sparse):
+    """Rows, columns and values of the LiDAR pixels of an in-memory or windowed sparse map, block by block."""
+    rows, cols, vals = [], [], []
+    for y, blk in _blocks(sparse):
+        r, c = np.nonzero(np.isfinite(blk))
+        rows.append(r + y)
+        cols.append(c)
+        vals.append(blk[r, c])
+    return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals).astype(np.float32)
+
+
+def image_bits(*images):
+    """Effective bit depth over whole images (in memory or windowed), so every tile scales 16-bit data alike."""
+    from ..io.images import effective_bits
+
+    if all(np.dtype(getattr(a, "dtype", np.uint8)) == np.uint8 for a in images):
+        return 8
+    top = 0
+    for a in images:
+        for _, blk in _blocks(a):
+            top = max(top, int(blk.max()) if blk.size else 0)
+    return effective_bits(np.array([top], np.uint16))
 
 
 @dataclass
@@ -51,12 +145,11 @@ def lidar_ranges(tiles, sparse, d_min, d_max, reach=None, margin=4.0, thin_margi
     neighbours' ranges (8-neighbourhood, repeated until every tile has one), or the global ``[d_min, d_max]``.
     Every range is clipped to the global one.
     """
-    H, W = sparse.shape
-    valid = np.isfinite(sparse)
+    H, W = sparse.shape[:2]
     for t in tiles:
         r = reach if reach is not None else max(t.y1 - t.y0, t.x1 - t.x0) // 4
-        win = sparse[max(0, t.y0 - r):min(H, t.y1 + r), max(0, t.x0 - r):min(W, t.x1 + r)]
-        vals = win[valid[max(0, t.y0 - r):min(H, t.y1 + r), max(0, t.x0 - r):min(W, t.x1 + r)]]
+        win = np.asarray(sparse[max(0, t.y0 - r):min(H, t.y1 + r), max(0, t.x0 - r):min(W, t.x1 + r)])
+        vals = win[np.isfinite(win)]
         vals = vals[(vals >= d_min) & (vals <= d_max)]
         if vals.size:
             m = margin + thin_margin / math.sqrt(vals.size)
@@ -90,33 +183,44 @@ def lidar_ranges(tiles, sparse, d_min, d_max, reach=None, margin=4.0, thin_margi
 
 
 def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, tile=1024, overlap=128,
-                lidar_range=True, progress=None, **overrides):
+                lidar_range=True, progress=None, out=None, **overrides):
     """:func:`match_pair` tile by tile; same arguments plus ``tile`` (px), ``overlap`` (px) and ``lidar_range``.
+
+    ``left``, ``right`` and ``sparse`` may be numpy arrays or :class:`WindowedRaster` (read tile by tile); ``out``
+    receives each tile by ``out[y0:y1, x0:x1] = block`` (default: a new float32 array, returned in the result).
 
     Returns a :class:`MatchResult` whose ``info`` adds ``tiles`` (count), ``tile``, ``overlap``,
     ``disparity_evaluations`` (sum over tiles of pixels x disparities, the work done) and per-stage sums.
     """
     import time
 
+    from ..io.images import to_guide
+    from ..matching.guidance import auto_window, lidar_share_of_points
     from ..matching.pipeline import disparity_range_from_sparse
 
     p = MatchParams(**{**(params.__dict__ if params else {}), **overrides})
     H, W = left.shape[:2]
     if right.shape[:2] != (H, W):
         raise RiverbedError(f"left and right images differ in size: {W}x{H} vs {right.shape[1]}x{right.shape[0]}")
+    if sparse is not None and sparse.shape[:2] != (H, W):
+        raise RiverbedError(f"sparse map is {sparse.shape[1]}x{sparse.shape[0]} but the images are {W}x{H} (WxH)")
+    t_all = time.perf_counter()
+    share = 0.0
+    if sparse is not None:
+        pr, pc, pv = sparse_points_any(sparse)
+        if pv.size == 0:
+            raise RiverbedError("sparse map has no valid disparities")
+        share = lidar_share_of_points(pr, pc, (H, W))
     if d_min is None or d_max is None:
         if sparse is None:
             raise RiverbedError("give the disparity range (--min-disp/--max-disp) or a sparse map to derive it from")
-        lo, hi = disparity_range_from_sparse(sparse)
+        lo, hi = disparity_range_from_sparse(pv)
         d_min = lo if d_min is None else d_min
         d_max = hi if d_max is None else d_max
     d_min, d_max = int(d_min), int(d_max)
     if overlap < 0:
         raise RiverbedError(f"--overlap must be >= 0, got {overlap}")
-    t_all = time.perf_counter()
-    from ..matching.guidance import auto_window, lidar_share
-
-    share = lidar_share(sparse) if sparse is not None else 0.0
+    bits = image_bits(left, right)
     if p.guide != "none" and p.window == "auto":
         # One window for the whole image: a tile's own LiDAR share would change it from tile to tile.
         p = MatchParams(**{**p.__dict__, "window": auto_window(share, p.window_target)})
@@ -126,7 +230,8 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
     else:
         for t in tiles:
             t.d_min, t.d_max = d_min, d_max
-    out = np.full((H, W), np.nan, np.float32)
+    if out is None:
+        out = np.full((H, W), np.nan, np.float32)
     stages = {}
     evaluations = 0
     for t in tiles:
@@ -136,9 +241,12 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
         off = min(t.d_min, a) if t.d_min >= 0 else max(t.d_min, b - W)
         lc = left[ya:yb, a:b]
         rc = right[ya:yb, a - off:b - off]
+        if bits > 8:
+            # one 0..255 scale for every tile of a 16-bit pair (a tile's own maximum would change it)
+            lc, rc = (np.squeeze(to_guide(c, bits), axis=-1) if c.ndim == 2 else to_guide(c, bits) for c in (lc, rc))
         sc = None
         if sparse is not None:
-            sc = sparse[ya:yb, a:b] - np.float32(off)
+            sc = np.asarray(sparse[ya:yb, a:b], np.float32) - np.float32(off)
             # LiDAR outside the tile's range cannot guide it (match_pair would warn about every tile)
             sc = np.where((sc >= t.d_min - off) & (sc <= t.d_max - off), sc, np.float32(np.nan))
             if p.guide != "none" and not np.isfinite(sc).any():
