@@ -116,6 +116,60 @@ def image_bits(*images):
     return effective_bits(np.array([top], np.uint16))
 
 
+class TiffSink:
+    """A float32 GeoTIFF written tile by tile (``sink[y0:y1, x0:x1] = block``); NaN nodata, DEFLATE, 256 x 256 tiles.
+
+    Use as a context manager on a temporary path and rename it when the work succeeded (the CLI does).
+    """
+
+    def __init__(self, path, height, width, tags=None):
+        import rasterio
+
+        self.path = str(path)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+            self._ds = rasterio.open(self.path, "w", driver="GTiff", width=width, height=height, count=1,
+                                     dtype="float32", nodata=float("nan"), compress="deflate", predictor=3,
+                                     tiled=True, blockxsize=256, blockysize=256, BIGTIFF="IF_SAFER")
+        if tags:
+            self._ds.update_tags(**{str(k): str(v) for k, v in tags.items()})
+        self.shape = (height, width)
+
+    def __setitem__(self, key, block):
+        from rasterio.windows import Window
+
+        rows, cols = key
+        y0, y1, _ = rows.indices(self.shape[0])
+        x0, x1, _ = cols.indices(self.shape[1])
+        self._ds.write(np.asarray(block, np.float32), 1, window=Window(x0, y0, x1 - x0, y1 - y0))
+
+    def close(self):
+        self._ds.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+#: Memory a tile may use for its cost volumes (three uint16 volumes: cost, forward and reverse SGM sums).
+TILE_BUDGET = 1536 * 2**20
+
+
+def auto_tile(d_range, overlap=128, budget=TILE_BUDGET, smallest=128, largest=4096):
+    """The largest tile side (a multiple of 64) whose crop's volumes fit ``budget`` bytes for ``d_range`` disparities.
+
+    A crop is ``(T + 2 overlap)`` rows by ``(T + 2 overlap + d_range)`` columns; its volumes take 6 bytes per cell.
+    """
+    D = int(d_range) + 1
+    best = smallest
+    for T in range(smallest, largest + 1, 64):
+        if 6 * (T + 2 * overlap) * (T + 2 * overlap + D) * D <= budget:
+            best = T
+    return best
+
+
 @dataclass
 class Tile:
     y0: int
@@ -182,12 +236,14 @@ def lidar_ranges(tiles, sparse, d_min, d_max, reach=None, margin=4.0, thin_margi
     return tiles
 
 
-def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, tile=1024, overlap=128,
+def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, tile="auto", overlap=128,
                 lidar_range=True, progress=None, out=None, **overrides):
     """:func:`match_pair` tile by tile; same arguments plus ``tile`` (px), ``overlap`` (px) and ``lidar_range``.
 
     ``left``, ``right`` and ``sparse`` may be numpy arrays or :class:`WindowedRaster` (read tile by tile); ``out``
     receives each tile by ``out[y0:y1, x0:x1] = block`` (default: a new float32 array, returned in the result).
+    ``tile="auto"`` picks the largest tile whose volumes fit :data:`TILE_BUDGET` for the widest disparity range a
+    tile will search (its LiDAR range, or the global one).
 
     Returns a :class:`MatchResult` whose ``info`` adds ``tiles`` (count), ``tile``, ``overlap``,
     ``disparity_evaluations`` (sum over tiles of pixels x disparities, the work done) and per-stage sums.
@@ -224,12 +280,21 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
     if p.guide != "none" and p.window == "auto":
         # One window for the whole image: a tile's own LiDAR share would change it from tile to tile.
         p = MatchParams(**{**p.__dict__, "window": auto_window(share, p.window_target)})
-    tiles = tile_grid(H, W, tile)
-    if sparse is not None and lidar_range:
-        lidar_ranges(tiles, sparse, d_min, d_max, reach=overlap)
-    else:
-        for t in tiles:
-            t.d_min, t.d_max = d_min, d_max
+    def plan(size):
+        ts = tile_grid(H, W, size)
+        if sparse is not None and lidar_range:
+            lidar_ranges(ts, sparse, d_min, d_max, reach=overlap)
+        else:
+            for t in ts:
+                t.d_min, t.d_max = d_min, d_max
+        return ts
+
+    if tile == "auto":
+        widest = max(t.d_max - t.d_min for t in plan(1024))
+        tile = auto_tile(widest, overlap)
+        if max(H, W) <= tile:
+            tile = max(H, W)
+    tiles = plan(int(tile))
     if out is None:
         out = np.full((H, W), np.nan, np.float32)
     stages = {}

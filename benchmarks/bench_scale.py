@@ -1,0 +1,177 @@
+"""Bounded memory and LiDAR-driven tile ranges on large pairs built on the fly.
+
+Usage: python benchmarks/bench_scale.py [--sizes 10,20,40] [--workdir DIR] [--skip-full]
+
+For each size (megapixels) a rectified pair is generated to tiled TIFFs: a smooth terrain-and-buildings disparity field
+from ~20 to ~500 px (slopes below 1 px/px, so the right image is an exact backward warp of the left one), a random
+texture, and ~1 % of the pixels as LiDAR (exact GT disparities). Each match runs in a fresh process that reads the
+inputs by windows and writes the disparity tile by tile, and reports its peak RSS. On the largest size the full
+disparity range is matched too (same process set-up), and OpenCV StereoSGBM runs on one tile it can hold, so the
+throughput (million disparity evaluations per second) is compared in the same run.
+"""
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+CHILD = r"""
+import json, resource, sys, time
+import numpy as np
+from riverbed_cli.scale.tiles import TiffSink, match_tiled, open_windowed
+from riverbed_cli.matching.pipeline import warm_up
+d, lidar_range = sys.argv[1], sys.argv[2] == "1"
+warm_up()
+left, right = open_windowed(d + "/left.tif"), open_windowed(d + "/right.tif")
+sparse = open_windowed(d + "/lidar.tif", "disparity")
+t = time.perf_counter()
+with TiffSink(d + f"/disp_{int(lidar_range)}.tif", *left.shape[:2]) as sink:
+    r = match_tiled(left, right, sparse, 0, 520, tile="auto", overlap=128, lidar_range=lidar_range, out=sink)
+info = {k: r.info[k] for k in ("tiles", "tile", "disparity_evaluations", "tile_ranges", "window")}
+info["seconds"] = time.perf_counter() - t
+info["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+print(json.dumps(info))
+"""
+
+
+def make_pair(folder, megapixels, seed=0):
+    """Write left.tif, right.tif, gt.tif, lidar.tif (tiled) for a pair of about ``megapixels`` MP."""
+    import rasterio
+
+    W = int(math.sqrt(megapixels * 1e6 * 1.6))
+    W -= W % 64
+    H = int(megapixels * 1e6 / W)
+    rng = np.random.default_rng(seed)
+    prof = dict(driver="GTiff", width=W, height=H, count=1, tiled=True, blockxsize=256, blockysize=256,
+                compress="deflate")
+    # Terrain: a smooth field over the whole frame (slope <= ~0.3 px/px); buildings: plateaus with 0.5 px/px ramps.
+    # Every row of x - d(x) is then increasing, so the right image is an exact backward warp of the left one.
+    coarse = cv2.resize(rng.uniform(0, 1, (3, 4)).astype(np.float32), (W, H), interpolation=cv2.INTER_CUBIC)
+    coarse = (coarse - coarse.min()) / max(float(coarse.max() - coarse.min()), 1e-6)
+    span = min(400.0, 0.3 * W / 2)
+    n_b = max(4, megapixels * 6)
+    bx, by = rng.integers(0, W - 400, n_b), rng.integers(0, H - 400, n_b)
+    bw, bh, bz = rng.integers(80, 380, n_b), rng.integers(80, 380, n_b), rng.uniform(20, 60, n_b)
+    files = {k: rasterio.open(folder / f"{k}.tif", "w", dtype=("uint8" if k in ("left", "right") else "float32"),
+                              nodata=(None if k in ("left", "right") else float("nan")), **prof)
+             for k in ("left", "right", "gt", "lidar")}
+    from rasterio.windows import Window
+
+    xs = np.arange(W, dtype=np.float64)
+    block = 256
+    for y0 in range(0, H, block):
+        y1 = min(H, y0 + block)
+        d = 20 + span * coarse[y0:y1].astype(np.float64)
+        yy = np.arange(y0, y1)[:, None]
+        bump = np.zeros_like(d)
+        for i in range(n_b):
+            dx = np.maximum(np.maximum(bx[i] - xs, xs - (bx[i] + bw[i])), 0)[None, :]
+            dy = np.maximum(np.maximum(by[i] - yy, yy - (by[i] + bh[i])), 0)
+            bump = np.maximum(bump, bz[i] - 0.5 * np.maximum(dx, dy))
+        d = d + bump
+        d = np.clip(d, 0, 510)
+        tex = cv2.GaussianBlur(rng.uniform(0, 255, (y1 - y0 + 8, W)).astype(np.float32), (0, 0), 1.2)[4:-4]
+        tex = np.clip((tex - 128) * 3 + 128, 0, 255)
+        right = np.empty_like(tex)
+        for r in range(y1 - y0):
+            xr = xs - d[r]  # monotonic: slopes < 1
+            right[r] = np.interp(xs, xr, tex[r], left=tex[r, 0], right=tex[r, -1])
+        lidar = np.where(rng.random(d.shape) < 0.01, d, np.nan).astype(np.float32)
+        win = Window(0, y0, W, y1 - y0)
+        files["left"].write(tex.astype(np.uint8)[None], window=win)
+        files["right"].write(np.clip(right + rng.normal(0, 1.5, right.shape), 0, 255).astype(np.uint8)[None],
+                             window=win)
+        files["gt"].write(d.astype(np.float32)[None], window=win)
+        files["lidar"].write(lidar[None], window=win)
+    for f in files.values():
+        f.close()
+    return H, W
+
+
+def run_child(folder, lidar_range):
+    env = dict(os.environ)
+    p = subprocess.run([sys.executable, "-c", CHILD, str(folder), "1" if lidar_range else "0"], capture_output=True,
+                       text=True, env=env)
+    if p.returncode:
+        sys.exit(f"bench_scale: child failed: {p.stderr[-2000:]}")
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def accuracy(folder, name):
+    import rasterio
+
+    from riverbed_cli.products.evaluate import evaluate_disparity
+
+    with rasterio.open(folder / name) as a, rasterio.open(folder / "gt.tif") as g, \
+            rasterio.open(folder / "lidar.tif") as s:
+        # evaluate on a decimated grid to keep memory small
+        step = 4
+        d, gt, sp = (x.read(1)[::step, ::step] for x in (a, g, s))
+    return evaluate_disparity(d, gt, exclude=sp)
+
+
+def opencv_tile(folder, size=1024, d_range=512):
+    import rasterio
+    from rasterio.windows import Window
+
+    with rasterio.open(folder / "left.tif") as a, rasterio.open(folder / "right.tif") as b:
+        L = a.read(1, window=Window(d_range, 0, size + d_range, size))
+        R = b.read(1, window=Window(d_range, 0, size + d_range, size))
+    bs = 5
+    sgbm = cv2.StereoSGBM_create(0, d_range, bs, P1=8 * bs * bs, P2=32 * bs * bs, mode=cv2.STEREO_SGBM_MODE_HH)
+    sgbm.compute(L[:64], R[:64])
+    t = time.perf_counter()
+    sgbm.compute(L, R)
+    dt = time.perf_counter() - t
+    return L.size * d_range / dt / 1e6, dt
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sizes", default="10,20,40", help="megapixels, comma separated")
+    ap.add_argument("--workdir", default=None)
+    ap.add_argument("--skip-full", action="store_true", help="do not match the full range on the largest size")
+    args = ap.parse_args()
+    sizes = [int(s) for s in args.sizes.split(",")]
+    with tempfile.TemporaryDirectory(dir=args.workdir) as tmp:
+        rows = []
+        for mp in sizes:
+            folder = Path(tmp) / f"{mp}mp"
+            folder.mkdir()
+            t = time.perf_counter()
+            H, W = make_pair(folder, mp)
+            gen = time.perf_counter() - t
+            r = run_child(folder, True)
+            m = accuracy(folder, "disp_1.tif")
+            rows.append((mp, H, W, "LiDAR tile ranges", r, m))
+            print(f"{mp} MP ({W}x{H}, generated in {gen:.0f} s): {r}", file=sys.stderr, flush=True)
+            if mp == max(sizes) and not args.skip_full:
+                rf = run_child(folder, False)
+                mf = accuracy(folder, "disp_0.tif")
+                rows.append((mp, H, W, "full range", rf, mf))
+                print(f"  full range: {rf}", file=sys.stderr, flush=True)
+                cv_mevals, cv_t = opencv_tile(folder)
+        print("| size | pixels | ranges | tile | tiles | seconds | peak RSS MiB | Mevals/s | bad3 % | avg px |")
+        print("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|")
+        for mp, H, W, label, r, m in rows:
+            print(f"| {mp} MP | {W}x{H} | {label} | {r['tile']} | {r['tiles']} | {r['seconds']:.1f} | "
+                  f"{r['peak_rss_mib']:.0f} | {r['disparity_evaluations'] / r['seconds'] / 1e6:.0f} | "
+                  f"{m['bad3']:.2f} | {m['avg']:.3f} |")
+        full = [x for x in rows if x[3] == "full range"]
+        if full:
+            lid = [x for x in rows if x[0] == full[0][0] and x[3] != "full range"][0]
+            print(f"\nLiDAR tile ranges vs full range on {full[0][0]} MP: {full[0][4]['seconds'] / lid[4]['seconds']:.1f}x "
+                  f"faster; OpenCV StereoSGBM MODE_HH on one 1024x1024 tile, 512 disparities: {cv_mevals:.0f} "
+                  f"Mevals/s ({cv_t:.1f} s).")
+
+
+if __name__ == "__main__":
+    main()
