@@ -1,20 +1,36 @@
 #!/usr/bin/env bash
-# The main job on the bundled sample: match the real Middlebury Reindeer pair guided by its (simulated) sparse LiDAR,
-# match it unguided for comparison, and evaluate both against the ground truth. Outputs go to out/.
+# The main job on the bundled sample aerial block: LiDAR (LAZ) -> sparse disparities -> LiDAR-guided matching ->
+# point cloud + DSM -> accuracy against the ground truth, with unguided matching alongside for comparison.
+# Usage: bash sample_data/run.sh [OUTDIR]   (default: out)
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
 out=${1:-out}
+b=$here/block
 mkdir -p "$out"
-s=$here/reindeer
-riverbed match "$s/left.png" "$s/right.png" --sparse "$s/lidar_5pct.tif" \
-    -o "$out/disparity.tif" --color "$out/disparity.png" --overwrite --json > "$out/match.json"
-riverbed match "$s/left.png" "$s/right.png" --guide none --min-disp 0 --max-disp 110 \
+step() { printf '\n== %s\n' "$*"; }
+
+step "project: LiDAR -> sparse disparities of the left image"
+riverbed project "$b/lidar.laz" "$b/pair.yaml" -o "$out/sparse.tif" --overwrite --json > "$out/project.json"
+grep -E '"(kept|lidar_share|window)"' "$out/project.json"
+
+step "match: census + riverbed-guided SGM (and unguided, for comparison)"
+riverbed match "$b/left.png" "$b/right.png" --sparse "$out/sparse.tif" -o "$out/disparity.tif" \
+    --color "$out/disparity.png" --overwrite --json > "$out/match.json"
+grep -E '"(seconds|window|d_min|d_max)"' "$out/match.json"
+riverbed match "$b/left.png" "$b/right.png" --sparse "$out/sparse.tif" --guide none \
     -o "$out/disparity_unguided.tif" --color "$out/disparity_unguided.png" --overwrite
-echo "riverbed-guided SGM (5 % LiDAR), evaluated on the pixels without LiDAR:"
-riverbed evaluate "$out/disparity.tif" "$s/gt.png" --gt-scale 2 --exclude "$s/lidar_5pct.tif" \
-    --error-map "$out/errors.png" --overwrite
-echo
-echo "unguided SGM, same pixels:"
-riverbed evaluate "$out/disparity_unguided.tif" "$s/gt.png" --gt-scale 2 --exclude "$s/lidar_5pct.tif"
-echo
-echo "wrote $out/disparity.tif, $out/disparity.png (preview), $out/errors.png, $out/match.json"
+
+step "dsm: triangulate, rasterise (cloud-optimised GeoTIFF), point cloud, hillshade"
+riverbed dsm "$out/disparity.tif" "$b/pair.yaml" -o "$out/dsm.tif" --points "$out/points.laz" \
+    --hillshade "$out/dsm_hillshade.png" --fill-holes 3 --overwrite --json > "$out/dsm.json"
+riverbed dsm "$out/disparity_unguided.tif" "$b/pair.yaml" -o "$out/dsm_unguided.tif" --fill-holes 3 --overwrite
+
+step "evaluate: disparity on the pixels without LiDAR, DSM against the ground-truth DSM"
+{
+  echo "disparity, riverbed-guided:";  riverbed evaluate "$out/disparity.tif" "$b/gt_disparity.tif" --exclude "$out/sparse.tif" --error-map "$out/disparity_errors.png" --overwrite
+  echo; echo "disparity, unguided:";   riverbed evaluate "$out/disparity_unguided.tif" "$b/gt_disparity.tif" --exclude "$out/sparse.tif"
+  echo; echo "DSM, riverbed-guided (m):"; riverbed evaluate --dsm "$out/dsm.tif" "$b/gt_dsm.tif" --error-map "$out/dsm_errors.png" --overwrite
+  echo; echo "DSM, unguided (m):";        riverbed evaluate --dsm "$out/dsm_unguided.tif" "$b/gt_dsm.tif"
+} | tee "$out/accuracy.txt"
+
+step "done: $out/ holds sparse.tif, disparity.tif + .png, points.laz, dsm.tif, dsm_hillshade.png, accuracy.txt"
