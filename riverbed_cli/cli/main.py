@@ -41,11 +41,21 @@ def cli(verbose, quiet):
 
 
 def _register():
-    from . import dsm, evaluate, match
+    from . import dsm, evaluate, match, pair, project
 
+    cli.add_command(pair.pair_cmd)
+    cli.add_command(project.project_cmd)
     cli.add_command(match.match_cmd)
     cli.add_command(evaluate.evaluate_cmd)
     cli.add_command(dsm.dsm_cmd)
+
+    from . import sample
+
+    cli.add_command(sample.sample_cmd)
+
+    from . import block
+
+    cli.add_command(block.block_cmd)
 
 
 _register()

@@ -1,22 +1,23 @@
 """The geometry of a rectified stereo pair (:class:`PairGeometry`) and importers for benchmark calibrations.
 
 A pair is two 3 x 4 projection matrices that map *world minus origin* (homogeneous, float64) to pixels of the
-rectified left and right images, an ``origin`` subtracted from world coordinates first (so large UTM values never
-reach the matrices), and a 4 x 4 ``registration`` that maps LiDAR coordinates to world coordinates:
+rectified left and right images, an ``origin`` subtracted from world coordinates first (so large UTM values
+never reach the matrices), and a 4 x 4 ``registration`` that maps LiDAR coordinates to world coordinates:
 
     world = registration @ [x_lidar, y_lidar, z_lidar, 1]
     [u, v, w] = P @ [world - origin, 1];  x = u / w,  y = v / w
 
-Rectified means the two images share their rows. Exactly: rows 2 and 3 of the left 3 x 3 blocks are equal and the
-first rows differ only by ``s * (row 3)`` (a constant horizontal image shift: Middlebury's ``doffs``); the 4th
-columns may differ in their first entry (the baseline). A small difference in the 4th column's second and third
-entries (a camera centre slightly off the baseline, as in KITTI's P2/P3: 2.7 mm vertically) is accepted when it is
-at most 5 % of the horizontal term: it offsets the right image's rows by a depth-dependent fraction of a pixel,
-which :func:`riverbed_cli.geometry.projection.project_cloud` measures per point (and drops points off by more than
-half a pixel).
+Rectified means the two images share their rows. Exactly (0-based indices, as in error messages): rows 1 and 2
+of the left 3 x 3 blocks are equal and the first rows differ only by ``s * (row 2)`` (a constant horizontal
+image shift: Middlebury's ``doffs``); the 4th columns may differ in their first entry (the baseline). A small
+difference in the 4th column's entries [1][3] and [2][3] (a camera centre slightly off the baseline, as in
+KITTI's P2/P3: 2.7 mm vertically) is accepted when it is at most 5 % of the horizontal term: it offsets the
+right image's rows by a depth-dependent fraction of a pixel, which
+:func:`riverbed_cli.geometry.projection.project_cloud` measures per point (it drops points off by more than
+1 px and logs a warning).
 
-Conventions: pixel centres at integer coordinates; ``d = x_left - x_right`` (px); depth is the distance along the
-left camera's optical axis, in world units, positive in front of the camera.
+Conventions: pixel centres at integer coordinates; ``d = x_left - x_right`` (px); depth is the distance along
+the left camera's optical axis, in world units, positive in front of the camera.
 """
 
 import logging
@@ -71,13 +72,15 @@ def _where(i, j, rows):
     return f"[{i}][{j}]" if rows > 1 else f"[{j}]"
 
 
+_NUMBER = re.compile(r"\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\s*|\s*[-+]?(inf|nan)\s*", re.IGNORECASE)
+
+
 def _number(v):
     if isinstance(v, bool):
         return None
     if isinstance(v, (int, float, np.integer, np.floating)):
         return float(v)
-    if isinstance(v, str) and re.fullmatch(r"\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\s*|\s*[-+]?(inf|nan)\s*", v,
-                                           re.IGNORECASE):
+    if isinstance(v, str) and _NUMBER.fullmatch(v):
         return float(v)
     return None
 
@@ -85,8 +88,8 @@ def _number(v):
 def check_rectified(P_left, P_right):
     """Check that two 3 x 4 matrices form a rectified pair; return ``(s, t, v, u)``.
 
-    ``s``: constant horizontal image shift (``x_R = x_L + s + ...``), ``t``: the baseline term of the 4th column,
-    ``v``, ``u``: the 4th-column differences in rows 2 and 3 (0 for an exactly rectified pair). Raises
+    ``s``: constant horizontal image shift (``x_R = x_L + s + ...``), ``t``: the baseline term of the 4th
+    column, ``v``, ``u``: the 4th-column differences in rows 1 and 2 (0 for an exactly rectified pair). Raises
     :class:`RiverbedError` naming the entries that break the rule. Indices in messages are 0-based
     ``[row][col]``.
     """
@@ -103,17 +106,19 @@ def check_rectified(P_left, P_right):
         bad.sort()
         shown = ", ".join(f"[{i}][{j}] ({_fmt(P_left[i, j])} vs {_fmt(P_right[i, j])})" for i, j in bad)
         raise RiverbedError(
-            f"P_left and P_right are not a rectified pair: they differ at {shown}; a rectified pair differs only "
-            "by a horizontal shift (equal rows 1 and 2, row 0 may add a multiple of row 2, 4th column free)"
+            f"P_left and P_right are not a rectified pair: they differ at {shown}; a rectified pair differs "
+            "only by a horizontal shift (equal rows 1 and 2, row 0 may add a multiple of row 2, 4th column "
+            "free)"
         )
     t = float(P_right[0, 3] - P_left[0, 3] - s * P_left[2, 3])
     v = float(P_right[1, 3] - P_left[1, 3])
     u = float(P_right[2, 3] - P_left[2, 3])
     if abs(t) <= tol:
         raise RiverbedError("P_left and P_right have the same camera centre (no baseline)")
-    # The right camera must be to the right: d = -s - t / w > -s for points in front (w has the sign of det M).
+    # The right camera must be to the right: d = -s - t / w > -s in front (w has the sign of det M).
     if t * np.sign(np.linalg.det(ML)) > 0:
-        raise RiverbedError("P_right is to the left of P_left (disparities would be negative): swap left and right")
+        raise RiverbedError(
+            "P_right is to the left of P_left (disparities would be negative): swap left and right")
     # Offsets of the right camera off the baseline: rows shift by about (v - y u) / w against x by t / w.
     x0 = ML @ m3
     span = 2.0 * max(abs(x0[0] / x0[2]), abs(x0[1] / x0[2]), 1.0)  # ~ image size from the principal point
@@ -175,7 +180,8 @@ class PairGeometry:
         for key in ("width", "height"):
             val = getattr(self, key)
             if val is not None:
-                if isinstance(val, bool) or not isinstance(val, (int, np.integer)) or not 0 < val <= 10_000_000:
+                integer = isinstance(val, (int, np.integer)) and not isinstance(val, bool)
+                if not integer or not 0 < val <= 10_000_000:
                     raise RiverbedError(f"{key}: expected a positive integer (pixels), got {val!r}")
                 set_(key, int(val))
         if self.crs is not None and not isinstance(self.crs, str):
@@ -185,7 +191,7 @@ class PairGeometry:
             if val is not None:
                 set_(key, Path(val))
 
-    # -- derived quantities -------------------------------------------------------------------------------------
+    # -- derived quantities ------------------------------------------------------------------------------
     @property
     def exactly_rectified(self):
         """True when the right camera lies exactly on the horizontal baseline (no row offset at any depth)."""
@@ -223,7 +229,7 @@ class PairGeometry:
         fields.update(changes)
         return PairGeometry(**fields)
 
-    # -- coordinates ------------------------------------------------------------------------------------------------
+    # -- coordinates -------------------------------------------------------------------------------------
     def lidar_to_local(self, xyz, registration=None):
         """LiDAR coordinates (N, 3) -> world minus origin (float64): ``registration @ p - origin``."""
         R = self.registration if registration is None else registration
@@ -245,22 +251,25 @@ class PairGeometry:
         With ``full=True`` also ``y_right`` and ``depth_right`` (depth along the right optical axis).
         """
         xyz = np.asarray(xyz, np.float64)
+        x, y, z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
         out = []
         for P in (self.P_left, self.P_right):
-            uvw = xyz @ P[:, :3].T + P[:, 3]
-            w = uvw[:, 2]
+            # Element-wise rather than a (N, 3) @ (3, 3) product: no BLAS threads, the same sum order as the
+            # projection kernel.
+            u, v, w = (P[i, 0] * x + P[i, 1] * y + P[i, 2] * z + P[i, 3] for i in range(3))
             with np.errstate(divide="ignore", invalid="ignore"):
-                out.append((uvw[:, 0] / w, uvw[:, 1] / w, w * self._depth_scale(P)))
+                out.append((u / w, v / w, w * self._depth_scale(P)))
         (xl, yl, zl), (xr, yr, zr) = out
         if full:
             return xl, yl, xr, zl, yr, zr
         return xl, yl, xr, zl
 
     def triangulate(self, x_left, y_left, d):
-        """World-minus-origin points (N, 3) whose left projection is ``(x_left, y_left)`` with disparity ``d``.
+        """World-minus-origin points (N, 3) projecting to ``(x_left, y_left)`` with disparity ``d``.
 
         The exact inverse of :meth:`project` (``x_right = x_left - d``; the right row is not used, so it also
-        holds for a pair whose right camera is slightly off the baseline). Add ``origin`` for world coordinates.
+        holds for a pair whose right camera is slightly off the baseline). Add ``origin`` for world
+        coordinates.
         """
         x = np.asarray(x_left, np.float64).ravel()
         y = np.asarray(y_left, np.float64).ravel()
@@ -283,7 +292,7 @@ def check_registration(reg, key="registration"):
         raise RiverbedError(f"{key}: the 3x3 block is singular (not an invertible transform)")
 
 
-# -- importers ------------------------------------------------------------------------------------------------------
+# -- importers -------------------------------------------------------------------------------------------
 def _middlebury_matrix(text, key, path):
     m = re.fullmatch(r"\[(.*)\]", text.strip())
     if not m:
@@ -298,12 +307,12 @@ def _middlebury_matrix(text, key, path):
 def middlebury_pair(calib_path, scale=1.0, left=None, right=None):
     """A :class:`PairGeometry` from a Middlebury 2014 ``calib.txt``.
 
-    The left camera frame is the world (origin 0, identity registration), in **metres**: ``baseline`` (mm in the
-    file) is divided by 1000, so LiDAR-like clouds in metres project directly. ``scale`` is the image size factor
-    (0.5 for half size, 0.25 for quarter size): pixel quantities (f, cx, cy, doffs, width, height) scale, world
-    units do not. Principal points follow the pixel-centre convention ``c' = (c + 0.5) * scale - 0.5``.
-    ``doffs`` appears as the difference of the two principal points (``cam1 cx - cam0 cx``), which the file
-    must agree with.
+    The left camera frame is the world (origin 0, identity registration), in **metres**: ``baseline`` (mm in
+    the file) is divided by 1000, so LiDAR-like clouds in metres project directly. ``scale`` is the image size
+    factor (0.5 for half size, 0.25 for quarter size): pixel quantities (f, cx, cy, doffs, width, height)
+    scale, world units do not. Principal points follow the pixel-centre convention
+    ``c' = (c + 0.5) * scale - 0.5``. ``doffs`` appears as the difference of the two principal points
+    (``cam1 cx - cam0 cx``), which the file must agree with.
     """
     path = Path(calib_path)
     text = _read_text(path)
@@ -333,9 +342,10 @@ def middlebury_pair(calib_path, scale=1.0, left=None, right=None):
             numbers[key] = x
     if numbers["baseline"] <= 0:
         raise RiverbedError(f"baseline: must be positive (mm), got {values['baseline']}", path)
-    if "doffs" in numbers and abs(K1[0, 2] - K0[0, 2] - numbers["doffs"]) > 1e-3 * max(1.0, abs(numbers["doffs"])):
-        raise RiverbedError(
-            f"doffs {_fmt(numbers['doffs'])} disagrees with cam1 cx - cam0 cx = {_fmt(K1[0, 2] - K0[0, 2])}", path)
+    if "doffs" in numbers:
+        doffs, shift = numbers["doffs"], K1[0, 2] - K0[0, 2]
+        if abs(shift - doffs) > 1e-3 * max(1.0, abs(doffs)):
+            raise RiverbedError(f"doffs {_fmt(doffs)} disagrees with cam1 cx - cam0 cx = {_fmt(shift)}", path)
 
     def scaled(K):
         K = K.copy()
@@ -352,7 +362,7 @@ def middlebury_pair(calib_path, scale=1.0, left=None, right=None):
     size = {}
     for key in ("width", "height"):
         if key in numbers:
-            size[key] = int(round(numbers[key] * scale))
+            size[key] = round(numbers[key] * scale)
     return PairGeometry(P_left, P_right, left=left, right=right, **size)
 
 
@@ -372,12 +382,12 @@ def _read_text(path, limit=1_000_000):
 def kitti_pair(calib_path, left=None, right=None, width=None, height=None):
     """A :class:`PairGeometry` from a KITTI object-benchmark calibration file.
 
-    ``P_left``/``P_right`` are ``P2``/``P3`` as given (the colour cameras, projecting from the rectified camera-0
-    frame, which is the world: origin 0, in metres). The registration maps Velodyne to that frame:
-    ``R0_rect @ Tr_velo_to_cam`` (both padded to 4 x 4). KITTI's P2 and P3 also differ in the 4th column's second
-    and third entries (0.216 vs 2.20 px·m and 2.7e-3 vs 2.7e-3 m): camera 3 sits 2.7 mm below the baseline of
-    camera 2, which shifts the right image's rows by about 2.0 px·m / depth (0.5 px at 4 m); see
-    :func:`check_rectified`.
+    ``P_left``/``P_right`` are ``P2``/``P3`` as given (the colour cameras, projecting from the rectified
+    camera-0 frame, which is the world: origin 0, in metres). The registration maps Velodyne to that frame:
+    ``R0_rect @ Tr_velo_to_cam`` (both padded to 4 x 4). KITTI's P2 and P3 also differ in the 4th column's
+    entries [1][3] and [2][3] (0.216 vs 2.20 px·m, 2.746e-3 vs 2.730e-3 m): camera 3 sits 2.7 mm below the
+    baseline of camera 2, which shifts the right image's rows by about 2.0 px·m / depth (0.5 px at 4 m, 0.84
+    px at the nearest KITTI point, 2.4 m); see :func:`check_rectified`.
     """
     path = Path(calib_path)
     text = _read_text(path)
@@ -403,7 +413,7 @@ def kitti_pair(calib_path, left=None, right=None, width=None, height=None):
     Tr = np.eye(4)
     Tr[:3, :] = mats["Tr_velo_to_cam"].reshape(3, 4)
     try:
-        return PairGeometry(mats["P2"].reshape(3, 4), mats["P3"].reshape(3, 4), registration=R0 @ Tr, left=left,
-                            right=right, width=width, height=height)
+        return PairGeometry(mats["P2"].reshape(3, 4), mats["P3"].reshape(3, 4), registration=R0 @ Tr,
+                            left=left, right=right, width=width, height=height)
     except RiverbedError as e:
         raise RiverbedError(str(e), path) from None

@@ -1,24 +1,26 @@
-"""Project a LiDAR point cloud into a rectified pair: the sparse disparity map that ``riverbed match --sparse`` takes.
+"""Project a LiDAR point cloud into a rectified pair: the sparse disparities that ``match --sparse`` takes.
 
 :func:`project_cloud` streams the cloud in chunks (:func:`riverbed_cli.io.lidar.iter_lidar`), so its memory is
 bounded by the image size, not the cloud size:
 
 1. class filter (default: drop ASPRS noise classes 7 and 18);
-2. per point, in float64 (one Numba pass): LiDAR -> world by the registration, minus the pair's origin, project
-   into both cameras; drop points behind either camera, outside either image (``round(x)``, ``round(y)`` off
-   the ``W x H`` grid), and, for a pair whose right camera is slightly off the baseline (KITTI), points whose
-   right-image row differs from the left one by more than half a pixel;
-3. keep per left pixel the two nearest points (a two-layer z-buffer holding the points' coordinates): the second
-   layer lets a true surface point take its pixel back when the nearer point turns out to be an outlier;
+2. per point, in float64 (one Numba pass): LiDAR -> world by the registration, minus the pair's origin,
+   project into both cameras; drop points behind the left camera or outside the left image (``round(x)``,
+   ``round(y)`` off the ``W x H`` grid);
+3. keep per left pixel the two nearest points (a two-layer z-buffer holding the points' coordinates): the
+   second layer lets a true surface point take its pixel back when the nearer point turns out to be an
+   outlier. Points behind the right camera, outside the right image or, for a pair whose right camera is
+   slightly off the baseline (KITTI), whose right-image row is more than 1 px off, take part too (they still
+   hide what is behind them in the left view) and are dropped at the end;
 4. after the last chunk, statistical outlier removal (:mod:`~riverbed_cli.geometry.outliers`) on the kept
-   candidates (at most two per pixel, neighbours across all chunks), then the nearest surviving point per pixel;
-5. hidden point removal (:mod:`~riverbed_cli.geometry.visibility`) from the left camera and, with the same test,
-   from the right camera (``side``);
+   candidates (at most two per pixel, neighbours from all chunks), then the nearest surviving point per pixel;
+5. hidden point removal (:mod:`~riverbed_cli.geometry.visibility`) from the left camera and, with the same
+   test, from the right camera (``side``);
 6. ``d = x_left - x_right`` at ``(round(y_left), round(x_left))``.
 
 Every point read is counted exactly once: filtered by class, behind a camera, outside the images, off the row
-(``row_offset``), beaten by a nearer point in its pixel (``same_pixel``), an outlier, occluded in the left or in the
-right view, or kept.
+(``row_offset``), beaten by a nearer point in its pixel (``same_pixel``), an outlier, occluded in the left or
+in the right view, or kept.
 """
 
 import logging
@@ -32,7 +34,8 @@ from ..errors import RiverbedError
 from ..matching.guidance import auto_window, lidar_share
 from ..matching.pipeline import MatchParams
 from . import visibility as vis
-from .outliers import SOR_K, SOR_SIGMA, sor_inliers
+from .cameras import as_matrix, check_registration
+from .outliers import SOR_K, SOR_SIGMA, sor_inliers_image
 
 log = logging.getLogger(__name__)
 
@@ -42,20 +45,24 @@ OUTLIERS = ("sor", "none")
 #: Default ASPRS classes dropped: 7 (low noise) and 18 (high noise, LAS 1.4).
 NOISE_CLASSES = (7, 18)
 #: A point whose right-image row is this far (px) from its left-image row is dropped (pairs off the baseline).
-MAX_ROW_OFFSET = 0.5
+MAX_ROW_OFFSET = 1.0
+#: Most slots allocated at first (at most the header's point count or two per pixel; then grown by doubling).
+#: ``np.empty`` does not touch the pages, so an allocation larger than what is used costs no memory.
+_INITIAL_SLOTS = 1 << 26
 
-_COUNT_KEYS = ("behind_camera", "outside", "row_offset")
 
 
 @njit(cache=True)
-def _project_chunk(xyz, keep, A, PL, PR, sl, sr, width, height, max_dy, idx0, idx1, store_xyz, store_z, store_pix,
-                   n_used, start, counts):
-    """Project points ``start..`` of a chunk and insert them into the two-layer z-buffer.
+def _project_chunk(xyz, keep, A, PL, PR, sl, sr, width, height, max_dy, idx0, idx1, store_xyz, store_z,
+                   store_pix, store_code, n_used, start, counts):
+    """Project points ``start..`` of a chunk and insert them into the two-layer z-buffer of the left image.
 
     ``A`` (3 x 4) maps LiDAR coordinates to world minus origin. ``idx0``/``idx1`` (H*W int32): slot of the
-    nearest / second-nearest point of each pixel (-1: none). Slots hold world-minus-origin coordinates, depth and
-    pixel. Returns ``(next_point, n_used)``; ``next_point < len(xyz)`` means the slot store is full (grow it and
-    call again from there).
+    nearest / second-nearest point of each pixel (-1: none). Slots hold world-minus-origin coordinates, depth,
+    pixel and a code: 0 usable, 1 behind the right camera, 2 outside the right image, 3 right row off by more
+    than ``max_dy``. Coded points stay in the z-buffer (they still hide what is behind them in the left view)
+    and are dropped at the end. ``counts``: points behind the left camera, outside the left image. Returns
+    ``(next_point, n_used)``; ``next_point < len(xyz)`` means the slot store is full (grow it and call again).
     """
     cap = store_z.shape[0]
     n = xyz.shape[0]
@@ -69,22 +76,26 @@ def _project_chunk(xyz, keep, A, PL, PR, sl, sr, width, height, max_dy, idx0, id
         y = A[1, 0] * px + A[1, 1] * py + A[1, 2] * pz + A[1, 3]
         z = A[2, 0] * px + A[2, 1] * py + A[2, 2] * pz + A[2, 3]
         wl = PL[2, 0] * x + PL[2, 1] * y + PL[2, 2] * z + PL[2, 3]
-        wr = PR[2, 0] * x + PR[2, 1] * y + PR[2, 2] * z + PR[2, 3]
         depth = wl * sl
-        if not (depth > 0.0 and wr * sr > 0.0):
+        if not depth > 0.0:
             counts[0] += 1
             continue
         xl = (PL[0, 0] * x + PL[0, 1] * y + PL[0, 2] * z + PL[0, 3]) / wl
         yl = (PL[1, 0] * x + PL[1, 1] * y + PL[1, 2] * z + PL[1, 3]) / wl
-        xr = (PR[0, 0] * x + PR[0, 1] * y + PR[0, 2] * z + PR[0, 3]) / wr
-        yr = (PR[1, 0] * x + PR[1, 1] * y + PR[1, 2] * z + PR[1, 3]) / wr
-        if not (-0.5 <= xl < width - 0.5 and -0.5 <= yl < height - 0.5 and -0.5 <= xr < width - 0.5
-                and -0.5 <= yr < height - 0.5):
+        if not (-0.5 <= xl < width - 0.5 and -0.5 <= yl < height - 0.5):
             counts[1] += 1
             continue
-        if abs(yr - yl) > max_dy:
-            counts[2] += 1
-            continue
+        code = 0
+        wr = PR[2, 0] * x + PR[2, 1] * y + PR[2, 2] * z + PR[2, 3]
+        if not wr * sr > 0.0:
+            code = 1
+        else:
+            xr = (PR[0, 0] * x + PR[0, 1] * y + PR[0, 2] * z + PR[0, 3]) / wr
+            yr = (PR[1, 0] * x + PR[1, 1] * y + PR[1, 2] * z + PR[1, 3]) / wr
+            if not (-0.5 <= xr < width - 0.5 and -0.5 <= yr < height - 0.5):
+                code = 2
+            elif abs(yr - yl) > max_dy:
+                code = 3
         pix = np.int64(math.floor(yl + 0.5)) * width + np.int64(math.floor(xl + 0.5))
         a = idx0[pix]
         b = idx1[pix]
@@ -117,7 +128,14 @@ def _project_chunk(xyz, keep, A, PL, PR, sl, sr, width, height, max_dy, idx0, id
         store_xyz[s, 2] = z
         store_z[s] = depth
         store_pix[s] = pix
+        store_code[s] = code
     return n, n_used
+
+
+def _grow(a, cap):
+    out = np.empty((cap, *a.shape[1:]), a.dtype)
+    out[: a.shape[0]] = a
+    return out
 
 
 def _class_mask(cls, classes, drop_classes):
@@ -158,8 +176,8 @@ def image_shape(pair):
     return img.shape[:2]
 
 
-def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classes=NOISE_CLASSES, outliers="sor",
-                  side="both", visibility="zbuffer", footprint=vis.ZBUFFER_RADIUS,
+def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classes=NOISE_CLASSES,
+                  outliers="sor", side="both", visibility="zbuffer", footprint=vis.ZBUFFER_RADIUS,
                   depth_tolerance=vis.ZBUFFER_TOLERANCE, hpr_gamma=vis.HPR_GAMMA, crs=None, shape=None,
                   chunk_size=1_000_000, progress=None):
     """Project a LiDAR cloud into the pair's left image as sparse disparities.
@@ -199,7 +217,7 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
     stats : dict
         Counts (every point read lands in exactly one of them), ``lidar_share``, ``window`` (what
         ``match --window auto`` would use), ``d_range``, ``row_offset_px`` (pairs off the baseline), ``crs``,
-        ``seconds``.
+        ``seconds`` and ``stage_seconds`` (stream: read + project + z-buffer; outliers; visibility; share).
     """
     from ..io.lidar import iter_lidar, lidar_info, resolve_crs
 
@@ -215,7 +233,11 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
     _check_crs(pair, cloud_crs, cloud_path)
     H, W = shape if shape is not None else image_shape(pair)
 
-    reg = pair.registration if registration is None else np.asarray(registration, np.float64)
+    if registration is None:
+        reg = pair.registration
+    else:
+        reg = as_matrix(registration, 4, 4, "registration")
+        check_registration(reg)
     A = np.ascontiguousarray(np.hstack([reg[:3, :3], (reg[:3, 3] - pair.origin)[:, None]]))
     PL, PR = np.ascontiguousarray(pair.P_left), np.ascontiguousarray(pair.P_right)
     sl, sr = pair._depth_scale(PL), pair._depth_scale(PR)
@@ -223,13 +245,14 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
 
     idx0 = np.full(H * W, -1, np.int32)
     idx1 = np.full(H * W, -1, np.int32)
-    cap = max(1024, min(2 * H * W, 1 << 20))
+    cap = max(1, min(2 * H * W, info.point_count, _INITIAL_SLOTS))
     store_xyz = np.empty((cap, 3), np.float64)
     store_z = np.empty(cap, np.float64)
     store_pix = np.empty(cap, np.int64)
+    store_code = np.empty(cap, np.int8)
     n_used = 0
-    counts = np.zeros(3, np.int64)
-    n_read = n_class = n_inside = 0
+    counts = np.zeros(2, np.int64)
+    n_read = n_class = 0
     for chunk in iter_lidar(cloud_path, chunk_size=chunk_size):
         xyz = np.ascontiguousarray(chunk["xyz"], np.float64)
         keep = _class_mask(chunk["classification"], classes, drop_classes)
@@ -238,26 +261,19 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
         start = 0
         while True:
             start, n_used = _project_chunk(xyz, keep, A, PL, PR, sl, sr, W, H, max_dy, idx0, idx1, store_xyz,
-                                           store_z, store_pix, n_used, start, counts)
+                                           store_z, store_pix, store_code, n_used, start, counts)
             if start >= xyz.shape[0]:
                 break
             cap = min(2 * cap, 2 * H * W)  # at most two slots per pixel are ever in use
-            store_xyz = np.resize(store_xyz, (cap, 3))
-            store_z = np.resize(store_z, cap)
-            store_pix = np.resize(store_pix, cap)
+            store_xyz, store_z = _grow(store_xyz, cap), _grow(store_z, cap)
+            store_pix, store_code = _grow(store_pix, cap), _grow(store_code, cap)
         if progress is not None:
             progress(xyz.shape[0])
-    n_behind, n_outside, n_row = (int(c) for c in counts)
-    n_inside = n_read - n_class - n_behind - n_outside - n_row
+    n_behind, n_outside = (int(c) for c in counts)
+    t_stream = time.perf_counter()
+    n_inside = n_read - n_class - n_behind - n_outside  # in front of the left camera, inside the left image
 
-    stats = {"points_read": n_read, "filtered": {"class": n_class, "outliers": 0}, "behind_camera": n_behind,
-             "outside": n_outside, "row_offset": n_row,
-             "occluded": {"same_pixel": 0, "left": 0, "right": 0}, "kept": 0}
     pix0 = np.flatnonzero(idx0 >= 0)
-    if pix0.size == 0:
-        raise RiverbedError(
-            f"no point lands in the images ({n_read} read: {n_class} filtered by class, {n_behind} behind a camera,"
-            f" {n_outside} outside the {W}x{H} images, {n_row} off the row)", cloud_path)
     pix1 = np.flatnonzero(idx1 >= 0)
     s0, s1 = idx0[pix0], idx1[pix1]
     n_cand = s0.size + s1.size
@@ -265,19 +281,33 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
 
     # Outliers among all candidates (both layers), then the nearest surviving point per pixel.
     inlier = np.ones(n_used, bool)
-    if outliers == "sor":
+    if outliers == "sor" and n_cand:
         slots = np.concatenate([s0, s1])
-        inlier[slots] = sor_inliers(store_xyz[slots], store_z[slots], SOR_K, SOR_SIGMA)
+        inlier[slots] = sor_inliers_image(slots, np.concatenate([pix0, pix1]), idx0, idx1, (H, W), store_xyz,
+                                          store_z, pair.focal, SOR_K, SOR_SIGMA)
     n_outliers = int(n_cand - inlier[s0].sum() - inlier[s1].sum())
+    t_sor = time.perf_counter()
     win = s0.copy()
     lost = ~inlier[s0]
     second = idx1[pix0[lost]]
     second_ok = second >= 0
     second_ok[second_ok] = inlier[second[second_ok]]
-    fallback = np.where(second_ok, second, -1)
-    win[lost] = fallback
+    win[lost] = np.where(second_ok, second, -1)
     win = win[win >= 0]
     same_pixel += int(inlier[s1].sum()) - int(second_ok.sum())
+
+    # Winners behind the right camera, outside the right image or off the row are dropped, but only after they
+    # have hidden what lies behind them in the left view.
+    code = store_code[win]
+    n_behind += int((code == 1).sum())
+    n_outside += int((code == 2).sum())
+    n_row = int((code == 3).sum())
+    usable = code == 0
+    if not usable.any():
+        raise RiverbedError(
+            f"no point lands in both images ({n_read} read: {n_class} filtered by class, {n_behind} behind a "
+            f"camera, {n_outside} outside the {W}x{H} images, {n_row} off the row, {n_outliers} outliers)",
+            cloud_path)
 
     xyz = store_xyz[win]
     xl, yl, xr, zl, yr, zr = pair.project(xyz, full=True)
@@ -285,17 +315,20 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
     rows, cols = pix // W, pix % W
     d = xl - xr
 
-    visible = np.ones(win.size, bool)
+    visible = usable.copy()
     if visibility != "none" and side in ("left", "both"):
-        visible = _visible(visibility, rows, cols, zl, xyz, pair.centres[0], (H, W), footprint, depth_tolerance,
-                           hpr_gamma)
-    n_occ_left = int((~visible).sum())
+        visible &= _visible(visibility, rows, cols, zl, xyz, pair.centres[0], (H, W), footprint,
+                            depth_tolerance, hpr_gamma)
+    n_occ_left = int(usable.sum() - visible.sum())
     if visibility != "none" and side in ("right", "both"):
-        rr = np.floor(yr + 0.5).astype(np.int64)
-        cr = np.floor(xr + 0.5).astype(np.int64)
-        visible &= _visible(visibility, rr, cr, zr, xyz, pair.centres[1], (H, W), footprint, depth_tolerance,
-                            hpr_gamma)
-    n_occ_right = int(win.size - visible.sum()) - n_occ_left
+        in_right = (code == 0) | (code == 3)  # points with a place in the right image hide others there
+        vr = np.ones(win.size, bool)
+        vr[in_right] = _visible(visibility, np.floor(yr[in_right] + 0.5).astype(np.int64),
+                                np.floor(xr[in_right] + 0.5).astype(np.int64), zr[in_right], xyz[in_right],
+                                pair.centres[1], (H, W), footprint, depth_tolerance, hpr_gamma)
+        visible &= vr
+    n_occ_right = int(usable.sum() - visible.sum()) - n_occ_left
+    t_vis = time.perf_counter()
 
     sparse = np.full((H, W), np.nan, np.float32)
     sparse[rows[visible], cols[visible]] = d[visible].astype(np.float32)
@@ -303,25 +336,29 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
     share = lidar_share(sparse)
     window = auto_window(share, MatchParams.window_target)
     dv = d[visible]
-    stats.update({
-        "filtered": {"class": n_class, "outliers": n_outliers},
+    stats = {
+        "points_read": n_read, "filtered": {"class": n_class, "outliers": n_outliers},
+        "behind_camera": n_behind, "outside": n_outside, "row_offset": n_row,
         "occluded": {"same_pixel": same_pixel, "left": n_occ_left, "right": n_occ_right},
         "kept": kept, "lidar_share": share, "window": window,
-        "d_range": [float(dv.min()), float(dv.max())] if kept else None,
-        "size": [W, H],
-    })
+        "d_range": [float(dv.min()), float(dv.max())] if kept else None, "size": [W, H],
+    }
     if not pair.exactly_rectified and kept:
         dy = np.abs(yr - yl)[visible]
         stats["row_offset_px"] = {"median": float(np.median(dy)), "max": float(dy.max())}
-        log.warning("the pair's right camera is off the baseline: right-image rows differ by %.3f px (median, "
-                    "max %.3f) at the kept points; %d points off by more than %.1f px dropped",
+        log.warning("the pair's right camera is off the baseline: right-image rows differ by %.3f px "
+                    "(median, max %.3f) at the kept points; %d points off by more than %.1f px dropped",
                     float(np.median(dy)), float(dy.max()), n_row, MAX_ROW_OFFSET)
     stats["crs"] = cloud_crs.to_string() if cloud_crs is not None else pair.crs
-    stats["seconds"] = time.perf_counter() - t0
-    total = (n_class + n_outliers + n_behind + n_outside + n_row + same_pixel + n_occ_left + n_occ_right + kept)
+    t_end = time.perf_counter()
+    stats["seconds"] = t_end - t0
+    stats["stage_seconds"] = {"stream": t_stream - t0, "outliers": t_sor - t_stream,
+                              "visibility": t_vis - t_sor, "share": t_end - t_vis}
+    total = n_class + n_outliers + n_behind + n_outside + n_row + same_pixel + n_occ_left + n_occ_right + kept
     assert total == n_read, (total, n_read)
     if kept == 0:
-        raise RiverbedError(f"no point is left after outlier and hidden point removal ({n_read} read)", cloud_path)
+        raise RiverbedError(f"no point is left after outlier and hidden point removal ({n_read} read)",
+                            cloud_path)
     return sparse, stats
 
 

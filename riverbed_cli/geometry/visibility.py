@@ -3,56 +3,145 @@
 Both take the points that already won their pixel (the nearest point per pixel, see
 :func:`riverbed_cli.geometry.projection.project_cloud`) and tell which of them are visible from a camera.
 
-* :func:`zbuffer_visible`: every point is splatted as a disc of radius ``radius`` px at its depth; a point is hidden
-  when a nearer point's splat covers its pixel and is nearer by more than ``tolerance`` times the point's depth.
-  The disc closes the gaps between sparse LiDAR samples of a surface, through which points behind it would
-  otherwise show; the relative tolerance keeps points of the same, slanted surface.
+* :func:`zbuffer_visible`: every point is splatted as a disc of radius ``radius`` px at its depth; a point is
+  hidden when a nearer point's splat covers its pixel and is nearer by more than ``tolerance`` times the
+  point's depth. The disc closes the gaps between sparse LiDAR samples of a surface, through which points
+  behind it would otherwise show; the relative tolerance keeps points of the same, slanted surface. The
+  default radius is per point (:func:`footprint_radii`), so it follows the LiDAR density.
 * :func:`hpr_visible`: Katz, Tal, Basri, "Direct visibility of point sets" (SIGGRAPH 2007): spherical flipping
-  ``p' = p + 2 (R - |p|) p / |p|`` about the viewpoint with ``R = max|p| * 10**gamma``, then the convex hull of the
-  flipped points and the viewpoint; the points on the hull are visible.
+  ``p' = p + 2 (R - |p|) p / |p|`` about the viewpoint with ``R = max|p| * 10**gamma``, then the convex hull
+  of the flipped points and the viewpoint; the points on the hull are visible.
 
 docs/projection.md gives the measured comparison; the z-buffer is the default.
 """
 
 import logging
+import math
 
-import cv2
 import numpy as np
+from numba import njit
 
 log = logging.getLogger(__name__)
 
 #: Defaults chosen by measurement (docs/projection.md).
-ZBUFFER_RADIUS = 2
-ZBUFFER_TOLERANCE = 0.03
-HPR_GAMMA = 2.0
+ZBUFFER_RADIUS = "auto"
+ZBUFFER_TOLERANCE = 0.05
+ZBUFFER_K = 4
+ZBUFFER_MAX_RADIUS = 8
+HPR_GAMMA = 3.5
 
 
-def nearest_depth_image(rows, cols, depth, shape):
-    """``H x W`` float32 image of the smallest depth per pixel (inf where no point lands)."""
-    H, W = shape
-    img = np.full(H * W, np.inf, np.float32)
-    if rows.size:
-        lin = rows.astype(np.int64) * W + cols.astype(np.int64)
-        order = np.lexsort((depth, lin))
-        lin_sorted = lin[order]
-        first = np.ones(lin_sorted.size, bool)
-        first[1:] = lin_sorted[1:] != lin_sorted[:-1]
-        img[lin_sorted[first]] = depth[order][first]
-    return img.reshape(H, W)
+def _disc_offsets(radius):
+    """Pixel offsets ``(dy, dx)`` with ``dy^2 + dx^2 <= radius^2``, sorted by distance; and the distances."""
+    r = int(radius)
+    dy, dx = np.mgrid[-r:r + 1, -r:r + 1]
+    d2 = (dy * dy + dx * dx).ravel()
+    keep = d2 <= r * r
+    order = np.argsort(d2[keep], kind="stable")
+    return (dy.ravel()[keep][order].astype(np.int64), dx.ravel()[keep][order].astype(np.int64),
+            np.sqrt(d2[keep][order]).astype(np.float64))
 
 
-def zbuffer_visible(rows, cols, depth, shape, radius=ZBUFFER_RADIUS, tolerance=ZBUFFER_TOLERANCE):
-    """Visibility by a z-buffer whose points are discs of ``radius`` px.
+@njit(cache=True)
+def _index_image(rows, cols, depth, H, W):
+    """Index of the nearest point per pixel (-1: none)."""
+    img = np.full((H, W), -1, np.int32)
+    for i in range(rows.shape[0]):
+        j = img[rows[i], cols[i]]
+        if j < 0 or depth[i] < depth[j]:
+            img[rows[i], cols[i]] = i
+    return img
+
+
+@njit(cache=True)
+def _radii_kernel(img, rows, cols, depth, ody, odx, odist, k, tolerance, largest):
+    """Distance to the k-th nearest same-or-nearer point, scanning pixels in order of distance (see below)."""
+    H, W = img.shape
+    n = rows.shape[0]
+    out = np.empty(n, np.int64)
+    for i in range(n):
+        limit = depth[i] * (1.0 + tolerance)
+        same = 0
+        seen = 0
+        kth_any = -1.0
+        r = -1.0
+        for o in range(1, ody.shape[0]):  # offset 0 is the point's own pixel
+            y = rows[i] + ody[o]
+            x = cols[i] + odx[o]
+            if y < 0 or y >= H or x < 0 or x >= W:
+                continue
+            j = img[y, x]
+            if j < 0:
+                continue
+            seen += 1
+            if seen == k:
+                kth_any = odist[o]
+            if depth[j] <= limit:
+                same += 1
+                if same == k:
+                    r = odist[o]
+                    break
+            if seen >= 4 * k and kth_any >= 0:
+                r = kth_any  # few neighbours of its own surface: the k-th of any depth
+                break
+        if r < 0:  # the scan ended first: the k-th of any depth, if any
+            r = kth_any if kth_any >= 0 else float(largest)
+        out[i] = min(max(math.ceil(r), 1), largest)
+    return out
+
+
+@njit(cache=True)
+def _splat_kernel(rows, cols, depth, radius, H, W):
+    """Smallest depth of the discs (radius per point) covering each pixel (inf: none)."""
+    cover = np.full((H, W), np.inf, np.float32)
+    for i in range(rows.shape[0]):
+        r = radius[i]
+        z = np.float32(depth[i])
+        r2 = r * r
+        for dy in range(-r, r + 1):
+            y = rows[i] + dy
+            if y < 0 or y >= H:
+                continue
+            for dx in range(-r, r + 1):
+                x = cols[i] + dx
+                if x < 0 or x >= W or dy * dy + dx * dx > r2:
+                    continue
+                cover[y, x] = min(cover[y, x], z)
+    return cover
+
+
+def footprint_radii(rows, cols, depth, shape, k=ZBUFFER_K, tolerance=ZBUFFER_TOLERANCE,
+                    largest=ZBUFFER_MAX_RADIUS):
+    """Per-point splat radius (px): the image distance to the ``k``-th nearest point of its surface or nearer.
+
+    Neighbours farther than ``depth * (1 + tolerance)`` are ignored, so points behind a surface (which may be
+    denser than the surface's own samples) do not shrink its splats. With samples at a share ``p`` of the
+    pixels the ``k``-th neighbour lies about ``sqrt(k / (pi p))`` px away; ``k = 4`` closes the gaps of a
+    randomly sampled surface at 99 %. Radii are rounded up and clipped to ``[1, largest]``; a point that meets
+    ``4 k`` neighbours (or the end of the scan) before ``k`` of its own surface takes the ``k``-th nearest of
+    any depth (``largest`` if there are fewer than ``k``). Neighbours are the nearest point of each pixel,
+    scanned in order of distance up to ``largest`` px (a Numba kernel; the tests hold a k-d tree reference).
+    """
+    rows = np.ascontiguousarray(rows, np.int64)
+    cols = np.ascontiguousarray(cols, np.int64)
+    depth = np.ascontiguousarray(depth, np.float64)
+    img = _index_image(rows, cols, depth, int(shape[0]), int(shape[1]))
+    ody, odx, odist = _disc_offsets(largest)
+    return _radii_kernel(img, rows, cols, depth, ody, odx, odist, int(k), float(tolerance), int(largest))
+
+
+def zbuffer_visible(rows, cols, depth, shape, radius="auto", tolerance=ZBUFFER_TOLERANCE):
+    """Visibility by a z-buffer whose points are discs (``dy^2 + dx^2 <= r^2``).
 
     Parameters
     ----------
     rows, cols : (N,) int
-        Pixel of each point (in the camera the depths refer to).
+        Pixel of each point (in the camera the depths refer to), inside ``shape``.
     depth : (N,) float
         Depth along that camera's optical axis (> 0).
     shape : (H, W)
-    radius : int
-        Splat radius in pixels (0: plain per-pixel z-buffer).
+    radius : int, (N,) int array or "auto"
+        Splat radius in pixels (0: plain per-pixel z-buffer); ``"auto"``: :func:`footprint_radii`.
     tolerance : float
         A covering point must be nearer by more than ``tolerance * depth`` to hide a point.
 
@@ -60,12 +149,14 @@ def zbuffer_visible(rows, cols, depth, shape, radius=ZBUFFER_RADIUS, tolerance=Z
     -------
     visible : (N,) bool
     """
-    depth = np.asarray(depth, np.float64)
-    zimg = nearest_depth_image(rows, cols, depth.astype(np.float32), shape)
-    if radius > 0:
-        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
-        zimg = cv2.erode(zimg, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=float("inf"))
-    return depth - zimg[rows, cols] <= tolerance * depth
+    rows = np.ascontiguousarray(rows, np.int64)
+    cols = np.ascontiguousarray(cols, np.int64)
+    depth = np.ascontiguousarray(depth, np.float64)
+    if isinstance(radius, str):
+        radius = footprint_radii(rows, cols, depth, shape, tolerance=tolerance)
+    radius = np.ascontiguousarray(np.broadcast_to(np.asarray(radius, np.int64), depth.shape))
+    cover = _splat_kernel(rows, cols, depth, radius, int(shape[0]), int(shape[1]))
+    return depth - cover[rows, cols] <= tolerance * depth
 
 
 def hpr_visible(xyz, viewpoint, gamma=HPR_GAMMA):
@@ -73,8 +164,7 @@ def hpr_visible(xyz, viewpoint, gamma=HPR_GAMMA):
 
     ``gamma`` sets the flipping radius ``R = max|p - viewpoint| * 10**gamma`` (larger: more points visible).
     """
-    from scipy.spatial import ConvexHull
-    from scipy.spatial import QhullError
+    from scipy.spatial import ConvexHull, QhullError
 
     p = np.asarray(xyz, np.float64) - np.asarray(viewpoint, np.float64)
     n = p.shape[0]

@@ -60,12 +60,22 @@ def _parse(path, what):
         raise RiverbedError(f"invalid YAML{where}: {problem}", path) from None
 
 
+def _check_crs(crs, path):
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
+    try:
+        CRS.from_user_input(crs)
+    except CRSError:
+        raise RiverbedError(f"crs: unknown CRS '{crs}'", path) from None
+
+
 def load_pairfile(path):
     """Read a pair file (YAML or JSON) into a validated :class:`PairGeometry`.
 
     Image paths are resolved relative to the pair file's folder. Raises :class:`RiverbedError` (``PATH: KEY:
-    problem``) for a missing or unreadable file, unknown keys, wrong shapes, non-finite numbers, a pair that is
-    not rectified, or a singular registration.
+    problem``) for a missing or unreadable file, unknown keys, wrong shapes, non-finite numbers, a pair that
+    is not rectified, or a singular registration.
     """
     path = Path(path)
     data, _ = _parse(path, "pair file")
@@ -85,13 +95,15 @@ def load_pairfile(path):
         crs = data["crs"]
         if isinstance(crs, int) and not isinstance(crs, bool):
             crs = f"EPSG:{crs}"
+        if isinstance(crs, str):
+            _check_crs(crs, path)
         fields["crs"] = crs
     for key in ("left", "right"):
         value = data.get(key)
         if value is not None:
             if not isinstance(value, str) or not value:
                 raise RiverbedError(f"{key}: expected a file name, got {value!r}", path)
-            fields[key] = (path.parent / value).absolute()
+            fields[key] = Path(os.path.normpath((path.parent / value).absolute()))
     try:
         return PairGeometry(**fields)
     except RiverbedError as e:
@@ -104,8 +116,8 @@ def load_registration(path):
     """A 4 x 4 LiDAR -> world transform from a file.
 
     Accepted: plain text with 16 numbers (4 rows of 4) or 12 (3 rows of 4, KITTI ``Tr_*`` style; ``0 0 0 1``
-    appended), separated by spaces, commas or new lines; or YAML/JSON holding the matrix, bare or under the key
-    ``registration`` (so a pair file can lend its registration).
+    appended), separated by spaces, commas or new lines; or YAML/JSON holding the matrix, bare or under the
+    key ``registration`` (so a pair file can lend its registration).
     """
     path = Path(path)
     data, text = _parse(path, "registration file")
@@ -116,8 +128,8 @@ def load_registration(path):
     if not isinstance(data, list):
         tokens = text.replace(",", " ").split()
         if len(tokens) not in (12, 16):
-            raise RiverbedError(f"registration: expected 16 numbers (4x4) or 12 (3x4), got {len(tokens)} values",
-                                path)
+            raise RiverbedError(
+                f"registration: expected 16 numbers (4x4) or 12 (3x4), got {len(tokens)} values", path)
         data = [tokens[i:i + 4] for i in range(0, len(tokens), 4)]
     if isinstance(data, list) and len(data) == 3:
         data = [*data, [0, 0, 0, 1]]

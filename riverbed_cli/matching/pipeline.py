@@ -9,11 +9,12 @@ import numpy as np
 
 from ..errors import RiverbedError
 from ..io.images import effective_bits, to_grey, to_guide
-from . import census, disparity, guidance, sgm
+from . import adcensus, census, disparity, guidance, sgm
 
 log = logging.getLogger(__name__)
 
-GUIDES = ("none", "gauss", "riverbed")
+GUIDES = ("none", "gauss", "riverbed", "diffusion", "riverbed+")
+MATCHERS = ("sgm", "adcensus")
 
 
 @dataclass
@@ -42,6 +43,10 @@ class MatchParams:
     cost_scale: int = 4  # guided costs are kept in uint16 at this resolution (1/4 of a Hamming unit)
     window_target: float = 4.0  # auto window: smallest odd s with s*s*p >= window_target (measured, docs/method.md)
     literal_eq3: bool = False  # homogeneous pixels by eq. 3 as printed (W > gamma); only to reproduce that reading
+    matcher: str = "sgm"  # "sgm" (census + SGM) or "adcensus" (Mei et al. 2011, adcensus.py)
+    adcensus: object = None  # adcensus.ADCensusParams; None = its defaults (the paper's)
+    diffusion: object = None  # dict of diffusion.diffusion_modulate keywords (radius, sigma_s, sigma_i); None = defaults
+    plus: object = None  # riverbed_plus.PlusParams; None = defaults (guide "riverbed+")
 
 
 @dataclass
@@ -114,6 +119,8 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, **
     p = MatchParams(**{**(params.__dict__ if params else {}), **overrides})
     if p.guide not in GUIDES:
         raise RiverbedError(f"unknown guide '{p.guide}' (use one of {', '.join(GUIDES)})")
+    if p.matcher not in MATCHERS:
+        raise RiverbedError(f"unknown matcher '{p.matcher}' (use one of {', '.join(MATCHERS)})")
     if left.shape[:2] != right.shape[:2]:
         raise RiverbedError(
             f"left and right images differ in size: {left.shape[1]}x{left.shape[0]} vs {right.shape[1]}x{right.shape[0]}"
@@ -139,6 +146,17 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, **
     shape = left.shape[:2]
     if sparse is not None:
         sparse = _prepare_sparse(sparse, shape, d_min, d_max)
+    if p.matcher == "adcensus":
+        return _match_adcensus(left, right, sparse, d_min, d_max, p, t_all)
+    if p.guide == "riverbed+" and (p.plus is not None and p.plus.confidence == "lr") and getattr(p, "_plus_mask", None) is None:
+        first = match_pair(left, right, sparse, d_min, d_max, p, guide="riverbed", lr_check=True, median=1)
+        p._plus_mask = ~np.isfinite(first.disparity)
+        if p.plus.check_slope >= 0:
+            p._plus_first = first.disparity
+        if p.plus.dilate > 0:
+            import cv2
+            k = 2 * p.plus.dilate + 1
+            p._plus_mask = cv2.dilate(p._plus_mask.astype(np.uint8), np.ones((k, k), np.uint8)).astype(bool)
 
     t0 = time.perf_counter()
     win = census.parse_census_window(p.census)
@@ -167,6 +185,8 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, **
             cost = guidance.gauss_modulate(cost, sparse, d_min, p.k, p.c, p.form, scale, cap, inplace=True,
                                            fbar=fbar)
             max_cost = cap
+        elif p.guide in ("diffusion", "riverbed+"):
+            cost, window = _modulate(cost, sparse, to_guide(left, bits), d_min, p, share, scale, cap, fbar)
         else:
             window = guidance.auto_window(share, p.window_target) if p.window == "auto" else int(p.window)
             cost = guidance.riverbed_modulate(cost, sparse, to_guide(left, bits), d_min, window, p.k, p.c, p.sigma_xy,
@@ -193,6 +213,7 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, **
         "seconds": round(time.perf_counter() - t_all, 4),
         "stages": stages,
         "guide": p.guide,
+        "matcher": p.matcher,
         "lidar_share": share,
         "lidar_points": int(np.isfinite(sparse).sum()) if sparse is not None else 0,
         "window": window,
@@ -203,8 +224,82 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, **
     return MatchResult(disp, info)
 
 
-def warm_up():
-    """Compile (or load from Numba's cache) every kernel ``match_pair`` uses, on a tiny pair.
+def _modulate(cost, sparse, guide_img, d_min, p, share, scale, cap, fbar):
+    """Guide a cost volume (uint16 in units of ``1 / scale``, modulated in place) with ``p.guide``; ``fbar`` is
+    the wall scale ``F_bar`` in plain cost units.
+
+    Returns ``(volume, window)`` (the riverbed window, None for guides without one).
+    """
+    window = None
+    if p.guide == "gauss":
+        cost = guidance.gauss_modulate(cost, sparse, d_min, p.k, p.c, p.form, scale, cap, inplace=True, fbar=fbar)
+    elif p.guide == "riverbed":
+        window = guidance.auto_window(share, p.window_target) if p.window == "auto" else int(p.window)
+        cost = guidance.riverbed_modulate(cost, sparse, guide_img, d_min, window, p.k, p.c, p.sigma_xy, p.sigma_i,
+                                          p.gamma, p.band, p.form, scale, cap, inplace=True,
+                                          literal_eq3=p.literal_eq3, fbar=fbar)
+    elif p.guide == "diffusion":
+        from .diffusion import diffusion_modulate
+
+        cost = diffusion_modulate(cost, sparse, guide_img, d_min, cost_scale=scale, inplace=True,
+                                  **(p.diffusion or {}))
+    elif p.guide == "riverbed+":
+        from .riverbed_plus import riverbed_plus_modulate
+
+        window = guidance.auto_window(share, p.window_target) if p.window == "auto" else int(p.window)
+        cost = riverbed_plus_modulate(cost, sparse, guide_img, d_min, window, p, scale, cap, fbar, inplace=True,
+                                      mask=getattr(p, "_plus_mask", None), first=getattr(p, "_plus_first", None))
+    return cost, window
+
+
+def _match_adcensus(left, right, sparse, d_min, d_max, p, t_all):
+    """``match_pair`` with the AD-Census matcher: guidance between cross aggregation and scanline optimisation."""
+    ap = p.adcensus or adcensus.ADCensusParams()
+    bits = effective_bits(left, right)
+    guide_img = to_guide(left, bits)
+    il, ir = adcensus.to_u8(guide_img), adcensus.to_u8(to_guide(right, bits))
+    grey = (to_grey(left, bits), to_grey(right, bits))
+    share = guidance.lidar_share(sparse) if sparse is not None else 0.0
+    used = {"window": None}
+    modulate = None
+    if p.guide != "none":
+        # int16 scanline paths: a guided cost plus the largest penalty must stay below 16384 (and each half-sum of
+        # two paths within int16)
+        cap = 16383 - int(adcensus.so_penalties(ap.pi1, ap.pi2, ap.scale)[1][0])
+        # wall scale: half the largest AD-Census cost (1.0 of the paper's [0, 2]), as half the census bits for SGM
+        fbar = float(ap.scale) if p.wall_scale == "auto" else float(p.wall_scale)
+
+        def modulate(vol, max_cost):
+            vol, used["window"] = _modulate(vol, sparse, guide_img, d_min, p, share, 1, cap, fbar)
+            return vol, cap
+
+    stages = {}
+    disp, ref = adcensus.adcensus_disparity(il, ir, d_min, d_max, ap, parse_census(p.census), grey, modulate,
+                                            p.subpixel, p.median, stages)
+    stages = {k: round(v, 4) for k, v in stages.items()}
+    info = {
+        "seconds": round(time.perf_counter() - t_all, 4),
+        "stages": stages,
+        "guide": p.guide,
+        "matcher": p.matcher,
+        "lidar_share": share,
+        "lidar_points": int(np.isfinite(sparse).sum()) if sparse is not None else 0,
+        "window": used["window"],
+        "d_min": d_min,
+        "d_max": d_max,
+        "size": [int(left.shape[1]), int(left.shape[0])],
+        "refinement": ref,
+    }
+    return MatchResult(disp, info)
+
+
+def parse_census(spec):
+    return census.parse_census_window(spec)
+
+
+def warm_up(matcher="sgm", guides=("none", "gauss", "riverbed")):
+    """Compile (or load from Numba's cache) the kernels ``match_pair`` uses with ``matcher`` and ``guides``, on a
+    tiny pair.
 
     Loading compiled code is start-up cost; calling this first keeps it out of ``info["seconds"]``.
     """
@@ -213,6 +308,7 @@ def warm_up():
     right = np.roll(left, -2, axis=1)
     sparse = np.full((24, 32), np.nan, dtype=np.float32)
     sparse[::5, ::5] = 2.0
-    for guide in GUIDES:
-        match_pair(left, right, sparse, 0, 7, guide=guide)
-    match_pair(left, right, sparse, 0, 7, guide="none", lr_check=True)
+    for guide in guides:
+        match_pair(left, right, sparse, 0, 7, guide=guide, matcher=matcher)
+    if matcher == "sgm":
+        match_pair(left, right, sparse, 0, 7, guide="none", lr_check=True)

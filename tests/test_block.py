@@ -1,0 +1,308 @@
+"""riverbed block: manifest validation, the same merged DSM sequentially and on a 2-worker LocalCluster, re-runs
+that skip verified pairs, tampered outputs and changed settings that re-run only their pair, failing pairs."""
+
+import json
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+import yaml
+from click.testing import CliRunner
+
+from riverbed_cli.cli.main import cli
+from riverbed_cli.errors import RiverbedError
+from riverbed_cli.geometry.cameras import PairGeometry
+from riverbed_cli.io.disparity import read_disparity
+from riverbed_cli.io.images import read_image
+from riverbed_cli.io.pairfile import load_pairfile, write_pairfile
+from riverbed_cli.io.pointcloud import write_points
+from riverbed_cli.products.dsm import Grid, rasterize
+from riverbed_cli.products.visualize import write_png
+from riverbed_cli.scale.block import load_manifest, plan_block
+from riverbed_cli.scale.tiles import match_tiled
+
+DATA = Path(__file__).parent / "data" / "cones"
+SAMPLE = Path(__file__).parent.parent / "sample_data" / "block"
+
+# A nadir-like frame for the Middlebury Cones pair (450 x 375): f = 1000 px, baseline 115 m, a Middlebury-style
+# principal point shift (doffs) of 200 px, so GT disparities 5.5..55 px are depths of 442..561 m below a camera at
+# 600 m: an aerial block's geometry (GSD ~0.5 m) on real images.
+F, BASE, DOFFS, FLY = 1000.0, 115.0, 200.0, 600.0
+ORIGIN = np.array([501000.0, 5002300.0, 0.0])  # just south-west of the synthetic sample block
+CROP = (200, 240)  # H, W of each test pair
+CROPS = {"a": (0, 0), "b": (210, 0), "c": (0, 175), "d": (210, 175)}  # x0, y0: four overlapping views
+CRS = "EPSG:32632"
+
+
+def cones_pair(x0=0, y0=0, width=450, height=375, left=None, right=None):
+    """The rectified cameras of a crop at (x0, y0) of Cones: every crop sees the same world."""
+    R = np.diag([1.0, -1.0, -1.0])  # looking down, image x east, image y south
+    C = np.array([0.0, 0.0, FLY])
+    K = np.array([[F, 0, 225.0 - x0], [0, F, 187.0 - y0], [0, 0, 1]])
+    K1 = K.copy()
+    K1[0, 2] += DOFFS
+    return PairGeometry(K @ np.c_[R, -R @ C], K1 @ np.c_[R, -R @ (C + [BASE, 0, 0])], origin=ORIGIN, crs=CRS,
+                        left=left, right=right, width=width, height=height)
+
+
+def gt_points(share=1.0, seed=0):
+    """World points (float64) of the Cones ground truth, all or a random share of them."""
+    gt = read_disparity(DATA / "disp2.png", scale=4)
+    r, c = np.nonzero(np.isfinite(gt))
+    if share < 1:
+        keep = np.random.default_rng(seed).random(r.size) < share
+        r, c = r[keep], c[keep]
+    return cones_pair().triangulate(c, r, gt[r, c]) + ORIGIN
+
+
+def write_cones_block(base):
+    """Four crops of Cones as pair files, LiDAR (5 % of the GT) in two LAZ tiles, and block manifests."""
+    left, right = read_image(DATA / "im2.png"), read_image(DATA / "im6.png")
+    H, W = CROP
+    for name, (x0, y0) in CROPS.items():
+        folder = base / name
+        folder.mkdir(parents=True)
+        write_png(folder / "left.png", left[y0:y0 + H, x0:x0 + W])
+        write_png(folder / "right.png", right[y0:y0 + H, x0:x0 + W])
+        write_pairfile(folder / "pair.yaml", cones_pair(x0, y0, W, H, folder / "left.png", folder / "right.png"))
+    xyz = gt_points(0.05)
+    west = xyz[:, 0] < np.median(xyz[:, 0])
+    (base / "lidar").mkdir()
+    write_points(base / "lidar" / "west.laz", xyz[west], None, CRS)
+    write_points(base / "lidar" / "east.laz", xyz[~west], None, CRS)
+    (base / "lidar" / "corrupt.laz").write_bytes(b"LASF" + bytes(range(256)) * 4)
+    pairs = [{"pair": "a/pair.yaml", "cloud": "lidar/*st.laz"},
+             {"pair": "b/pair.yaml", "cloud": ["lidar/west.laz", "lidar/east.laz"]},
+             {"pair": "c/pair.yaml", "cloud": "lidar/*st.laz", "name": "c"},
+             {"pair": "d/pair.yaml", "cloud": "lidar/*st.laz", "tile": 256}]  # not tiled: one match_pair task
+    if (SAMPLE / "pair.yaml").is_file():  # the synthetic aerial sample block, when it has been generated
+        pairs.append({"pair": str(SAMPLE / "pair.yaml"), "cloud": str(SAMPLE / "lidar.laz"), "name": "sample",
+                      "tile": 4096})
+    defaults = {"resolution": 1.0, "agg": "max", "tile": 128, "overlap": 32}
+    (base / "block.yaml").write_text(yaml.safe_dump({"defaults": defaults, "pairs": pairs}, sort_keys=False))
+    bad = [{"pair": "d/pair.yaml", "cloud": "lidar/*st.laz", "name": "good"},
+           {"pair": "a/pair.yaml", "cloud": "lidar/corrupt.laz", "name": "bad"}]
+    (base / "bad.yaml").write_text(yaml.safe_dump({"defaults": defaults, "pairs": bad}, sort_keys=False))
+    return base
+
+
+def run(args):
+    result = CliRunner().invoke(cli, args, catch_exceptions=False)
+    return result
+
+
+def summary(result):
+    return json.loads(result.stdout)
+
+
+def read_dsm(path):
+    with rasterio.open(path) as ds:
+        return ds.read(1), ds.transform, ds.crs
+
+
+@pytest.fixture(scope="module")
+def block(tmp_path_factory):
+    base = write_cones_block(tmp_path_factory.mktemp("block"))
+    t0 = time.perf_counter()
+    res = run(["block", str(base / "block.yaml"), "-o", str(base / "seq"), "--workers", "0", "--json"])
+    seconds = time.perf_counter() - t0
+    assert res.exit_code == 0, res.stderr
+    return base, summary(res), seconds
+
+
+# -- manifest validation --------------------------------------------------------------------------------------------
+
+GOOD = {"pair": "a/pair.yaml", "cloud": "lidar/*st.laz"}
+
+
+ERRORS = [
+    ({"pairs": [GOOD], "extra": 1}, "unknown key 'extra' (manifest keys: defaults, pairs)"),
+    ({"defaults": {"windw": 5}, "pairs": [GOOD]}, "defaults: unknown key 'windw' (settings: resolution, crs, agg, "),
+    ({"pairs": [{**GOOD, "colour": 1}]},
+     "pairs[0]: unknown key 'colour' (pair keys: pair, cloud, name, and the settings of defaults)"),
+    ({"pairs": []}, "pairs: expected a non-empty list of {pair: PAIR_FILE, cloud: CLOUDS}"),
+    ({"pairs": [GOOD, {"pair": "x/pair.yaml", "cloud": "lidar/west.laz"}]}, "pairs[1].pair: file not found: x/pair.yaml"),
+    ({"pairs": [{"pair": "a/pair.yaml"}]}, "pairs[0].cloud: missing"),
+    ({"pairs": [{**GOOD, "cloud": "lidar/*.las"}]}, "pairs[0].cloud: 'lidar/*.las' matches no file"),
+    ({"pairs": [{**GOOD, "cloud": ["lidar/west.laz", "lidar/north.laz"]}]},
+     "pairs[0].cloud: file not found: lidar/north.laz"),
+    ({"defaults": {"tile": 8}, "pairs": [GOOD]}, "defaults.tile: expected 'auto' or an integer >= 16 (px), got 8"),
+    ({"defaults": {"agg": "mode"}, "pairs": [GOOD]},
+     "defaults.agg: expected one of max, mean, median, idw, got 'mode'"),
+    ({"defaults": {"crs": "EPSG:99999999"}, "pairs": [GOOD]}, "defaults.crs: unknown CRS 'EPSG:99999999'"),
+    ({"defaults": {"resolution": -1}, "pairs": [GOOD]},
+     "defaults.resolution: expected a positive number (CRS units) or null, got -1"),
+    ({"pairs": [{**GOOD, "window": 4}]}, "pairs[0].window: expected 'auto' or an odd positive integer, got 4"),
+    ({"pairs": [{**GOOD, "lr_check": "yes"}]}, "pairs[0].lr_check: expected true or false, got 'yes'"),
+    ({"pairs": [{**GOOD, "census": "8x7"}]}, "pairs[0].census: census window 8x7: width and height must be odd"),
+    ({"pairs": [{**GOOD, "resolution": 0.5}]}, "pairs[0].resolution: a block-wide setting; give it under defaults"),
+    ({"pairs": [{**GOOD, "min_disp": 9, "max_disp": 3}]}, "pairs[0]: min_disp 9 > max_disp 3"),
+    ({"pairs": [GOOD, {**GOOD, "cloud": "lidar/west.laz"}]},
+     "pairs[1].name: 'a_pair' is already the name of pairs[0]; give each pair a unique name"),
+    ({"pairs": [{**GOOD, "name": "../up"}]}, "pairs[0].name: expected letters, digits"),
+]
+
+
+@pytest.mark.parametrize("manifest, message", ERRORS)
+def test_manifest_errors_name_the_manifest_and_the_key(block, manifest, message):
+    base = block[0]
+    path = base / "wrong.yaml"
+    path.write_text(yaml.safe_dump(manifest))
+    with pytest.raises(RiverbedError) as e:
+        load_manifest(path)
+    assert str(e.value).startswith(f"{path}: {message}"), str(e.value)
+    res = CliRunner().invoke(cli, ["block", str(path), "-o", str(base / "never")])
+    assert res.exit_code == 1 and res.stderr.startswith(f"riverbed: error: {path}: {message}")
+    assert len(res.stderr.strip().splitlines()) == 1 and not (base / "never").exists()
+
+
+def test_manifest_yaml_errors_and_defaults(block, tmp_path):
+    base = block[0]
+    bad = tmp_path / "m.yaml"
+    bad.write_text("pairs: [unclosed\n")
+    with pytest.raises(RiverbedError, match=r"m.yaml: invalid YAML at line 2, column 1"):
+        load_manifest(bad)
+    bad.write_text("!!python/object/apply:os.system ['true']\n")
+    with pytest.raises(RiverbedError, match="invalid YAML"):  # safe_load only
+        load_manifest(bad)
+    m = load_manifest(base / "block.yaml")
+    names = [p.name for p in m.pairs]
+    assert names[:4] == ["a_pair", "b_pair", "c", "d_pair"]
+    assert [len(p.clouds) for p in m.pairs[:4]] == [2, 2, 2, 2]
+    assert m.pairs[0].settings["tile"] == 128 and m.pairs[3].settings["tile"] == 256
+    assert m.pairs[0].settings["census"] == "9x7" and m.pairs[0].settings["drop_classes"] == [7, 18]
+
+
+def test_output_folder_rule(block, tmp_path):
+    base = block[0]
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "keep.txt").write_text("mine")
+    res = CliRunner().invoke(cli, ["block", str(base / "bad.yaml"), "-o", str(other)])
+    assert res.exit_code == 1 and "output folder is not empty and holds no block; pass --overwrite" in res.stderr
+    res = CliRunner().invoke(cli, ["block", str(base / "bad.yaml"), "-o", str(base / "seq")])
+    assert res.exit_code == 1 and "holds the block of another manifest" in res.stderr
+    res = CliRunner().invoke(cli, ["block", str(base / "bad.yaml"), "-o", str(tmp_path / "no" / "out")])
+    assert res.exit_code == 1 and "does not exist" in res.stderr
+
+
+# -- running blocks -------------------------------------------------------------------------------------------------
+
+def test_sequential_block_products(block):
+    base, info, _ = block
+    assert [p["status"] for p in info["pairs"]] == ["done"] * len(info["pairs"])
+    assert [p["tiles"] for p in info["pairs"][:4]] == [4, 4, 4, 0]
+    assert info["merged"]["status"] == "done" and info["merged"]["pairs"] == len(info["pairs"])
+    out = base / "seq"
+    for name in ("a_pair", "b_pair", "c", "d_pair"):
+        folder = out / "pairs" / name
+        assert sorted(p.name for p in folder.iterdir()) == ["disparity.tif", "done.json", "dsm.tif",
+                                                            "points.laz", "sparse.tif"]
+    dsm, transform, crs = read_dsm(out / "dsm.tif")
+    assert crs.to_epsg() == 32632 and transform.a == 1.0 and transform.c % 1.0 == 0 and transform.f % 1.0 == 0
+    # The merged DSM holds the Cones surface: against the ground-truth points on the same grid.
+    xyz = gt_points()
+    grid = Grid(transform.c, transform.f, 1.0, dsm.shape[1], dsm.shape[0])
+    ref = rasterize(xyz[:, 0], xyz[:, 1], xyz[:, 2], grid, "max")
+    both = np.isfinite(dsm) & np.isfinite(ref)
+    assert both.sum() > 0.8 * np.isfinite(ref).sum()
+    assert np.median(np.abs(dsm[both] - ref[both])) < 0.6  # ~0.25 px of disparity at 2.2 m per px
+
+
+def test_tile_tasks_are_match_tiled(block):
+    """The per-tile tasks stitched give exactly what match_tiled gives on the same pair, sparse map and settings."""
+    base = block[0]
+    folder = base / "seq" / "pairs" / "a_pair"
+    pair = load_pairfile(base / "a" / "pair.yaml")
+    sparse = read_disparity(folder / "sparse.tif")
+    ref = match_tiled(read_image(pair.left), read_image(pair.right), sparse, tile=128, overlap=32)
+    np.testing.assert_array_equal(read_disparity(folder / "disparity.tif"), ref.disparity)
+
+
+def test_dask_block_equals_sequential(block):
+    base, seq, t_seq = block
+    t0 = time.perf_counter()
+    res = run(["block", str(base / "block.yaml"), "-o", str(base / "dask"), "--workers", "2", "--json"])
+    t_dask = time.perf_counter() - t0
+    assert res.exit_code == 0, res.stderr
+    info = summary(res)
+    assert info["mode"] == "local"
+    assert [p["status"] for p in info["pairs"]] == ["done"] * len(info["pairs"])
+    a, ta, _ = read_dsm(base / "seq" / "dsm.tif")
+    b, tb, _ = read_dsm(base / "dask" / "dsm.tif")
+    assert ta == tb
+    np.testing.assert_array_equal(a, b)
+    for p in seq["pairs"]:
+        done_seq = json.loads((base / "seq" / "pairs" / p["name"] / "done.json").read_text())
+        done_dask = json.loads((base / "dask" / "pairs" / p["name"] / "done.json").read_text())
+        assert done_seq["outputs"]["points.laz"] == done_dask["outputs"]["points.laz"]
+    print(f"\nsequential {t_seq:.1f} s, 2 workers {t_dask:.1f} s (cluster start included)")
+
+
+def test_rerun_skips_every_finished_pair(block):
+    base = block[0]
+    before = (base / "seq" / "dsm.tif").stat().st_mtime_ns
+    t0 = time.perf_counter()
+    res = run(["block", str(base / "block.yaml"), "-o", str(base / "seq"), "--json"])  # default: local cluster
+    seconds = time.perf_counter() - t0
+    assert res.exit_code == 0, res.stderr
+    info = summary(res)
+    assert [p["status"] for p in info["pairs"]] == ["skipped"] * len(info["pairs"])
+    assert info["merged"]["status"] == "skipped" and (base / "seq" / "dsm.tif").stat().st_mtime_ns == before
+    assert all(p["points"] > 10000 for p in info["pairs"])
+    assert seconds < 5, seconds  # no cluster is started when nothing is left to do
+    print(f"\nre-run {seconds:.2f} s")
+
+
+def test_tampered_output_and_changed_setting_rerun_only_their_pair(block, tmp_path):
+    base = block[0]
+    copy = tmp_path / "copy"
+    shutil.copytree(base, copy)  # copy2: mtimes kept, so the inputs hash the same
+    marker = copy / "seq" / "block.json"
+    record = json.loads(marker.read_text())
+    record["manifest"] = str(copy / "block.yaml")  # the copied block belongs to the copied manifest
+    marker.write_text(json.dumps(record))
+    laz = copy / "seq" / "pairs" / "b_pair" / "points.laz"
+    original = laz.read_bytes()
+    data = bytearray(original)
+    data[len(data) // 2] ^= 0xFF  # one byte changed, same size
+    laz.write_bytes(bytes(data))
+    manifest = yaml.safe_load((copy / "block.yaml").read_text())
+    manifest["pairs"][2]["median"] = 5  # pair c: a changed setting
+    (copy / "block.yaml").write_text(yaml.safe_dump(manifest, sort_keys=False))
+    res = run(["block", str(copy / "block.yaml"), "-o", str(copy / "seq"), "--workers", "0", "--json"])
+    assert res.exit_code == 0, res.stderr
+    status = {p["name"]: p["status"] for p in summary(res)["pairs"]}
+    assert status.pop("b_pair") == "done" and status.pop("c") == "done"
+    assert set(status.values()) == {"skipped"}
+    assert laz.read_bytes() == original  # recomputed identically
+    assert summary(res)["merged"]["status"] == "done"
+
+
+@pytest.mark.parametrize("workers", ["0", "1"])
+def test_failing_pair_is_reported_and_the_rest_finish(block, tmp_path, workers):
+    base = block[0]
+    out = tmp_path / "out"
+    res = run(["block", str(base / "bad.yaml"), "-o", str(out), "--workers", workers, "--json"])
+    assert res.exit_code == 1
+    info = summary(res)
+    by = {p["name"]: p for p in info["pairs"]}
+    assert by["good"]["status"] == "done" and by["bad"]["status"] == "failed"
+    assert by["bad"]["stage"] == "project" and "corrupt.laz" in by["bad"]["error"]
+    lines = res.stderr.strip().splitlines()
+    assert lines == [f"riverbed: error: pair bad failed in project: {by['bad']['error']}"]
+    assert info["merged"]["status"] == "done" and (out / "dsm.tif").is_file()
+    assert not (out / "pairs" / "bad" / "done.json").exists()
+
+
+def test_plan_marks_unreadable_pair_file_failed(block, tmp_path):
+    base = block[0]
+    (tmp_path / "p").mkdir()
+    (tmp_path / "p" / "pair.yaml").write_text("P_left: [1, 2]\n")
+    m = tmp_path / "m.yaml"
+    m.write_text(yaml.safe_dump({"pairs": [{"pair": "p/pair.yaml", "cloud": str(base / "lidar" / "west.laz")}]}))
+    plan = plan_block(m, tmp_path / "out")
+    assert plan.jobs[0].status == "failed" and plan.jobs[0].error.endswith("P_right: missing (a 3x4 projection matrix)")
