@@ -159,7 +159,8 @@ def markdown(rows, sp, shares):
                              f"{avg['bad3']:.2f} | {avg['avg']:.2f} | {avg['rmse']:.2f} | {avg['density']:.1f} | "
                              f"{avg['seconds']:.3f} | {avg['vs_hh']:.2f} |")
         lines += ["", "Per scene:", "",
-                  "| scene | LiDAR | method | window | bad1 % | bad2 % | bad3 % | avg px | rmse px | density % | d1 % |",
+                  "| scene | LiDAR | method | window | bad1 % | bad2 % | bad3 % | avg px | rmse px | density % "
+                  "| d1 % |",
                   "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
         for r in rows:
             lines.append(f"| {r['scene']}{' (held out)' if r['held_out'] else ''} | {r['share'] * 100:.2f} % | "
@@ -167,7 +168,7 @@ def markdown(rows, sp, shares):
                          f"{fmt(r['avg'])} | {fmt(r['rmse'])} | {r['density']:.1f} | {r['d1']:.2f} |")
         lines += ["", "Checks (issue 2):", ""]
         for sc in dict.fromkeys(r["scene"] for r in rows):
-            def get(share, m):
+            def get(share, m, sc=sc):
                 return next((r for r in rows if r["scene"] == sc and r["share"] == share and r["method"] == m), None)
             hi, lo = max(shares), min(shares)
             n, g, rb = get(hi, "none"), get(hi, "gauss"), get(hi, "riverbed")

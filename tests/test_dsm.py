@@ -155,7 +155,8 @@ def test_dsm_cli_with_lidar_merge(tmp_path, monkeypatch):
     assert z[rc] == pytest.approx(1.0) and np.nanmin(z) == pytest.approx(0.0, abs=1e-6)
     assert len(laspy.read(tmp_path / "p.laz").points) == 12000
     r = CliRunner().invoke(cli, ["dsm", str(tmp_path / "d.tif"), "-o", str(tmp_path / "x.tif")])
-    assert r.exit_code == 1 and r.output == "riverbed: error: give DISP PAIR couples: a disparity map and its pair file each\n"
+    assert r.exit_code == 1
+    assert r.output == "riverbed: error: give DISP PAIR couples: a disparity map and its pair file each\n"
 
 
 def test_compare_dsm_statistics():

@@ -1,7 +1,8 @@
 """DSM rasterisation: points (world coordinates, float64) to a north-up height grid.
 
 Grid convention: cell ``(row, col)`` covers ``[xmin + col * r, xmin + (col + 1) * r) x (ymax - (row + 1) * r, ymax - row
-* r]``; the GeoTIFF transform is ``Affine(r, 0, xmin, 0, -r, ymax)`` (pixel corners, as GDAL). Heights are float32 in the
+* r]``; the GeoTIFF transform is ``Affine(r, 0, xmin, 0, -r, ymax)`` (pixel corners, as GDAL). Heights are float32
+in the
 units of the CRS; empty cells are ``nodata`` (NaN by default).
 """
 

@@ -11,7 +11,8 @@ DEFAULT_THRESHOLDS = (0.5, 1.0, 2.0)
 def read_dsm_on_grid(path, ref_path):
     """Read DSM ``path`` resampled onto the grid of ``ref_path``; returns (dsm, ref, ref_resolution).
 
-    Both are float64 with NaN for nodata; ``ref_resolution`` is None for a geographic CRS. When the grids differ (CRS, transform or size) the DSM is reprojected with
+    Both are float64 with NaN for nodata; ``ref_resolution`` is None for a geographic CRS. When the grids differ
+    (CRS, transform or size) the DSM is reprojected with
     rasterio (bilinear; nodata honoured, so no height is averaged with a nodata value).
     """
     import rasterio
