@@ -18,9 +18,10 @@ Prints a markdown table (seconds, points per second, RSS, and ``project``'s own 
 ``--visibility`` instead compares the hidden point removal methods on the round-trip scene of
 tests/test_cli_project.py (Middlebury Cones ground truth as LiDAR at 5, 10 and 30 % of the pixels, hidden
 points behind the surface at 20 % of the others, outliers above it): share of hidden points removed, of
-visible points kept, of points hidden in the right view removed. With ``--kitti DATA_DIR`` also on the real
-KITTI frame: points kept and removed, and the median photometric error |I_L(x) - I_R(x - d)| of each set
-(hidden points match badly).
+visible points kept, of points hidden in the right view removed; then on the bundled sample aerial block
+(sample_data/block: synthetic LiDAR and ground-truth disparity), the kept points whose disparity is wrong.
+With ``--kitti DATA_DIR`` also on the real KITTI frame: points kept and removed, and the median photometric
+error |I_L(x) - I_R(x - d)| of each set (hidden points match badly).
 """
 
 import argparse
@@ -154,10 +155,13 @@ def visibility_table(kitti_dir=None):
 
     from riverbed_cli.geometry.projection import project_cloud
     from riverbed_cli.io.disparity import read_disparity
+    from riverbed_cli.io.pairfile import load_pairfile
 
     gt = read_disparity(ROOT / "tests/data/cones/disp2.png", scale=4)
     confs = [("none (nearest point per pixel only)", {"visibility": "none"})]
-    confs += [(f"z-buffer, footprint {r}", {"footprint": r}) for r in ("auto", 1, 2, 3, 4)]
+    confs += [("z-buffer, footprint auto (default: tolerance 1 px, slope 0.5)", {})]
+    confs += [("z-buffer, footprint auto, tolerance 2 px, slope 1", {"tolerance": 2.0, "slope": 1.0})]
+    confs += [(f"z-buffer, footprint {r}", {"footprint": r}) for r in (2, 3, 4)]
     confs += [(f"HPR, gamma {g}", {"visibility": "hpr", "hpr_gamma": g}) for g in (3.0, 3.5, 4.0)]
     print("| LiDAR share | method | hidden removed | visible kept | hidden in the right view removed | "
           "max error (px) | seconds |\n|---:|---|---:|---:|---:|---:|---:|")
@@ -170,6 +174,18 @@ def visibility_table(kitti_dir=None):
                 print(f"| {100 * share:.0f} % | {name} | {100 * m['hidden_removed']:.2f} % | "
                       f"{100 * m['visible_kept']:.1f} % | {100 * m['right_occluded_removed']:.1f} % | "
                       f"{m['max_error']:.4f} | {st['stage_seconds']['visibility']:.2f} |")
+    block = ROOT / "sample_data" / "block"
+    pair = load_pairfile(block / "pair.yaml")
+    gt = read_disparity(block / "gt_disparity.tif")
+    print("\n| sample aerial block: method | kept | removed | kept with error > 1 px | > 0.5 px |\n"
+          "|---|---:|---:|---:|---:|")
+    for name, kw in confs:
+        sparse, st = project_cloud(block / "lidar.laz", pair, **kw)
+        ok = np.isfinite(sparse) & np.isfinite(gt)
+        err = np.abs(sparse[ok] - gt[ok])
+        removed = st["occluded"]["left"] + st["occluded"]["right"]
+        print(f"| {name} | {st['kept']} | {removed} | {(err > 1).sum()} ({100 * (err > 1).mean():.2f} %) | "
+              f"{(err > 0.5).sum()} |")
     if kitti_dir is None:
         return 0
     import cv2

@@ -191,10 +191,10 @@ def test_round_trip_exact_hidden_and_outliers_removed(scene):
     sparse = read_disparity(out)
     m = score(sparse, gt, sc)
     assert m["max_error"] <= 0.01  # every kept visible point: the GT disparity to 0.01 px (measured 0.0020)
-    assert m["hidden_removed"] >= 0.99  # measured 0.9990
+    assert m["hidden_removed"] >= 0.99  # measured 0.9993
     assert m["outliers_removed"] == 1.0
-    assert m["visible_kept"] >= 0.93  # measured 0.958: the footprint also hides background next to edges
-    assert m["right_occluded_removed"] >= 0.9  # measured 0.932
+    assert m["visible_kept"] >= 0.93  # measured 0.956: the footprint also hides background next to edges
+    assert m["right_occluded_removed"] >= 0.9  # measured 0.935
     # Counts: every point read is accounted for once.
     assert s["points_read"] == sc["n_points"]
     assert s["filtered"]["class"] == sc["n_noise"] and s["behind_camera"] == sc["n_behind"]
@@ -233,7 +233,7 @@ def test_hpr_and_sides(scene):
     assert m["max_error"] <= 0.01 and m["hidden_removed"] >= 0.98 and m["outliers_removed"] == 1.0
     s, m = res["--side left"]
     assert s["occluded"]["right"] == 0 and m["hidden_removed"] >= 0.99
-    assert m["right_occluded_removed"] < 0.8  # 0.714 (both: 0.932)
+    assert m["right_occluded_removed"] < 0.8  # 0.713 (both: 0.935)
     s, m = res["--side right"]
     assert s["occluded"]["left"] == 0 and m["right_occluded_removed"] >= 0.9
 

@@ -125,25 +125,27 @@ def test_point_outside_right_image_still_hides_what_is_behind_it(tmp_path):
 def test_zbuffer_footprint_hides_points_behind_a_sparse_surface():
     rng = np.random.default_rng(3)
     H = W = 100
-    front = rng.random((H, W)) < 0.1  # a surface sampled at 10 % of the pixels, depth 10
-    behind = ~front & (rng.random((H, W)) < 0.3)  # points behind it, depth 15
+    front = rng.random((H, W)) < 0.1  # a surface sampled at 10 % of the pixels, disparity 20
+    behind = ~front & (rng.random((H, W)) < 0.3)  # points behind it, disparity 12
     rows = np.concatenate([np.nonzero(front)[0], np.nonzero(behind)[0]])
     cols = np.concatenate([np.nonzero(front)[1], np.nonzero(behind)[1]])
-    depth = np.concatenate([np.full(front.sum(), 10.0), np.full(behind.sum(), 15.0)])
+    disp = np.concatenate([np.full(front.sum(), 20.0), np.full(behind.sum(), 12.0)])
     nf = front.sum()
     for radius in (0, 1, "auto"):
-        vis = zbuffer_visible(rows, cols, depth, (H, W), radius)
+        vis = zbuffer_visible(rows, cols, disp, (H, W), radius)
         assert vis[:nf].all()  # the surface itself is never hidden
         removed = 1 - vis[nf:].mean()
         if radius == 0:
             assert removed == 0
         if radius == "auto":
-            assert removed > 0.93  # 0.945 (misses are near the image border, where fewer splats reach)
-    r = footprint_radii(rows, cols, depth, (H, W))
+            assert removed > 0.93  # 0.95 (misses are near the image border, where fewer splats reach)
+    r = footprint_radii(rows, cols, disp, (H, W))
     assert 2 <= np.median(r[:nf]) <= 5  # k = 4 neighbours at 10 %: sqrt(4 / (pi 0.1)) = 3.6 px
-    # A slanted surface (depth grows 1 % per pixel) is not hidden by itself.
+    # A slanted surface (disparity falling 0.4 px per px, less than the 0.5 px/px slope) is not hidden by
+    # itself; one falling 2 px per px is (its nearer samples cover the farther ones).
     rr, cc = np.nonzero(front)
-    assert zbuffer_visible(rr, cc, 10 * 1.01 ** cc, (H, W), 3).all()
+    assert zbuffer_visible(rr, cc, 60 - 0.4 * cc, (H, W), 3).all()
+    assert not zbuffer_visible(rr, cc, 250 - 2.0 * cc, (H, W), 3).all()
 
 
 def test_hpr_sphere_front_half():
@@ -166,7 +168,7 @@ def test_sor_removes_isolated_points_only():
     assert keep[: len(surface)].mean() > 0.999 and not keep[len(surface):].any()
 
 
-def reference_radii(rows, cols, depth, k=4, tolerance=0.05, largest=8):
+def reference_radii(rows, cols, disp, k=4, tolerance=1.0, largest=8):
     """k-d tree reference of footprint_radii (one point per pixel)."""
     from scipy.spatial import cKDTree
 
@@ -179,7 +181,7 @@ def reference_radii(rows, cols, depth, k=4, tolerance=0.05, largest=8):
         d, j = dist[i, 1:], idx[i, 1:]
         inside = d <= largest
         d, j = d[inside], j[inside]
-        same = depth[j] <= depth[i] * (1 + tolerance)
+        same = disp[j] >= disp[i] - tolerance
         r = None
         for t in range(len(d)):
             if same[: t + 1].sum() == k:
@@ -199,19 +201,20 @@ def test_radii_and_splat_kernels_match_references():
     H, W = 60, 70
     lin = rng.choice(H * W, 600, replace=False)
     rows, cols = lin // W, lin % W
-    depth = rng.uniform(5, 6, lin.size) * np.where(rng.random(lin.size) < 0.3, 1.5, 1.0)
-    r = footprint_radii(rows, cols, depth, (H, W))
-    ref = reference_radii(rows, cols, depth)
+    disp = rng.uniform(20, 22, lin.size) - np.where(rng.random(lin.size) < 0.3, 8.0, 0.0)
+    r = footprint_radii(rows, cols, disp, (H, W))
+    ref = reference_radii(rows, cols, disp)
     # Equal up to ties in distance (the scan order among equidistant pixels differs from the tree's).
     assert (r == ref).mean() > 0.97
     radius = rng.integers(0, 5, lin.size)
-    vis = zbuffer_visible(rows, cols, depth, (H, W), radius, 0.05)
+    vis = zbuffer_visible(rows, cols, disp, (H, W), radius, 1.0, 0.5)
     yy, xx = np.mgrid[:H, :W]
-    cover = np.full((H, W), np.inf)
-    for y, x, z, rr in zip(rows, cols, depth, radius):
-        disc = (yy - y) ** 2 + (xx - x) ** 2 <= rr * rr
-        cover[disc] = np.minimum(cover[disc], np.float32(z))
-    assert np.array_equal(vis, depth - cover[rows, cols] <= 0.05 * depth)
+    cover = np.full((H, W), -np.inf)
+    for y, x, d, rr in zip(rows, cols, disp, radius, strict=True):
+        e = np.sqrt((yy - y) ** 2 + (xx - x) ** 2)
+        disc = e <= rr
+        cover[disc] = np.maximum(cover[disc], (d - 0.5 * e[disc]).astype(np.float32))
+    assert np.array_equal(vis, cover[rows, cols] - disp <= 1.0)
 
 
 def test_image_space_sor_matches_kd_tree_sor():

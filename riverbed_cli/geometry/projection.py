@@ -178,8 +178,8 @@ def image_shape(pair):
 
 def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classes=NOISE_CLASSES,
                   outliers="sor", side="both", visibility="zbuffer", footprint=vis.ZBUFFER_RADIUS,
-                  depth_tolerance=vis.ZBUFFER_TOLERANCE, hpr_gamma=vis.HPR_GAMMA, crs=None, shape=None,
-                  chunk_size=1_000_000, progress=None):
+                  tolerance=vis.ZBUFFER_TOLERANCE, slope=vis.ZBUFFER_SLOPE, hpr_gamma=vis.HPR_GAMMA, crs=None,
+                  shape=None, chunk_size=1_000_000, progress=None):
     """Project a LiDAR cloud into the pair's left image as sparse disparities.
 
     Parameters
@@ -199,8 +199,10 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
         Which views the hidden point test runs in (both: drop points hidden in either image).
     visibility : {"zbuffer", "hpr", "none"}
         Hidden point removal method (the nearest point per pixel is always kept, whatever the method).
-    footprint, depth_tolerance : int, float
-        Z-buffer splat radius (px) and relative depth tolerance.
+    footprint : int or "auto"
+        Z-buffer splat radius (px); auto: per point, from the density (``visibility.footprint_radii``).
+    tolerance, slope : float
+        Z-buffer disparity margin (px) and splat fall-off (px per px), see ``visibility.zbuffer_visible``.
     hpr_gamma : float
         HPR flipping radius exponent (``R = max|p| * 10**gamma``).
     crs : str, optional
@@ -310,22 +312,22 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
             cloud_path)
 
     xyz = store_xyz[win]
-    xl, yl, xr, zl, yr, zr = pair.project(xyz, full=True)
+    xl, yl, xr, _, yr, _ = pair.project(xyz, full=True)
     pix = store_pix[win]
     rows, cols = pix // W, pix % W
     d = xl - xr
 
     visible = usable.copy()
     if visibility != "none" and side in ("left", "both"):
-        visible &= _visible(visibility, rows, cols, zl, xyz, pair.centres[0], (H, W), footprint,
-                            depth_tolerance, hpr_gamma)
+        visible &= _visible(visibility, rows, cols, d, xyz, pair.centres[0], (H, W), footprint, tolerance,
+                            slope, hpr_gamma)
     n_occ_left = int(usable.sum() - visible.sum())
     if visibility != "none" and side in ("right", "both"):
         in_right = (code == 0) | (code == 3)  # points with a place in the right image hide others there
         vr = np.ones(win.size, bool)
         vr[in_right] = _visible(visibility, np.floor(yr[in_right] + 0.5).astype(np.int64),
-                                np.floor(xr[in_right] + 0.5).astype(np.int64), zr[in_right], xyz[in_right],
-                                pair.centres[1], (H, W), footprint, depth_tolerance, hpr_gamma)
+                                np.floor(xr[in_right] + 0.5).astype(np.int64), d[in_right], xyz[in_right],
+                                pair.centres[1], (H, W), footprint, tolerance, slope, hpr_gamma)
         visible &= vr
     n_occ_right = int(usable.sum() - visible.sum()) - n_occ_left
     t_vis = time.perf_counter()
@@ -362,7 +364,7 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
     return sparse, stats
 
 
-def _visible(method, rows, cols, depth, xyz, centre, shape, footprint, tolerance, gamma):
+def _visible(method, rows, cols, disp, xyz, centre, shape, footprint, tolerance, slope, gamma):
     if method == "zbuffer":
-        return vis.zbuffer_visible(rows, cols, depth, shape, footprint, tolerance)
+        return vis.zbuffer_visible(rows, cols, disp, shape, footprint, tolerance, slope)
     return vis.hpr_visible(xyz, centre, gamma)

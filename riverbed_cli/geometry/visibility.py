@@ -3,11 +3,12 @@
 Both take the points that already won their pixel (the nearest point per pixel, see
 :func:`riverbed_cli.geometry.projection.project_cloud`) and tell which of them are visible from a camera.
 
-* :func:`zbuffer_visible`: every point is splatted as a disc of radius ``radius`` px at its depth; a point is
-  hidden when a nearer point's splat covers its pixel and is nearer by more than ``tolerance`` times the
-  point's depth. The disc closes the gaps between sparse LiDAR samples of a surface, through which points
-  behind it would otherwise show; the relative tolerance keeps points of the same, slanted surface. The
-  default radius is per point (:func:`footprint_radii`), so it follows the LiDAR density.
+* :func:`zbuffer_visible`: every point is splatted as a disc of radius ``radius`` px; a point is hidden when
+  a nearer point's splat covers its pixel with a disparity larger by more than ``tolerance`` px (the splat's
+  disparity falls off by ``slope`` px per px from its centre). The disc closes the gaps between sparse LiDAR
+  samples of a surface, through which points behind it would otherwise show; the tolerance and the slope keep
+  points of the same, slanted surface. The default radius is per point (:func:`footprint_radii`), so it
+  follows the LiDAR density.
 * :func:`hpr_visible`: Katz, Tal, Basri, "Direct visibility of point sets" (SIGGRAPH 2007): spherical flipping
   ``p' = p + 2 (R - |p|) p / |p|`` about the viewpoint with ``R = max|p| * 10**gamma``, then the convex hull
   of the flipped points and the viewpoint; the points on the hull are visible.
@@ -25,7 +26,8 @@ log = logging.getLogger(__name__)
 
 #: Defaults chosen by measurement (docs/projection.md).
 ZBUFFER_RADIUS = "auto"
-ZBUFFER_TOLERANCE = 0.05
+ZBUFFER_TOLERANCE = 1.0  # px of disparity
+ZBUFFER_SLOPE = 0.5  # px of disparity per px of image distance
 ZBUFFER_K = 4
 ZBUFFER_MAX_RADIUS = 8
 HPR_GAMMA = 3.5
@@ -43,24 +45,24 @@ def _disc_offsets(radius):
 
 
 @njit(cache=True)
-def _index_image(rows, cols, depth, H, W):
-    """Index of the nearest point per pixel (-1: none)."""
+def _index_image(rows, cols, disp, H, W):
+    """Index of the nearest point (largest disparity) per pixel (-1: none)."""
     img = np.full((H, W), -1, np.int32)
     for i in range(rows.shape[0]):
         j = img[rows[i], cols[i]]
-        if j < 0 or depth[i] < depth[j]:
+        if j < 0 or disp[i] > disp[j]:
             img[rows[i], cols[i]] = i
     return img
 
 
 @njit(cache=True)
-def _radii_kernel(img, rows, cols, depth, ody, odx, odist, k, tolerance, largest):
+def _radii_kernel(img, rows, cols, disp, ody, odx, odist, k, tolerance, largest):
     """Distance to the k-th nearest same-or-nearer point, scanning pixels in order of distance (see below)."""
     H, W = img.shape
     n = rows.shape[0]
     out = np.empty(n, np.int64)
     for i in range(n):
-        limit = depth[i] * (1.0 + tolerance)
+        limit = disp[i] - tolerance
         same = 0
         seen = 0
         kth_any = -1.0
@@ -76,7 +78,7 @@ def _radii_kernel(img, rows, cols, depth, ody, odx, odist, k, tolerance, largest
             seen += 1
             if seen == k:
                 kth_any = odist[o]
-            if depth[j] <= limit:
+            if disp[j] >= limit:
                 same += 1
                 if same == k:
                     r = odist[o]
@@ -91,12 +93,11 @@ def _radii_kernel(img, rows, cols, depth, ody, odx, odist, k, tolerance, largest
 
 
 @njit(cache=True)
-def _splat_kernel(rows, cols, depth, radius, H, W):
-    """Smallest depth of the discs (radius per point) covering each pixel (inf: none)."""
-    cover = np.full((H, W), np.inf, np.float32)
+def _splat_kernel(rows, cols, disp, radius, slope, H, W):
+    """Largest ``d - slope * distance`` over the discs (radius per point) covering each pixel (-inf: none)."""
+    cover = np.full((H, W), -np.inf, np.float32)
     for i in range(rows.shape[0]):
         r = radius[i]
-        z = np.float32(depth[i])
         r2 = r * r
         for dy in range(-r, r + 1):
             y = rows[i] + dy
@@ -104,46 +105,58 @@ def _splat_kernel(rows, cols, depth, radius, H, W):
                 continue
             for dx in range(-r, r + 1):
                 x = cols[i] + dx
-                if x < 0 or x >= W or dy * dy + dx * dx > r2:
+                e2 = dy * dy + dx * dx
+                if x < 0 or x >= W or e2 > r2:
                     continue
-                cover[y, x] = min(cover[y, x], z)
+                v = np.float32(disp[i] - slope * math.sqrt(e2))
+                cover[y, x] = max(cover[y, x], v)
     return cover
 
 
-def footprint_radii(rows, cols, depth, shape, k=ZBUFFER_K, tolerance=ZBUFFER_TOLERANCE,
+def footprint_radii(rows, cols, disp, shape, k=ZBUFFER_K, tolerance=ZBUFFER_TOLERANCE,
                     largest=ZBUFFER_MAX_RADIUS):
-    """Per-point splat radius (px): the image distance to the ``k``-th nearest point of its surface or nearer.
+    """Per-point splat radius (px): image distance to the ``k``-th nearest point of its surface or nearer.
 
-    Neighbours farther than ``depth * (1 + tolerance)`` are ignored, so points behind a surface (which may be
-    denser than the surface's own samples) do not shrink its splats. With samples at a share ``p`` of the
-    pixels the ``k``-th neighbour lies about ``sqrt(k / (pi p))`` px away; ``k = 4`` closes the gaps of a
-    randomly sampled surface at 99 %. Radii are rounded up and clipped to ``[1, largest]``; a point that meets
-    ``4 k`` neighbours (or the end of the scan) before ``k`` of its own surface takes the ``k``-th nearest of
-    any depth (``largest`` if there are fewer than ``k``). Neighbours are the nearest point of each pixel,
-    scanned in order of distance up to ``largest`` px (a Numba kernel; the tests hold a k-d tree reference).
+    Neighbours whose disparity is more than ``tolerance`` px below the point's (farther) are ignored,
+    so points behind a surface (which may be denser than the surface's own samples) do not shrink its
+    splats. With samples at a share ``p`` of the pixels the ``k``-th neighbour lies about
+    ``sqrt(k / (pi p))`` px away; ``k = 4`` closes the gaps of a randomly sampled surface at 99 %. Radii
+    are rounded up and clipped to ``[1, largest]``; a point that meets ``4 k`` neighbours (or the end of
+    the scan) before ``k`` of its own surface takes the ``k``-th nearest of any depth (``largest`` if
+    there are fewer than ``k``). Neighbours are the nearest point of each pixel, scanned in order of
+    distance up to ``largest`` px (a Numba kernel; the tests hold a k-d tree reference).
     """
     rows = np.ascontiguousarray(rows, np.int64)
     cols = np.ascontiguousarray(cols, np.int64)
-    depth = np.ascontiguousarray(depth, np.float64)
-    img = _index_image(rows, cols, depth, int(shape[0]), int(shape[1]))
+    disp = np.ascontiguousarray(disp, np.float64)
+    img = _index_image(rows, cols, disp, int(shape[0]), int(shape[1]))
     ody, odx, odist = _disc_offsets(largest)
-    return _radii_kernel(img, rows, cols, depth, ody, odx, odist, int(k), float(tolerance), int(largest))
+    return _radii_kernel(img, rows, cols, disp, ody, odx, odist, int(k), float(tolerance), int(largest))
 
 
-def zbuffer_visible(rows, cols, depth, shape, radius="auto", tolerance=ZBUFFER_TOLERANCE):
-    """Visibility by a z-buffer whose points are discs (``dy^2 + dx^2 <= r^2``).
+def zbuffer_visible(rows, cols, disp, shape, radius="auto", tolerance=ZBUFFER_TOLERANCE, slope=ZBUFFER_SLOPE):
+    """Visibility by a z-buffer whose points are discs (``dy^2 + dx^2 <= r^2``), compared in disparity.
+
+    Each point covers the pixels of its disc with ``d - slope * e`` (``e``: distance to its centre, px): a
+    point is hidden when that value exceeds its own disparity by more than ``tolerance`` px. Disparity, not
+    depth: it is what the matcher uses (a point less than a pixel behind the surface misguides nobody), and
+    its scale does not depend on the flying height (a 10 m building seen from 1000 m changes the depth by 1 %
+    but the disparity by tens of pixels). ``slope`` spares slanted surfaces, whose disparity changes along
+    the image (a road seen from a car: about 0.3 px per px).
 
     Parameters
     ----------
     rows, cols : (N,) int
-        Pixel of each point (in the camera the depths refer to), inside ``shape``.
-    depth : (N,) float
-        Depth along that camera's optical axis (> 0).
+        Pixel of each point in the view tested, inside ``shape``.
+    disp : (N,) float
+        Disparity ``x_left - x_right`` of each point (larger = nearer; the same value for either view).
     shape : (H, W)
     radius : int, (N,) int array or "auto"
         Splat radius in pixels (0: plain per-pixel z-buffer); ``"auto"``: :func:`footprint_radii`.
     tolerance : float
-        A covering point must be nearer by more than ``tolerance * depth`` to hide a point.
+        Disparity margin (px).
+    slope : float
+        Disparity decrease of a splat per pixel from its centre.
 
     Returns
     -------
@@ -151,12 +164,12 @@ def zbuffer_visible(rows, cols, depth, shape, radius="auto", tolerance=ZBUFFER_T
     """
     rows = np.ascontiguousarray(rows, np.int64)
     cols = np.ascontiguousarray(cols, np.int64)
-    depth = np.ascontiguousarray(depth, np.float64)
+    disp = np.ascontiguousarray(disp, np.float64)
     if isinstance(radius, str):
-        radius = footprint_radii(rows, cols, depth, shape, tolerance=tolerance)
-    radius = np.ascontiguousarray(np.broadcast_to(np.asarray(radius, np.int64), depth.shape))
-    cover = _splat_kernel(rows, cols, depth, radius, int(shape[0]), int(shape[1]))
-    return depth - cover[rows, cols] <= tolerance * depth
+        radius = footprint_radii(rows, cols, disp, shape, tolerance=tolerance)
+    radius = np.ascontiguousarray(np.broadcast_to(np.asarray(radius, np.int64), disp.shape))
+    cover = _splat_kernel(rows, cols, disp, radius, float(slope), int(shape[0]), int(shape[1]))
+    return cover[rows, cols] - disp <= tolerance
 
 
 def hpr_visible(xyz, viewpoint, gamma=HPR_GAMMA):
