@@ -1,0 +1,62 @@
+"""The DSM stage on the sample aerial block: exact geometry, and fusion paying off in the DSM."""
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+
+from riverbed_cli.geometry.projection import project_cloud
+from riverbed_cli.io.disparity import read_disparity
+from riverbed_cli.io.images import read_image
+from riverbed_cli.io.pairfile import load_pairfile
+from riverbed_cli.matching.pipeline import match_pair
+from riverbed_cli.products.dsm import build_dsm
+from riverbed_cli.products.dsm_compare import compare_dsm
+
+BLOCK = Path(__file__).resolve().parent.parent / "sample_data" / "block"
+
+
+@pytest.fixture(scope="module")
+def ref():
+    with rasterio.open(BLOCK / "gt_dsm.tif") as ds:
+        return ds.read(1, masked=True).astype(np.float64).filled(np.nan), ds.bounds, ds.res[0]
+
+
+def dsm_on_ref_grid(disp, pair, ref):
+    _, b, res = ref
+    out = build_dsm([(disp, pair, None)], resolution=res, bounds=(b.left, b.bottom, b.right, b.top))
+    dsm = out.dsm
+    return dsm[: ref[0].shape[0], : ref[0].shape[1]]
+
+
+def test_dsm_from_gt_disparity_matches_gt_dsm(ref):
+    gt_dsm, _, res = ref
+    pair = load_pairfile(BLOCK / "pair.yaml")
+    dsm = dsm_on_ref_grid(read_disparity(BLOCK / "gt_disparity.tif"), pair, ref)
+    # walls: cells whose 3x3 neighbourhood in the GT spans more than a metre of height
+    pad = np.pad(gt_dsm, 1, mode="edge")
+    stack = np.stack([pad[1 + dy: pad.shape[0] - 1 + dy, 1 + dx: pad.shape[1] - 1 + dx]
+                      for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN neighbourhoods off the footprint
+        flat = (np.nanmax(stack, axis=0) - np.nanmin(stack, axis=0)) <= 1.0
+    m = compare_dsm(dsm, gt_dsm, (), resolution=res, mask=flat)
+    assert m["median"] == pytest.approx(0.0, abs=res / 10)
+    dz = np.abs(dsm - gt_dsm)[flat & np.isfinite(dsm) & np.isfinite(gt_dsm)]
+    assert np.median(dz) < res / 10
+    assert m["completeness"] > 80  # one image point per GSD-sized cell leaves some cells empty
+
+
+def test_fusion_pays_in_the_dsm(ref):
+    gt_dsm, _, res = ref
+    pair = load_pairfile(BLOCK / "pair.yaml")
+    sparse, stats = project_cloud(BLOCK / "lidar.laz", pair)
+    left, right = read_image(BLOCK / "left.png"), read_image(BLOCK / "right.png")
+    metrics = {}
+    for guide in ("none", "riverbed"):
+        disp = match_pair(left, right, sparse, guide=guide).disparity
+        metrics[guide] = compare_dsm(dsm_on_ref_grid(disp, pair, ref), gt_dsm, (), resolution=res)
+    assert metrics["riverbed"]["rmse"] < 0.75 * metrics["none"]["rmse"]
+    assert metrics["riverbed"]["over_3res"] < 0.5 * metrics["none"]["over_3res"]
