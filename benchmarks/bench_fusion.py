@@ -79,8 +79,6 @@ def middlebury_rows(data_dir, docs, share):
         grid: Grid = gt_res.grid
         out = {k: build_dsm([(d, pair, None)], resolution=grid.resolution, bounds=grid.bounds).dsm
                for k, d in disps.items()}
-        # build_dsm snaps bounds outwards; crop to the GT grid (same origin and resolution)
-        out = {k: v[: grid.height, : grid.width] for k, v in out.items()}
         m = compare_three(gt_res.dsm, out, grid.resolution)
         for k in ("unguided", "riverbed"):
             rows.append({"scene": f"Middlebury {name}", "method": k, **m[k], "gsd": grid.resolution})

@@ -39,8 +39,12 @@ class Grid:
         return self.xmin, self.ymax - self.height * r, self.xmin + self.width * r, self.ymax
 
     @classmethod
-    def from_bounds(cls, xmin, ymin, xmax, ymax, resolution, max_cells=2_000_000_000):
-        """The grid of ``resolution`` covering the bounds, snapped outwards to multiples of the resolution."""
+    def from_bounds(cls, xmin, ymin, xmax, ymax, resolution, max_cells=2_000_000_000, exact=False):
+        """The grid of ``resolution`` covering the bounds, snapped outwards to multiples of the resolution.
+
+        By default a point lying exactly on ``xmax`` or ``ymin`` still gets a cell (data extents); ``exact=True``
+        gives the half-open grid of user bounds (``--bounds``), e.g. to match a reference DSM cell for cell.
+        """
         r = float(resolution)
         if not r > 0 or not math.isfinite(r):
             raise RiverbedError(f"resolution must be a positive number, got {resolution}")
@@ -50,8 +54,10 @@ class Grid:
         y1 = math.ceil(ymax / r) * r
         if y1 == ymax and ymax == ymin:
             y1 += r
-        w = max(1, int(math.ceil((xmax - x0) / r - 1e-9)) + (1 if math.floor(xmax / r) * r == xmax else 0))
-        h = max(1, int(math.ceil((y1 - ymin) / r - 1e-9)) + (1 if math.floor(ymin / r) * r == ymin else 0))
+        edge_x = 0 if exact else (1 if math.floor(xmax / r) * r == xmax else 0)
+        edge_y = 0 if exact else (1 if math.floor(ymin / r) * r == ymin else 0)
+        w = max(1, int(math.ceil((xmax - x0) / r - 1e-9)) + edge_x)
+        h = max(1, int(math.ceil((y1 - ymin) / r - 1e-9)) + edge_y)
         if w * h > max_cells:
             raise RiverbedError(f"DSM grid {w}x{h} at {r} is too large; raise --resolution or give --bounds")
         return cls(x0, y1, r, w, h)
@@ -359,7 +365,10 @@ def build_dsm(sources=(), lidar=(), resolution=None, agg="max", bounds=None, fil
         else:
             area = max((hi[0] - lo[0]) * (hi[1] - lo[1]), 1e-12)
             resolution = float(f"{2 * math.sqrt(area / max(n_lidar_total, 1)):.2g}")
-    grid = Grid.from_bounds(*(bounds if bounds is not None else (lo[0], lo[1], hi[0], hi[1])), resolution)
+    if bounds is not None:
+        grid = Grid.from_bounds(*bounds, resolution, exact=True)
+    else:
+        grid = Grid.from_bounds(lo[0], lo[1], hi[0], hi[1], resolution)
 
     # Pass 2: rasterise image points, then LiDAR points, each into its own accumulator.
     img_acc = Accumulator(grid, agg)
