@@ -1,0 +1,76 @@
+"""``riverbed benchmark``: matchers x guides x LiDAR shares on a dataset folder, the paper's protocol."""
+
+import json
+from pathlib import Path
+
+import click
+from tqdm import tqdm
+
+from ..errors import RiverbedError
+from ..products import benchmark as bm
+from .options import json_opt, print_json, progress_enabled
+
+
+def _floats(value, name):
+    try:
+        return tuple(float(v) for v in value.split(",") if v.strip())
+    except ValueError:
+        raise RiverbedError(f"--{name} '{value}' is not a comma-separated list of numbers") from None
+
+
+@click.command("benchmark")
+@click.argument("dataset", type=click.Path(file_okay=False))
+@click.option("--layout", type=click.Choice(["middlebury", "kitti"]), required=True, help="Folder layout.")
+@click.option("-o", "--output", "outdir", required=True, type=click.Path(file_okay=False),
+              help="Output folder: results.md/.csv/.json, figure5.png, cache/.")
+@click.option("--matchers", default="sgm", show_default=True, help="Comma-separated matchers.")
+@click.option("--guides", default="none,gauss,riverbed", show_default=True, help="Comma-separated guides.")
+@click.option("--shares", default="0.05,0.0123,0.0016", show_default=True, help="LiDAR shares of the pixels.")
+@click.option("--windows", default="", help="Extra riverbed windows, e.g. 5,9,15,25 (Figure 5).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the LiDAR sampling.")
+@click.option("--scenes", default="", help="Only these scenes (comma-separated names).")
+@click.option("--gt-scale", type=float, default=None, help="GT value per pixel of disparity (8-bit PNG).")
+@click.option("--figure-scene", default=None, help="Scene of Figure 5 [default: mean over scenes].")
+@click.option("--check", "expected", type=click.Path(dir_okay=False), default=None,
+              help="Compare with EXPECTED.json; exit 1 on a regression.")
+@click.option("--write-expected", type=click.Path(dir_okay=False), default=None,
+              help="Store these results as expectations (for a later --check).")
+@json_opt
+def benchmark_cmd(dataset, layout, outdir, matchers, guides, shares, windows, seed, scenes, gt_scale, figure_scene,
+                  expected, write_expected, as_json):
+    """Run the paper's protocol on DATASET: seeded LiDAR sampled from the ground truth at each share, every
+    matcher x guide, evaluated on the GT pixels not sampled. Cases are cached in OUTPUT/cache, so an interrupted run
+    resumes; --check makes it a regression gate for CI."""
+    out = Path(outdir)
+    exp = None
+    if expected:
+        try:
+            exp = json.loads(Path(expected).read_text())
+        except (OSError, json.JSONDecodeError) as e:
+            raise RiverbedError(f"cannot read expectations ({e})", expected) from None
+    scene_list = bm.load_dataset(dataset, layout, gt_scale, [s for s in scenes.split(",") if s])
+    ms = tuple(m for m in matchers.split(",") if m)
+    gs = tuple(g for g in guides.split(",") if g)
+    sh = _floats(shares, "shares")
+    ws = tuple(int(w) for w in _floats(windows, "windows"))
+    out.mkdir(parents=True, exist_ok=True)
+    total = bm.count_cases(scene_list, ms, gs, sh, ws)
+    with tqdm(total=total, desc="benchmark", unit="case", disable=not progress_enabled()) as bar:
+        rows = bm.run_benchmark(scene_list, ms, gs, sh, ws, seed, out / "cache", progress=bar.update)
+    bm.write_tables(rows, out)
+    fig = None
+    if ws:
+        fig = bm.figure5(rows, out / "figure5.png", figure_scene, ms[0])
+    if write_expected:
+        Path(write_expected).write_text(json.dumps(bm.expectations(rows), indent=1))
+    failures = bm.check(rows, exp) if exp is not None else []
+    summary = {"cases": len(rows), "cached": sum(r["cached"] for r in rows), "results": str(out / "results.md"),
+               "figure": str(fig) if fig else None, "regressions": failures}
+    if as_json:
+        print_json(summary)
+    else:
+        click.echo((out / "results.md").read_text())
+    if failures:
+        for f in failures:
+            click.echo(f"riverbed: regression: {f}", err=True)
+        raise SystemExit(1)

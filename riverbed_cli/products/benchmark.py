@@ -1,0 +1,230 @@
+"""The paper's protocol as a tool: matchers x guides x LiDAR shares on a Middlebury- or KITTI-layout folder.
+
+LiDAR is simulated by seeded sampling of the ground truth (:func:`~riverbed_cli.products.simulate.simulate_lidar`),
+every case is evaluated on the GT pixels that were not sampled, and each case's result is cached as a small JSON file,
+so an interrupted run resumes where it stopped. The disparity range of a scene is ``[0, ceil(max GT) + 4]`` for every
+method, so methods differ only in matching.
+"""
+
+import csv
+import hashlib
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import RiverbedError
+from ..io.disparity import read_disparity
+from ..io.images import read_image
+from .evaluate import evaluate_disparity
+from .simulate import simulate_lidar
+
+METRICS = ("bad1", "bad2", "bad3", "avg", "rmse", "density", "d1", "n")
+# Middlebury file name patterns: (left, right, ground truth, default GT scale for 8-bit PNG)
+MIDDLEBURY_PATTERNS = (
+    ("im0.png", "im1.png", "disp0GT.pfm", None),
+    ("im0.png", "im1.png", "disp0.pfm", None),
+    ("view1.png", "view5.png", "disp1.png", 2.0),  # 2005/2006 half size: d = value / 2
+    ("im2.png", "im6.png", "disp2.png", 4.0),  # 2003 quarter size: d = value / 4
+)
+
+
+@dataclass
+class Scene:
+    name: str
+    left: np.ndarray
+    right: np.ndarray
+    gt: np.ndarray
+
+
+def _middlebury_scene(folder, gt_scale):
+    for lf, rf, gf, scale in MIDDLEBURY_PATTERNS:
+        if all((folder / f).is_file() for f in (lf, rf, gf)):
+            s = gt_scale if gt_scale is not None else scale
+            return Scene(folder.name, read_image(folder / lf), read_image(folder / rf),
+                         read_disparity(folder / gf, scale=s if gf.endswith(".png") else None))
+    return None
+
+
+def load_dataset(path, layout, gt_scale=None, scenes=None):
+    """Scenes of a folder in Middlebury layout (one sub-folder per scene, or a scene folder itself) or KITTI layout
+    (``image_2/``, ``image_3/``, ``disp_occ_0/`` with ``*_10.png``, possibly under ``training/``)."""
+    path = Path(path)
+    if not path.is_dir():
+        raise RiverbedError("dataset folder not found", path)
+    found = []
+    if layout == "middlebury":
+        one = _middlebury_scene(path, gt_scale)
+        folders = [path] if one else sorted(p for p in path.iterdir() if p.is_dir())
+        for f in folders:
+            sc = one if f == path else _middlebury_scene(f, gt_scale)
+            if sc is not None:
+                found.append(sc)
+    elif layout == "kitti":
+        base = path / "training" if (path / "training").is_dir() else path
+        for g in sorted((base / "disp_occ_0").glob("*_10.png")) if (base / "disp_occ_0").is_dir() else []:
+            left, right = base / "image_2" / g.name, base / "image_3" / g.name
+            if left.is_file() and right.is_file():
+                found.append(Scene(g.stem, read_image(left), read_image(right),
+                                   read_disparity(g, scale=gt_scale)))
+    else:
+        raise RiverbedError(f"unknown layout '{layout}' (use middlebury or kitti)")
+    if scenes:
+        found = [s for s in found if s.name in scenes]
+    if not found:
+        raise RiverbedError(f"no {layout} scenes found (left/right images with ground truth)", path)
+    return found
+
+
+def case_key(scene, matcher, guide, share, window, seed):
+    return f"{scene}|{matcher}|{guide}|{share:g}|{window}|{seed}"
+
+
+def _cache_name(key):
+    # The riverbed version is part of the cache name: results of another version are not reused.
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        v = version("riverbed")
+    except PackageNotFoundError:
+        v = "dev"
+    return hashlib.sha1(f"{v}|{key}".encode()).hexdigest()[:16] + ".json"
+
+
+def run_benchmark(scenes, matchers=("sgm",), guides=("none", "gauss", "riverbed"), shares=(0.05, 0.0123, 0.0016),
+                  windows=(), seed=0, cache_dir=None, progress=None):
+    """Run every case (cached per case in ``cache_dir``); returns a list of result rows (dicts)."""
+    from ..matching.pipeline import match_pair
+
+    cache = Path(cache_dir) if cache_dir else None
+    if cache:
+        cache.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for sc in scenes:
+        d_max = int(math.ceil(np.nanmax(sc.gt))) + 4
+        for share in shares:
+            sparse = simulate_lidar(sc.gt, share, seed=seed)
+            for matcher in matchers:
+                cases = [(g, None) for g in guides] + [("riverbed", w) for w in windows]
+                for guide, window in cases:
+                    key = case_key(sc.name, matcher, guide, share, window, seed)
+                    f = cache / _cache_name(key) if cache else None
+                    if f is not None and f.is_file():
+                        row = json.loads(f.read_text())
+                        row["cached"] = True
+                    else:
+                        kw = {"guide": guide}
+                        if matcher != "sgm":
+                            kw["matcher"] = matcher
+                        if window is not None:
+                            kw["window"] = window
+                        res = match_pair(sc.left, sc.right, sparse, 0, d_max, **kw)
+                        m = evaluate_disparity(res.disparity, sc.gt, exclude=sparse)
+                        row = {"key": key, "scene": sc.name, "matcher": matcher, "guide": guide,
+                               "window": res.info.get("window") if window is None else window,
+                               "window_set": window, "share": share, "seed": seed, **m,
+                               "seconds": res.info["seconds"]}
+                        if f is not None:
+                            tmp = f.with_suffix(".tmp")
+                            tmp.write_text(json.dumps(row))
+                            tmp.replace(f)
+                        row["cached"] = False
+                    rows.append(row)
+                    if progress:
+                        progress(1)
+    return rows
+
+
+def count_cases(scenes, matchers, guides, shares, windows):
+    return len(scenes) * len(shares) * len(matchers) * (len(guides) + len(windows))
+
+
+def _label(r):
+    return r["guide"] if r["window_set"] is None else f"riverbed s={r['window_set']}"
+
+
+def write_tables(rows, outdir):
+    """results.md (paper-style: mean over scenes per share, then per scene), results.csv, results.json."""
+    out = Path(outdir)
+    keys = ["scene", "matcher", "guide", "window", "share", "seed", *METRICS, "seconds"]
+    with open(out / "results.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(keys)
+        for r in rows:
+            w.writerow([r[k] for k in keys])
+    (out / "results.json").write_text(json.dumps([{k: r[k] for k in keys} for r in rows], indent=1))
+    lines = ["| LiDAR | matcher | guide | bad1 % | bad2 % | bad3 % | avg px | rmse px |",
+             "|---:|---|---|---:|---:|---:|---:|---:|"]
+    groups = {}
+    for r in rows:
+        groups.setdefault((r["share"], r["matcher"], _label(r)), []).append(r)
+    for (share, matcher, label), rs in groups.items():
+        mean = {k: float(np.mean([r[k] for r in rs])) for k in ("bad1", "bad2", "bad3", "avg", "rmse")}
+        lines.append(f"| {share * 100:.2f} % | {matcher} | {label} | {mean['bad1']:.2f} | {mean['bad2']:.2f} | "
+                     f"{mean['bad3']:.2f} | {mean['avg']:.2f} | {mean['rmse']:.2f} |")
+    lines += ["", "| scene | LiDAR | matcher | guide | window | bad1 % | bad2 % | bad3 % | avg px | density % |",
+              "|---|---:|---|---|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        lines.append(f"| {r['scene']} | {r['share'] * 100:.2f} % | {r['matcher']} | {_label(r)} | "
+                     f"{r['window'] or ''} | {r['bad1']:.2f} | {r['bad2']:.2f} | {r['bad3']:.2f} | {r['avg']:.2f} | "
+                     f"{r['density']:.1f} |")
+    (out / "results.md").write_text("\n".join(lines) + "\n")
+    return out / "results.md"
+
+
+def figure5(rows, path, scene=None, matcher="sgm"):
+    """The paper's Figure 5: mean error against riverbed window size, one line per LiDAR share (matplotlib PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sel = [r for r in rows if r["guide"] == "riverbed" and r["window_set"] is not None and r["matcher"] == matcher
+           and (scene is None or r["scene"] == scene)]
+    if not sel:
+        raise RiverbedError("Figure 5 needs riverbed runs at several windows (--windows)")
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=120)
+    for share in sorted({r["share"] for r in sel}, reverse=True):
+        pts = {}
+        for r in sel:
+            if r["share"] == share:
+                pts.setdefault(r["window_set"], []).append(r["avg"])
+        ws = sorted(pts)
+        ax.plot(ws, [np.mean(pts[w]) for w in ws], marker="o", label=f"{share * 100:g} % LiDAR")
+    ax.set_xlabel("riverbed window s (px)")
+    ax.set_ylabel("mean error (px)")
+    ax.set_title(f"Mean error vs window ({scene or 'mean over scenes'}, {matcher})")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def expectations(rows, tolerance=None):
+    """An EXPECTED.json document from results: each case's metrics, with per-metric tolerances."""
+    tol = {"bad1": 0.5, "bad2": 0.5, "bad3": 0.5, "avg": 0.05, "rmse": 0.2, **(tolerance or {})}
+    return {"tolerance": tol,
+            "cases": [{"key": r["key"], **{k: r[k] for k in tol}} for r in rows]}
+
+
+def check(rows, expected):
+    """Compare results with expectations: a metric regresses when it exceeds the expected value plus its tolerance.
+
+    Returns a list of one-line failure messages (empty: all good). A case expected but not run is a failure.
+    """
+    tol = expected.get("tolerance", {})
+    by_key = {r["key"]: r for r in rows}
+    failures = []
+    for case in expected.get("cases", []):
+        r = by_key.get(case["key"])
+        if r is None:
+            failures.append(f"{case['key']}: expected but not run")
+            continue
+        for metric, t in tol.items():
+            if metric in case and r[metric] > case[metric] + t:
+                failures.append(f"{case['key']}: {metric} {r[metric]:.3f} > expected {case[metric]:.3f} + {t:g}")
+    return failures

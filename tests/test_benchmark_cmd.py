@@ -1,0 +1,56 @@
+"""`riverbed benchmark`: the paper's protocol on a Middlebury-layout folder, cached, with a regression gate."""
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from riverbed_cli.cli.main import cli
+
+CONES = Path(__file__).parent / "data" / "cones"
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    root = tmp_path_factory.mktemp("mb")
+    shutil.copytree(CONES, root / "cones")  # im2.png, im6.png, disp2.png: the 2003 quarter-size layout
+    return root
+
+
+def run(*args):
+    return CliRunner().invoke(cli, ["benchmark", *map(str, args)])
+
+
+def test_benchmark_tables_figure_cache_and_check(dataset, tmp_path):
+    out = tmp_path / "out"
+    args = [dataset, "--layout", "middlebury", "-o", out, "--guides", "none,riverbed", "--shares", "0.05",
+            "--windows", "5,13", "--json"]
+    r = run(*args, "--write-expected", tmp_path / "exp.json")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.output)
+    assert s["cases"] == 4 and s["cached"] == 0 and s["regressions"] == []
+    rows = json.loads((out / "results.json").read_text())
+    by = {(x["guide"], x["window"]): x for x in rows}
+    assert by["riverbed", 9]["bad3"] < 0.3 * by["none", None]["bad3"]  # the auto window at 5 % is 9
+    assert (out / "figure5.png").stat().st_size > 10_000 and (out / "results.csv").is_file()
+    assert "| 5.00 % | sgm | riverbed s=13 |" in (out / "results.md").read_text()
+    # resume: every case comes from the cache, and the gate passes against its own expectations
+    r = run(*args, "--check", tmp_path / "exp.json")
+    s = json.loads(r.output)
+    assert r.exit_code == 0 and s["cached"] == 4 and s["regressions"] == []
+    # a regression: expectations better than reality by more than the tolerance
+    exp = json.loads((tmp_path / "exp.json").read_text())
+    for case in exp["cases"]:
+        case["bad3"] -= 1.0
+    (tmp_path / "better.json").write_text(json.dumps(exp))
+    r = CliRunner().invoke(cli, ["benchmark", *map(str, args[:-1]), "--check", str(tmp_path / "better.json")])
+    assert r.exit_code == 1
+    assert "riverbed: regression: cones|sgm|none|0.05|None|0: bad3" in r.output
+
+
+def test_benchmark_bad_dataset(tmp_path):
+    r = run(tmp_path, "--layout", "kitti", "-o", tmp_path / "o")
+    assert r.exit_code == 1
+    assert r.output == f"riverbed: error: {tmp_path}: no kitti scenes found (left/right images with ground truth)\n"
