@@ -57,5 +57,13 @@ def _register():
 
     cli.add_command(block.block_cmd)
 
+    from . import rectify
+
+    cli.add_command(rectify.rectify_cmd)
+
+    from . import benchmark
+
+    cli.add_command(benchmark.benchmark_cmd)
+
 
 _register()

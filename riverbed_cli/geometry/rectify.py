@@ -180,12 +180,15 @@ def _read_yaml(path):
 
 
 def _mapping(data, key, allowed, path):
+    """``data`` as a mapping with only ``allowed`` keys; ``key`` is its dotted name (None: the whole file)."""
     if not isinstance(data, dict):
         raise RiverbedError(f"{key}: expected a mapping with keys {', '.join(allowed)}, got "
                             f"{type(data).__name__}", path)
     unknown = [str(k) for k in data if k not in allowed]
     if unknown:
-        raise RiverbedError(f"{key}.{unknown[0]}: unknown key ({key} keys: {', '.join(allowed)})", path)
+        name = unknown[0] if key is None else f"{key}.{unknown[0]}"
+        where = "orientation file" if key is None else key
+        raise RiverbedError(f"{name}: unknown key ({where} keys: {', '.join(allowed)})", path)
     return data
 
 
@@ -252,7 +255,7 @@ def orientation_from_dict(data, path=None, image_size=None):
     """
     if not isinstance(data, dict):
         raise RiverbedError("not an orientation file (expected a mapping with interior and exterior)", path)
-    _mapping(data, "orientation", TOP_KEYS, path)
+    _mapping(data, None, TOP_KEYS, path)
     for key in ("interior", "exterior"):
         if data.get(key) is None:
             raise RiverbedError(f"{key}: missing", path)
@@ -470,6 +473,8 @@ def rectify(left_image, left, right_image, right, alpha=0.0, size=None, interpol
         raise RiverbedError(
             f"the images differ in size ({left_image.shape[1]}x{left_image.shape[0]} vs "
             f"{right_image.shape[1]}x{right_image.shape[0]}); stereoRectify needs frames of one camera size")
+    if left_image.shape != right_image.shape:
+        raise RiverbedError(f"the images differ in channels ({left_image.shape} vs {right_image.shape})")
     if left_image.dtype != right_image.dtype:
         raise RiverbedError(f"the images differ in sample type ({left_image.dtype} vs {right_image.dtype})")
     H, W = left_image.shape[:2]
@@ -596,6 +601,10 @@ def rectify_files(left_image, left_orientation, right_image, right_orientation, 
         img = read_image(img_path, limit)
         orients.append(load_orientation(or_path, image_size=(img.shape[1], img.shape[0])))
         images.append(img)
+    if images[0].shape[:2] != images[1].shape[:2]:
+        raise RiverbedError(f"image is {images[1].shape[1]}x{images[1].shape[0]} but {left_image} is "
+                            f"{images[0].shape[1]}x{images[0].shape[0]} (WxH); stereoRectify needs frames of one "
+                            "camera size", right_image)
     result = rectify(images[0], orients[0], images[1], orients[1], alpha=alpha, size=size)
     outdir.mkdir(exist_ok=True)
     paths = [outdir / name for name in OUTPUTS]
