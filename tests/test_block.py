@@ -17,11 +17,12 @@ from riverbed_cli.errors import RiverbedError
 from riverbed_cli.geometry.cameras import PairGeometry
 from riverbed_cli.io.disparity import read_disparity
 from riverbed_cli.io.images import read_image
+from riverbed_cli.io.lidar import read_lidar
 from riverbed_cli.io.pairfile import load_pairfile, write_pairfile
 from riverbed_cli.io.pointcloud import write_points
 from riverbed_cli.products.dsm import Grid, rasterize
 from riverbed_cli.products.visualize import write_png
-from riverbed_cli.scale.block import load_manifest, plan_block
+from riverbed_cli.scale.block import load_manifest, plan_block, project_stage, run_block
 from riverbed_cli.scale.tiles import match_tiled
 
 DATA = Path(__file__).parent / "data" / "cones"
@@ -124,7 +125,8 @@ ERRORS = [
     ({"pairs": [{**GOOD, "colour": 1}]},
      "pairs[0]: unknown key 'colour' (pair keys: pair, cloud, name, and the settings of defaults)"),
     ({"pairs": []}, "pairs: expected a non-empty list of {pair: PAIR_FILE, cloud: CLOUDS}"),
-    ({"pairs": [GOOD, {"pair": "x/pair.yaml", "cloud": "lidar/west.laz"}]}, "pairs[1].pair: file not found: x/pair.yaml"),
+    ({"pairs": [GOOD, {"pair": "x/pair.yaml", "cloud": "lidar/west.laz"}]},
+     "pairs[1].pair: file not found: x/pair.yaml"),
     ({"pairs": [{"pair": "a/pair.yaml"}]}, "pairs[0].cloud: missing"),
     ({"pairs": [{**GOOD, "cloud": "lidar/*.las"}]}, "pairs[0].cloud: 'lidar/*.las' matches no file"),
     ({"pairs": [{**GOOD, "cloud": ["lidar/west.laz", "lidar/north.laz"]}]},
@@ -282,13 +284,21 @@ def test_tampered_output_and_changed_setting_rerun_only_their_pair(block, tmp_pa
     assert summary(res)["merged"]["status"] == "done"
 
 
-@pytest.mark.parametrize("workers", ["0", "1"])
-def test_failing_pair_is_reported_and_the_rest_finish(block, tmp_path, workers):
+@pytest.mark.parametrize("where", ["sequential", "scheduler"])
+def test_failing_pair_is_reported_and_the_rest_finish(block, tmp_path, where):
     base = block[0]
     out = tmp_path / "out"
-    res = run(["block", str(base / "bad.yaml"), "-o", str(out), "--workers", workers, "--json"])
+    args = ["block", str(base / "bad.yaml"), "-o", str(out), "--json"]
+    if where == "sequential":
+        res = run([*args, "--workers", "0"])
+    else:  # an existing cluster (--scheduler ADDRESS), here a threaded one in this process
+        from distributed import LocalCluster
+
+        with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster:
+            res = run([*args, "--scheduler", cluster.scheduler_address])
     assert res.exit_code == 1
     info = summary(res)
+    assert info["mode"] == where
     by = {p["name"]: p for p in info["pairs"]}
     assert by["good"]["status"] == "done" and by["bad"]["status"] == "failed"
     assert by["bad"]["stage"] == "project" and "corrupt.laz" in by["bad"]["error"]
@@ -296,6 +306,29 @@ def test_failing_pair_is_reported_and_the_rest_finish(block, tmp_path, workers):
     assert lines == [f"riverbed: error: pair bad failed in project: {by['bad']['error']}"]
     assert info["merged"]["status"] == "done" and (out / "dsm.tif").is_file()
     assert not (out / "pairs" / "bad" / "done.json").exists()
+
+
+def test_several_clouds_keep_the_nearer_point_and_skip_clouds_elsewhere(block, tmp_path):
+    base = block[0]
+    west = read_lidar(base / "lidar" / "west.laz")["xyz"]
+    write_points(tmp_path / "lower.laz", west - [0, 0, 20.0], None, CRS)  # 20 m farther from the camera
+    write_points(tmp_path / "far.laz", west + [20000.0, 0, 0], None, CRS)  # 20 km east: not in the image
+    m = tmp_path / "m.yaml"
+    clouds = [str(base / "lidar" / "west.laz"), str(tmp_path / "lower.laz"), str(tmp_path / "far.laz")]
+    m.write_text(yaml.safe_dump({"pairs": [{"pair": str(base / "a" / "pair.yaml"), "cloud": clouds, "name": "a"},
+                                           {"pair": str(base / "a" / "pair.yaml"), "cloud": clouds[:1],
+                                            "name": "w"}]}))
+    plan = plan_block(m, tmp_path / "out")
+    proj = project_stage(plan.jobs[0])
+    assert proj["stats"]["clouds"] == 2 and proj["stats"]["clouds_without_points"] == 1
+    merged = read_disparity(tmp_path / "out" / "pairs" / "a" / "sparse.tif")
+    project_stage(plan.jobs[1])
+    near = read_disparity(tmp_path / "out" / "pairs" / "w" / "sparse.tif")
+    has = np.isfinite(near)
+    np.testing.assert_array_equal(merged[has], near[has])  # where the true surface has a point, it wins
+    assert np.isfinite(merged).sum() > has.sum()  # the lowered copy fills pixels the west cloud does not reach
+    with pytest.raises(RiverbedError, match="give --workers .* or --scheduler .*, not both"):
+        run_block(plan, workers=2, scheduler="tcp://127.0.0.1:1")
 
 
 def test_plan_marks_unreadable_pair_file_failed(block, tmp_path):

@@ -7,7 +7,7 @@ from tqdm import tqdm
 
 from ..errors import RiverbedError
 from ..scale.block import plan_block, run_block
-from .options import input_path, json_opt, overwrite_opt, print_json, progress_enabled
+from .options import input_path, json_opt, print_json, progress_enabled
 
 log = logging.getLogger(__name__)
 
@@ -27,7 +27,9 @@ log = logging.getLogger(__name__)
 @click.option("--retries", type=click.IntRange(0), default=2, show_default=True,
               help="Redo a task this many times after a crash or a lost worker (bad input is not retried).")
 @json_opt
-@overwrite_opt
+@click.option("--overwrite", is_flag=True, default=False,
+              help="Write into a folder that is not empty or holds another manifest's block (the block still replaces "
+                   "only its own files: pairs/NAME/ of its pairs, dsm.tif, block.json).")
 def block_cmd(manifest, outdir, workers, threads_per_worker, scheduler, retries, as_json, overwrite):
     """Run every pair of the block MANIFEST (YAML) and merge their points into OUTDIR/dsm.tif.
 
@@ -35,7 +37,17 @@ def block_cmd(manifest, outdir, workers, threads_per_worker, scheduler, retries,
     in OUTDIR/pairs/NAME/ (sparse.tif, disparity.tif, points.laz, dsm.tif, done.json). A second run skips the
     pairs whose done.json verifies (outputs' sha256, same settings and inputs). A failing pair is reported and the
     others go on; the exit code is 1 if any pair failed. OUTDIR may be new, empty or this manifest's earlier
-    output; anything else needs --overwrite. The manifest format is in riverbed_cli/scale/block.py.
+    output; anything else needs --overwrite.
+
+    \b
+    MANIFEST (paths relative to it; per-pair keys override defaults):
+      defaults: {resolution: 0.5, crs: EPSG:32632, agg: max, guide: riverbed, tile: 1024, overlap: 128}
+      pairs:
+        - {pair: a/pair.yaml, cloud: lidar/*.laz}
+        - {pair: b/pair.yaml, cloud: [lidar/1.laz, lidar/2.laz], name: b, window: 7}
+    Settings: resolution crs agg (block-wide, defaults only); guide matcher window census paths p1 p2 subpixel
+    median lr_check min_disp max_disp max_pixels; tile overlap lidar_range; outliers visibility side footprint
+    classes drop_classes registration lidar_crs.
     """
     if scheduler is not None and workers is not None:
         raise RiverbedError("give --workers (a local cluster) or --scheduler (a running one), not both")

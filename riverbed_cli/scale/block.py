@@ -8,7 +8,7 @@ The manifest (YAML, read with ``yaml.safe_load`` only; paths relative to the man
       agg: max                 # block-wide: per-cell aggregation, max | mean | median | idw
       guide: riverbed          # matcher: guide window census paths p1 p2 subpixel median lr_check
       min_disp: 0              #          min_disp max_disp max_pixels
-      tile: 1024               # tiling: tile overlap lidar_range
+      tile: auto               # tiling: tile (px, or auto as match_tiled) overlap lidar_range
       drop_classes: [7, 18]    # projection: outliers visibility side footprint classes drop_classes
                                #             registration (a 4x4 file) lidar_crs
     pairs:
@@ -39,7 +39,9 @@ Rules
   ``block.json`` is ever written or removed. Every file is written under a temporary name and renamed.
 - *Failures*: a pair that fails is reported (name, stage, one-line error) and the others go on; the merged DSM is
   built from the pairs that finished (this run or before). Bad input (:class:`RiverbedError`) is not retried; any
-  other exception, and a task whose worker died, is retried up to ``retries`` times.
+  other exception is retried up to ``retries`` times (dask ``retries``), and a task whose worker died is rerun
+  elsewhere up to ``retries`` times (``distributed.scheduler.allowed-failures``, set on the local cluster; an
+  existing cluster keeps its scheduler's setting).
 - *Merging*: the merged DSM is rasterised from the per-pair LAZ files, streamed in chunks into one
   :class:`~riverbed_cli.products.dsm.Accumulator` on one grid snapped to multiples of the resolution, so every
   aggregation (median and mean included) is exact over the union of the points, not a mosaic of per-pair rasters.
@@ -53,12 +55,18 @@ Task graph (dask.distributed, one set per pair to run)::
                  └──► ...           ──┘
     all finish ───────────────────────────► merge (OUTDIR/dsm.tif)
 
-``project`` projects the clouds, writes ``sparse.tif`` and, for a pair larger than the tile, the images as
-``.npy`` in ``pairs/NAME/.work`` and the tiles' LiDAR disparity ranges; each ``tile`` task reads its crops from
-disk (memory-mapped images, a window of ``sparse.tif``) and returns the tile's disparities (the same arithmetic as
-:func:`~riverbed_cli.scale.tiles.match_tiled`); a pair no larger than the tile is one task running
-:func:`~riverbed_cli.matching.pipeline.match_pair` on the whole images. The same functions run in order without
-dask (``workers=0``).
+``project`` projects the clouds, writes ``sparse.tif`` and plans the matching as
+:func:`~riverbed_cli.scale.tiles.match_tiled` would (tile size, ``"auto"`` included, LiDAR tile ranges, one riverbed
+window, one 16-bit scale); for a pair larger than the tile it copies the images to ``pairs/NAME/.work/*.npy``. The
+client submits every project task at once and, as each one finishes, that pair's tile tasks (they take the project
+future as an argument, so the scheduler knows the dependency and recomputes it if its worker dies) and its finish
+task (depends on the project and all its tiles). Each tile task reads its crops from disk (memory-mapped images, a
+window of ``sparse.tif``) and returns the tile's disparities, computed with the arithmetic of ``match_tiled``'s loop;
+a pair no larger than the tile is one task running :func:`~riverbed_cli.matching.pipeline.match_pair` on the whole
+images. ``workers=0`` runs the same task functions in order, without dask.
+
+Numba: each task sets its thread's Numba threads to ``CPUs // (workers * threads_per_worker)`` on a local cluster
+(on an existing cluster: the worker host's CPUs // the worker's threads).
 """
 
 import contextlib
@@ -455,6 +463,7 @@ class BlockPlan:
     manifest: Manifest
     outdir: Path
     jobs: list
+    seconds: float = 0.0  # validating, stat-ing inputs, verifying finished pairs (sha256 of their outputs)
 
     @property
     def to_run(self):
@@ -578,6 +587,7 @@ def plan_block(manifest, outdir, overwrite=False):
     (its pair file or images cannot be read)."""
     from ..io.pairfile import load_pairfile
 
+    t0 = time.perf_counter()
     if not isinstance(manifest, Manifest):
         manifest = load_manifest(manifest)
     outdir = Path(outdir).absolute()
@@ -602,17 +612,17 @@ def plan_block(manifest, outdir, overwrite=False):
                 files.append(Path(s["registration"]))
             job.inputs = [_stat(p, base) for p in files]
         except RiverbedError as e:
-            job.status, job.error = "failed", f"plan: {e}"
+            job.status, job.error = "failed", str(e)
             continue
         except OSError as e:
-            job.status, job.error = "failed", f"plan: {e.filename or ''}: {e.strerror or e}"
+            job.status, job.error = "failed", f"{e.filename or ''}: {e.strerror or e}"
             continue
         job.settings_hash = _hash_json({"name": spec.name, "settings": s, "inputs": job.inputs,
                                         "riverbed": version})
         record = verify_done(job.folder, job.settings_hash)
         if record is not None:
             job.status, job.record = "skip", record
-    return BlockPlan(manifest, outdir, jobs)
+    return BlockPlan(manifest, outdir, jobs, time.perf_counter() - t0)
 
 
 # -- the per-pair stages (plain functions; tasks on dask) -----------------------------------------------------------
@@ -701,7 +711,7 @@ def project_stage(job):
     from ..io.pairfile import load_pairfile, load_registration
     from ..matching.guidance import auto_window, lidar_share_of_points
     from ..matching.pipeline import disparity_range_from_sparse
-    from .tiles import auto_tile, image_bits, lidar_ranges, sparse_points_any, tile_grid
+    from .tiles import image_bits, plan_tiles, sparse_points_any
 
     t0 = time.perf_counter()
     s = job.settings
@@ -751,24 +761,14 @@ def project_stage(job):
         d_max = hi if d_max is None else d_max
     d_min, d_max = int(d_min), int(d_max)
 
-    def plan(size):
-        ts = tile_grid(H, W, size)
-        if s["lidar_range"]:
-            lidar_ranges(ts, sparse, d_min, d_max, reach=overlap)
-        else:
-            for t in ts:
-                t.d_min, t.d_max = d_min, d_max
-        return ts
-
-    if tile == "auto":
-        tile = auto_tile(max(t.d_max - t.d_min for t in plan(1024)), overlap)
+    planned, tile = plan_tiles(H, W, sparse, d_min, d_max, tile, overlap, s["lidar_range"])
     tiles, window, bits = [], p.window, None
     if max(H, W) > tile:
         srcs = [_image_source(getattr(pair, side), (H, W), s["max_pixels"]) for side in ("left", "right")]
         bits = image_bits(*srcs)
         if p.guide != "none" and p.window == "auto":
             window = auto_window(share, p.window_target)  # one window for every tile
-        tiles = [[t.y0, t.y1, t.x0, t.x1, t.d_min, t.d_max, t.source] for t in plan(int(tile))]
+        tiles = [[t.y0, t.y1, t.x0, t.x1, t.d_min, t.d_max, t.source] for t in planned]
         work = folder / WORK
         work.mkdir(exist_ok=True)
         for side, src in zip(("left", "right"), srcs):
@@ -780,27 +780,15 @@ def project_stage(job):
             "seconds": round(time.perf_counter() - t0, 4)}
 
 
-def _read_window(path, ya, yb, xa, xb):
-    import warnings
-
-    import rasterio
-    from rasterio.windows import Window
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
-        with rasterio.open(path) as ds:
-            return ds.read(1, window=Window(xa, ya, xb - xa, yb - ya)).astype(np.float32)
-
-
 def tile_stage(job, proj, index):
     """Match tile ``index`` of a tiled pair (crops read from disk), or the whole pair when it is not tiled.
 
-    Tiled: the crop, range offset and arithmetic of :func:`~riverbed_cli.scale.tiles.match_tiled`'s loop
+    Tiled: :func:`~riverbed_cli.scale.tiles.match_tile`, the body of ``match_tiled``'s loop
     (``test_tile_tasks_are_match_tiled`` pins the two together). Not tiled: :func:`match_pair` on the whole
     images. Returns ``{"index", "disparity" (the tile's own pixels), "evaluations", "stages", "seconds"}``.
     """
     from ..io.disparity import read_disparity
-    from ..io.images import check_pair, read_image, to_guide
+    from ..io.images import check_pair, read_image
     from ..io.pairfile import load_pairfile
     from ..matching.pipeline import MatchParams, match_pair
 
@@ -822,27 +810,16 @@ def tile_stage(job, proj, index):
         n_d = res.info["d_max"] - res.info["d_min"] + 1
         return {"index": 0, "disparity": res.disparity, "evaluations": H * W * n_d, "stages": res.info["stages"],
                 "seconds": round(time.perf_counter() - t0, 4)}
+    from .tiles import Tile, WindowedRaster, match_tile
+
     p = MatchParams(**{**p.__dict__, "window": proj["window"]})
-    bits = proj["bits"]
-    y0, y1, x0, x1, t_min, t_max, _ = proj["tiles"][index]
-    overlap = s["overlap"]
-    ya, yb = max(0, y0 - overlap), min(H, y1 + overlap)
-    a = max(0, x0 - overlap - (t_max - t_min))
-    b = min(W, x1 + overlap)
-    off = min(t_min, a) if t_min >= 0 else max(t_min, b - W)
-    lc = np.array(np.load(folder / WORK / "left.npy", mmap_mode="r")[ya:yb, a:b])
-    rc = np.array(np.load(folder / WORK / "right.npy", mmap_mode="r")[ya:yb, a - off:b - off])
-    if bits > 8:  # one 0..255 scale for every tile of a 16-bit pair
-        lc, rc = (np.squeeze(to_guide(c, bits), axis=-1) if c.ndim == 2 else to_guide(c, bits) for c in (lc, rc))
-    sc = _read_window(folder / "sparse.tif", ya, yb, a, b) - np.float32(off)
-    sc = np.where((sc >= t_min - off) & (sc <= t_max - off), sc, np.float32(np.nan))
-    if p.guide != "none" and not np.isfinite(sc).any():
-        sc = None
-    kw = {} if sc is not None or p.guide == "none" else {"guide": "none"}
-    res = match_pair(lc, rc, sc, t_min - off, t_max - off, p, **kw)
-    disp = res.disparity[y0 - ya:y1 - ya, x0 - a:x1 - a] + np.float32(off)
-    return {"index": index, "disparity": np.ascontiguousarray(disp), "evaluations": lc.shape[0] * lc.shape[1]
-            * (t_max - t_min + 1), "stages": res.info["stages"], "seconds": round(time.perf_counter() - t0, 4)}
+    tile = Tile(*proj["tiles"][index])
+    left = np.load(folder / WORK / "left.npy", mmap_mode="r")
+    right = np.load(folder / WORK / "right.npy", mmap_mode="r")
+    sparse = WindowedRaster(folder / "sparse.tif", "disparity")
+    disp, n, stages = match_tile(left, right, sparse, tile, s["overlap"], p, proj["bits"])
+    return {"index": index, "disparity": disp, "evaluations": n, "stages": stages,
+            "seconds": round(time.perf_counter() - t0, 4)}
 
 
 def n_tasks(proj):
@@ -1051,6 +1028,7 @@ class BlockResult:
     mode: str
     seconds: float
     cluster_seconds: float = None  # starting (or connecting to) the cluster
+    plan_seconds: float = 0.0
 
 
     @property
@@ -1060,6 +1038,7 @@ class BlockResult:
 
     def summary(self):
         return {"outdir": str(self.outdir), "mode": self.mode, "seconds": round(self.seconds, 3),
+                "plan_seconds": round(self.plan_seconds, 3),
                 "cluster_seconds": None if self.cluster_seconds is None else round(self.cluster_seconds, 3),
                 "pairs": self.pairs, "merged": self.merged}
 
@@ -1137,7 +1116,7 @@ def run_block(plan, workers=None, threads_per_worker=1, scheduler=None, retries=
         if cluster is not None:
             cluster.close()
     pairs = [entries[j.name] for j in plan.jobs]
-    return BlockResult(plan.outdir, pairs, merged, mode, time.perf_counter() - t0, startup)
+    return BlockResult(plan.outdir, pairs, merged, mode, time.perf_counter() - t0, startup, plan.seconds)
 
 
 def _quiet_dask_logs():

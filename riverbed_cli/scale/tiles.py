@@ -236,6 +236,58 @@ def lidar_ranges(tiles, sparse, d_min, d_max, reach=None, margin=4.0, thin_margi
     return tiles
 
 
+def plan_tiles(height, width, sparse, d_min, d_max, tile="auto", overlap=128, lidar_range=True):
+    """The tiles of a tiled match and the tile size: ``tile="auto"`` sizes tiles for :data:`TILE_BUDGET` from the
+    widest range a 1024 px tile would search; each tile gets its LiDAR range (or the global one)."""
+
+    def plan(size):
+        ts = tile_grid(height, width, size)
+        if sparse is not None and lidar_range:
+            lidar_ranges(ts, sparse, d_min, d_max, reach=overlap)
+        else:
+            for t in ts:
+                t.d_min, t.d_max = d_min, d_max
+        return ts
+
+    if tile == "auto":
+        tile = auto_tile(max(t.d_max - t.d_min for t in plan(1024)), overlap)
+        if max(height, width) <= tile:
+            tile = max(height, width)
+    return plan(int(tile)), int(tile)
+
+
+def match_tile(left, right, sparse, t, overlap, params, bits=8):
+    """Match one :class:`Tile` (sources sliced like numpy arrays: arrays, memory maps, :class:`WindowedRaster`).
+
+    Returns ``(block, evaluations, stages)``: the tile's own disparities (float32, ``t.y1 - t.y0`` x ``t.x1 -
+    t.x0``), the disparity evaluations done on its crop, and the stage timings. ``params.window`` should be fixed
+    (not "auto") so every tile uses the same riverbed window; ``bits`` is the whole pair's effective bit depth.
+    """
+    from ..io.images import to_guide
+
+    H, W = left.shape[:2]
+    ya, yb = max(0, t.y0 - overlap), min(H, t.y1 + overlap)
+    a = max(0, t.x0 - overlap - (t.d_max - t.d_min))
+    b = min(W, t.x1 + overlap)
+    off = min(t.d_min, a) if t.d_min >= 0 else max(t.d_min, b - W)
+    lc = np.asarray(left[ya:yb, a:b])
+    rc = np.asarray(right[ya:yb, a - off:b - off])
+    if bits > 8:
+        # one 0..255 scale for every tile of a 16-bit pair (a tile's own maximum would change it)
+        lc, rc = (np.squeeze(to_guide(c, bits), axis=-1) if c.ndim == 2 else to_guide(c, bits) for c in (lc, rc))
+    sc = None
+    if sparse is not None:
+        sc = np.asarray(sparse[ya:yb, a:b], np.float32) - np.float32(off)
+        # LiDAR outside the tile's range cannot guide it (match_pair would warn about every tile)
+        sc = np.where((sc >= t.d_min - off) & (sc <= t.d_max - off), sc, np.float32(np.nan))
+        if params.guide != "none" and not np.isfinite(sc).any():
+            sc = None
+    kw = {} if sc is not None or params.guide == "none" else {"guide": "none"}
+    res = match_pair(lc, rc, sc, t.d_min - off, t.d_max - off, params, **kw)
+    block = res.disparity[t.y0 - ya:t.y1 - ya, t.x0 - a:t.x1 - a] + np.float32(off)
+    return np.ascontiguousarray(block), lc.shape[0] * lc.shape[1] * (t.d_max - t.d_min + 1), res.info["stages"]
+
+
 def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, tile="auto", overlap=128,
                 lidar_range=True, progress=None, out=None, **overrides):
     """:func:`match_pair` tile by tile; same arguments plus ``tile`` (px), ``overlap`` (px) and ``lidar_range``.
@@ -250,7 +302,6 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
     """
     import time
 
-    from ..io.images import to_guide
     from ..matching.guidance import auto_window, lidar_share_of_points
     from ..matching.pipeline import disparity_range_from_sparse
 
@@ -280,47 +331,16 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
     if p.guide != "none" and p.window == "auto":
         # One window for the whole image: a tile's own LiDAR share would change it from tile to tile.
         p = MatchParams(**{**p.__dict__, "window": auto_window(share, p.window_target)})
-    def plan(size):
-        ts = tile_grid(H, W, size)
-        if sparse is not None and lidar_range:
-            lidar_ranges(ts, sparse, d_min, d_max, reach=overlap)
-        else:
-            for t in ts:
-                t.d_min, t.d_max = d_min, d_max
-        return ts
-
-    if tile == "auto":
-        widest = max(t.d_max - t.d_min for t in plan(1024))
-        tile = auto_tile(widest, overlap)
-        if max(H, W) <= tile:
-            tile = max(H, W)
-    tiles = plan(int(tile))
+    tiles, tile = plan_tiles(H, W, sparse, d_min, d_max, tile, overlap, lidar_range)
     if out is None:
         out = np.full((H, W), np.nan, np.float32)
     stages = {}
     evaluations = 0
     for t in tiles:
-        ya, yb = max(0, t.y0 - overlap), min(H, t.y1 + overlap)
-        a = max(0, t.x0 - overlap - (t.d_max - t.d_min))
-        b = min(W, t.x1 + overlap)
-        off = min(t.d_min, a) if t.d_min >= 0 else max(t.d_min, b - W)
-        lc = left[ya:yb, a:b]
-        rc = right[ya:yb, a - off:b - off]
-        if bits > 8:
-            # one 0..255 scale for every tile of a 16-bit pair (a tile's own maximum would change it)
-            lc, rc = (np.squeeze(to_guide(c, bits), axis=-1) if c.ndim == 2 else to_guide(c, bits) for c in (lc, rc))
-        sc = None
-        if sparse is not None:
-            sc = np.asarray(sparse[ya:yb, a:b], np.float32) - np.float32(off)
-            # LiDAR outside the tile's range cannot guide it (match_pair would warn about every tile)
-            sc = np.where((sc >= t.d_min - off) & (sc <= t.d_max - off), sc, np.float32(np.nan))
-            if p.guide != "none" and not np.isfinite(sc).any():
-                sc = None
-        kw = {} if sc is not None or p.guide == "none" else {"guide": "none"}
-        res = match_pair(lc, rc, sc, t.d_min - off, t.d_max - off, p, **kw)
-        out[t.y0:t.y1, t.x0:t.x1] = res.disparity[t.y0 - ya:t.y1 - ya, t.x0 - a:t.x1 - a] + np.float32(off)
-        evaluations += lc.shape[0] * lc.shape[1] * (t.d_max - t.d_min + 1)
-        for k, v in res.info["stages"].items():
+        block, n, st = match_tile(left, right, sparse, t, overlap, p, bits)
+        out[t.y0:t.y1, t.x0:t.x1] = block
+        evaluations += n
+        for k, v in st.items():
             stages[k] = round(stages.get(k, 0.0) + v, 4)
         if progress:
             progress(1)
