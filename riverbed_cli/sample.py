@@ -35,7 +35,9 @@ Use
 block (:func:`generate_block`); :func:`make_block` returns it in memory (:class:`Block`: cameras, images, hit
 points, ground truth, LiDAR arrays). :func:`render_view` renders any :class:`FrameCamera`, and
 :func:`render_frame` the raw, slightly tilted frames of the flight line (the input a rectification step needs;
-their orientations are in ``scene.json``).
+their orientations are in ``scene.json``). :func:`write_block` also writes the raw frames of the pair to
+``raw/`` (grey ``frame0.png``, ``frame1.png``) with orientation files ``frame0.yaml``, ``frame1.yaml`` in the
+format of ``riverbed rectify`` (:mod:`riverbed_cli.geometry.rectify`, ``docs/rectify.md``).
 
 Everything is deterministic for a seed. The ray kernels are Numba functions (``cache=True``); the scene itself is
 built with numpy and OpenCV resampling.
@@ -71,7 +73,12 @@ NODATA = -9999.0
 #: Stages of :func:`make_block` and :func:`generate_block`, in order (for progress reporting).
 STAGES = ("scene", "render", "ground_truth", "lidar", "write")
 FILES = ("left.png", "right.png", "pair.yaml", "lidar.laz", "gt_disparity.tif", "gt_dsm.tif", "scene.json",
-         "MANIFEST.md")
+         "MANIFEST.md", "raw")
+#: Raw (unrectified) frames of the pair written to ``raw/`` (``frameK.png`` and its orientation
+#: ``frameK.yaml``).
+RAW_FRAMES = (0, 1)
+#: Pixel size (mm) stated in the raw frames' orientation files (focal length 12 mm small, 16 mm full).
+RAW_PIXEL_SIZE_MM = 0.004
 
 # Materials (node attribute; drive colour, LiDAR class and LiDAR drop-outs).
 GRASS, ROAD, FIELD, ROOF, TREE, WATER, TAR, CAR, SOLAR, SOIL, PAVING = range(11)
@@ -1693,6 +1700,7 @@ def scene_description(block):
 def _manifest(block, command):
     spec = block.spec
     W, H = spec.rect_size
+    RW, RH = spec.raw_size
     lid = block.lidar
     info = lid["info"]
     g = block.dsm_grid
@@ -1716,6 +1724,8 @@ regenerates these files, which `tests/test_sample.py` checks. Synthetic data mad
 | `gt_disparity.tif` | ground-truth disparity of the left image, float32, `d = x_left - x_right`, NaN unknown |
 | `gt_dsm.tif` | ground-truth DSM, float32 cloud-optimised GeoTIFF, nodata {NODATA:g} off the left footprint |
 | `scene.json` | sun, flight line with the raw frame cameras, rectified cameras, LiDAR scanner, DSM grid, layout |
+| `raw/frame0.png`, `raw/frame1.png` | raw (unrectified, slightly tilted) frames of the pair, {RW}x{RH} grey |
+| `raw/frame0.yaml`, `raw/frame1.yaml` | their orientations (docs/rectify.md): input of `riverbed rectify` |
 
 ## Geometry
 
@@ -1786,14 +1796,46 @@ def write_block(block, outdir, overwrite=False, command=None):
         text = json.dumps(scene_description(block), indent=1) + "\n"
         (tmp / "scene.json").write_text(text, encoding="utf-8")
         (tmp / "MANIFEST.md").write_text(_manifest(block, command), encoding="utf-8")
+        write_raw_frames(block, tmp / "raw", command)
         outdir.mkdir(exist_ok=True)
+        if (outdir / "raw").is_dir():  # a folder is not replaced by os.replace: move the old one out first
+            os.replace(outdir / "raw", tmp / "raw.old")
         sizes = {}
         for name in FILES:
             os.replace(tmp / name, outdir / name)
             sizes[name] = (outdir / name).stat().st_size
+        sizes["raw"] = sum(p.stat().st_size for p in (outdir / "raw").iterdir())
         return sizes
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def raw_orientation(block, k):
+    """The orientation file contents (``docs/rectify.md``) of raw frame ``k``: the camera that rendered it."""
+    from .geometry.rectify import orientation_dict
+
+    cam = block.frames[k][0]
+    origin = block.scene.origin
+    return orientation_dict(cam.K, cam.R, cam.C + origin, cam.width, cam.height, dist=np.zeros(5), crs=CRS,
+                            origin=origin, pixel_size_mm=RAW_PIXEL_SIZE_MM)
+
+
+def write_raw_frames(block, folder, command=None):
+    """Render the raw frames :data:`RAW_FRAMES` (:func:`render_frame`, stored grey to keep the block small)
+    into ``folder`` (created) as ``frameK.png``, with their orientation files ``frameK.yaml``."""
+    from .geometry.rectify import write_orientation
+    from .products.visualize import write_png
+
+    folder = Path(folder)
+    folder.mkdir()
+    for k in RAW_FRAMES:
+        img, _, _ = render_frame(block, k)
+        write_png(folder / f"frame{k}.png", cv2.cvtColor(img, cv2.COLOR_RGB2GRAY))
+        att = ", ".join(f"{a:g}" for a in block.frames[k][1])
+        comment = (f"Raw frame {k} of the synthetic aerial block ({command or 'riverbed sample'}): nadir, "
+                   f"roll/pitch/yaw ({att}) deg.\nOrientation file of riverbed rectify (docs/rectify.md); "
+                   "omega/phi/kappa: M = R3(kappa) R2(phi) R1(omega).")
+        write_orientation(folder / f"frame{k}.yaml", raw_orientation(block, k), comment=comment)
 
 
 def write_laz(path, lidar, origin, date=datetime.date(2022, 6, 14)):

@@ -36,8 +36,8 @@ def _alpha(ctx, param, value):
 @click.option("-o", "--outdir", required=True, type=click.Path(file_okay=False),
               help="Output folder (created if missing): left.png, right.png, pair.yaml.")
 @click.option("--alpha", type=float, default=0.0, show_default=True, callback=_alpha,
-              help="stereoRectify's free scaling: 0 only pixels valid in both images (no black border), 1 every "
-                   "source pixel kept, -1 OpenCV's default.")
+              help="stereoRectify's free scaling: 0 only pixels valid in both images (no black border), "
+                   "1 every source pixel kept, -1 OpenCV's default.")
 @click.option("--size", default=None, callback=_size, metavar="WxH",
               help="Rectified image size in pixels (default: the raw frame size).")
 @click.option("--max-pixels", type=int, default=MAX_PIXELS, show_default=True,
@@ -50,9 +50,10 @@ def rectify_cmd(left_img, left_orient, right_img, right_orient, outdir, alpha, s
 
     Writes OUTDIR/left.png and OUTDIR/right.png (rows shared, d = x_left - x_right = f B / depth >= 0) and
     OUTDIR/pair.yaml (P_left, P_right over world minus origin, origin, crs): the exact cameras of the written
-    images. OpenCV stereoRectify + initUndistortRectifyMap + remap (bicubic). If the right camera would end up
-    on the left, both rectified images are turned by 180 deg (by 90 deg when the baseline runs along the image
-    columns); LEFT_IMG always gives left.png.
+    images. OpenCV stereoRectify + initUndistortRectifyMap + remap (bicubic). Each image is turned about its
+    optical axis (by 0, 90, 180 deg) so that the baseline runs along the rows with the right camera to the
+    right (d >= 0): e.g. both by 180 deg when RIGHT_IMG was taken behind LEFT_IMG. LEFT_IMG always gives
+    left.png.
     """
     if max_pixels is not None and max_pixels < 1:
         raise RiverbedError("--max-pixels must be positive")
@@ -61,6 +62,6 @@ def rectify_cmd(left_img, left_orient, right_img, right_orient, outdir, alpha, s
     if as_json:
         print_json(summary)
     else:
-        log.info("%s: %dx%d, f = %.4f px, baseline %.4f, d = %.4f / depth, turned %d deg, valid %s", outdir,
+        log.info("%s: %dx%d, f = %.4f px, baseline %.4f, d = %.4f / depth, turned %s deg, valid %s", outdir,
                  summary["width"], summary["height"], summary["focal_px"], summary["baseline"], summary["fB"],
-                 summary["rotation_deg"], summary["valid_share"])
+                 summary["turn_deg"], summary["valid_share"])

@@ -10,7 +10,7 @@ Orientation file (YAML, read with ``yaml.safe_load``; see ``docs/rectify.md`` fo
       height: 800
       pixel_size_mm: 0.004             # needed when a length below is in mm (square pixels)
       focal_length_mm: 12.0            # or focal_length_px
-      principal_point_mm: [0.0, 0.0]   # x right, y up, from the image centre; or principal_point_px: [col, row]
+      principal_point_mm: [0.0, 0.0]   # x right, y up, from the image centre; or principal_point_px
       distortion: {k1: 0.0, k2: 0.0, k3: 0.0, p1: 0.0, p2: 0.0}   # optional, OpenCV's Brown model
     exterior:
       centre: [501184.89, 5002453.58, 840.57]    # projection centre X, Y, Z in the (projected) CRS
@@ -21,9 +21,10 @@ Orientation file (YAML, read with ``yaml.safe_load``; see ``docs/rectify.md`` fo
 Conventions
 -----------
 - Photogrammetric rotation (Wolf & Dewitt; Kraus): ``M = R3(kappa) R2(phi) R1(omega)`` maps object-space
-  vectors to image space, ``[x, y, z]_image = M (X - C)``, image axes x right, y up, z towards the viewer (the
-  camera looks along -z). ``R1(w) = [[1, 0, 0], [0, cos w, sin w], [0, -sin w, cos w]]``, ``R2(p) = [[cos p, 0,
-  -sin p], [0, 1, 0], [sin p, 0, cos p]]``, ``R3(k) = [[cos k, sin k, 0], [-sin k, cos k, 0], [0, 0, 1]]``.
+  vectors to image space, ``[x, y, z]_image = M (X - C)``, image axes x right, y up, z towards the viewer
+  (the camera looks along -z). ``R1(w) = [[1, 0, 0], [0, cos w, sin w], [0, -sin w, cos w]]``,
+  ``R2(p) = [[cos p, 0, -sin p], [0, 1, 0], [sin p, 0, cos p]]``,
+  ``R3(k) = [[cos k, sin k, 0], [-sin k, cos k, 0], [0, 0, 1]]``.
   Equivalently, the camera (image axes) is rotated from the object axes first by omega about X, then by phi
   about the once-rotated Y, then by kappa about the twice-rotated Z, each counter-clockwise seen from the
   positive axis. omega = phi = kappa = 0: looking straight down, image x east, top of the image north.
@@ -36,10 +37,12 @@ Conventions
 
 Rectification: ``cv2.stereoRectify`` (``STEREO_ZERO_DISPARITY``: both rectified cameras share the principal
 point, so ``d = x_left - x_right = f B / depth > 0`` for every point in front) on the relative orientation,
-``cv2.initUndistortRectifyMap`` and ``cv2.remap`` (bicubic). When stereoRectify leaves the right camera to the
-left of the left one (the baseline points against the left image's x axis), both rectified images are rotated
-by 180 deg about their common optical axis; when the baseline runs along the image columns (stereoRectify's
-vertical case), by +-90 deg. The left output is always made from the first image: nothing is swapped.
+``cv2.initUndistortRectifyMap`` and ``cv2.remap`` (bicubic). stereoRectify is given each camera turned about
+its optical axis by 0, 90, 180 or -90 deg, whichever brings the baseline closest to its +x axis (towards the
+right camera): the rectified images then share rows with the right camera to the right, also when the baseline
+points against the left image's x axis (images turned by 180 deg), runs along its columns (90 deg) or the two
+frames differ by 180 deg in kappa (strips flown in opposite directions: one image turned). The left output is
+always made from the first image: nothing is swapped. ``info["turn_deg"]`` reports each image's turn.
 """
 
 import logging
@@ -60,21 +63,22 @@ log = logging.getLogger(__name__)
 #: Orientation files larger than this are refused before parsing.
 MAX_BYTES = 100_000
 TOP_KEYS = ("interior", "exterior", "crs", "origin")
-INTERIOR_KEYS = ("width", "height", "pixel_size_mm", "focal_length_mm", "focal_length_px", "principal_point_mm",
-                 "principal_point_px", "distortion")
+INTERIOR_KEYS = ("width", "height", "pixel_size_mm", "focal_length_mm", "focal_length_px",
+                 "principal_point_mm", "principal_point_px", "distortion")
 EXTERIOR_KEYS = ("centre", "omega_phi_kappa_deg", "rotation")
 DISTORTION_KEYS = ("k1", "k2", "k3", "p1", "p2")
 #: ``cv2.remap`` interpolation of the rectified images.
 INTERPOLATION = cv2.INTER_CUBIC
 #: Largest accepted deviation of a given rotation matrix from orthonormality (``max |M M^T - I|``).
-ROTATION_TOL = 1e-6
-_FLIP = np.diag([1.0, -1.0, -1.0])  # photogrammetric image axes (y up, z back) <-> OpenCV's (y down, z forward)
+ROTATION_TOL = 1e-5
+#: Photogrammetric image axes (y up, z back) <-> OpenCV camera axes (y down, z forward).
+_FLIP = np.diag([1.0, -1.0, -1.0])
 _ZERO_DISPARITY = getattr(cv2, "STEREO_ZERO_DISPARITY", getattr(cv2, "CALIB_ZERO_DISPARITY", 1024))
 
 
-# -- rotations -------------------------------------------------------------------------------------------------------
+# -- rotations -----------------------------------------------------------------------------------------------
 def opk_to_matrix(omega, phi, kappa):
-    """The photogrammetric rotation ``M = R3(kappa) R2(phi) R1(omega)`` (object -> image axes) of angles in degrees.
+    """The photogrammetric rotation ``M = R3(kappa) R2(phi) R1(omega)`` (object -> image axes), angles in deg.
 
     ``M[2] = [sin phi, -sin omega cos phi, cos omega cos phi]``; see the module docstring for the axes.
     """
@@ -96,7 +100,7 @@ def matrix_to_opk(M):
     return math.degrees(omega), math.degrees(phi), math.degrees(kappa)
 
 
-# -- orientation of one frame ----------------------------------------------------------------------------------------
+# -- orientation of one frame --------------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class FrameOrientation:
     """Interior and exterior orientation of one frame image.
@@ -314,8 +318,8 @@ def orientation_from_dict(data, path=None, image_size=None):
             raise RiverbedError(str(e), path) from None
         dev = float(np.abs(M @ M.T - np.eye(3)).max())
         if dev > ROTATION_TOL:
-            raise RiverbedError(f"exterior.rotation: not a rotation matrix (M M^T differs from the identity by "
-                                f"{dev:.3g})", path)
+            raise RiverbedError(f"exterior.rotation: not a rotation matrix (M M^T differs from the identity "
+                                f"by {dev:.3g})", path)
         if np.linalg.det(M) < 0:
             raise RiverbedError("exterior.rotation: determinant -1 (a reflection, not a rotation)", path)
         u, _, vt = np.linalg.svd(M)  # the nearest rotation: drop the rounding of printed matrices
@@ -380,7 +384,7 @@ def write_orientation(path, data, comment=None, overwrite=False):
     return Path(path)
 
 
-# -- the pair ----------------------------------------------------------------------------------------------------------
+# -- the pair ------------------------------------------------------------------------------------------------
 def _pair_frame(left, right):
     """Common CRS and origin of two orientations (checked), and the right file for messages."""
     crs = left.crs
@@ -435,7 +439,7 @@ _QUARTER = {0: np.eye(3), 180: np.diag([-1.0, -1.0, 1.0]),
 
 
 def _rotated_principal_point(turn, cx, cy, w, h):
-    """Principal point after rotating a ``w x h`` rectified image (``cx, cy``) by ``turn`` (see ``_QUARTER``)."""
+    """Principal point after turning a ``w x h`` rectified image (``cx, cy``) by ``turn`` (``_QUARTER``)."""
     if turn == 0:
         return cx, cy
     if turn == 180:
@@ -445,7 +449,29 @@ def _rotated_principal_point(turn, cx, cy, w, h):
     return (h - 1) - cy, cx  # -90: x' = -f y_n + cx', y' = f x_n + cy'
 
 
-def rectify(left_image, left, right_image, right, alpha=0.0, size=None, interpolation=INTERPOLATION):
+def _turn_towards(o, baseline):
+    """The turn (a key of ``_QUARTER``) that brings ``baseline`` (world) closest to +x of camera ``o``."""
+    b = o.R @ baseline
+    return max(((0, b[0]), (180, -b[0]), (90, b[1]), (-90, -b[1])), key=lambda tb: tb[1])[0]
+
+
+def _turned_camera(o, turn, W, H):
+    """Camera matrix, distortion, rotation and image size of frame ``o`` (``W x H``) seen turned by ``turn``.
+
+    The same camera with its image axes turned about the optical axis (``R' = Q R``, ``_QUARTER``): radial
+    distortion is unchanged, the tangential coefficients turn with the axes.
+    """
+    K = o.K
+    cx, cy = _rotated_principal_point(turn, float(K[0, 2]), float(K[1, 2]), W, H)
+    fx, fy = (K[0, 0], K[1, 1]) if turn in (0, 180) else (K[1, 1], K[0, 0])
+    k1, k2, p1, p2, k3 = o.dist
+    p1, p2 = {0: (p1, p2), 180: (-p1, -p2), 90: (-p2, p1), -90: (p2, -p1)}[turn]
+    Kt = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    return Kt, np.array([k1, k2, p1, p2, k3]), _QUARTER[turn] @ o.R, (W, H) if turn in (0, 180) else (H, W)
+
+
+def rectify(left_image, left, right_image, right, alpha=0.0, size=None, interpolation=INTERPOLATION,
+            _preturn=True):
     """Rectify two raw frames with OpenCV: ``stereoRectify`` + ``initUndistortRectifyMap`` + ``remap``.
 
     Parameters
@@ -458,8 +484,7 @@ def rectify(left_image, left, right_image, right, alpha=0.0, size=None, interpol
         stereoRectify's free scaling: 0 keeps only pixels valid in both rectified images (no black border), 1
         keeps every source pixel, -1 OpenCV's default scaling.
     size : (width, height), optional
-        Rectified image size (default: the raw size; swapped for a pair whose baseline runs along the
-        columns).
+        Rectified image size (default: the raw size, swapped when the images are turned by 90 deg).
 
     Returns
     -------
@@ -468,7 +493,6 @@ def rectify(left_image, left, right_image, right, alpha=0.0, size=None, interpol
         ``info`` dict (focal length, baseline, in-plane rotation applied, valid shares, ...).
     """
     t0 = time.perf_counter()
-    lp = left.path
     if left_image.shape[:2] != right_image.shape[:2]:
         raise RiverbedError(
             f"the images differ in size ({left_image.shape[1]}x{left_image.shape[0]} vs "
@@ -491,27 +515,41 @@ def rectify(left_image, left, right_image, right, alpha=0.0, size=None, interpol
             ex, ey = e[0] / e[2], e[1] / e[2]
             if -0.5 <= ex <= W - 0.5 and -0.5 <= ey <= H - 0.5:
                 raise RiverbedError(
-                    f"the epipole lies inside the {name} image, at ({ex:.1f}, {ey:.1f}): the cameras look along "
-                    "the baseline, which planar rectification (stereoRectify) cannot handle", o.path)
+                    f"the epipole lies inside the {name} image, at ({ex:.1f}, {ey:.1f}): the cameras look "
+                    "along the baseline, which planar rectification (stereoRectify) cannot handle", o.path)
 
-    R_rel = right.R @ left.R.T
-    T = right.R @ (C1 - C2)
-    out_size = (W, H) if size is None else (int(size[0]), int(size[1]))
+    # stereoRectify sees each camera turned about its optical axis so that the baseline runs along +x (the
+    # right camera to the right): its rotation averaging and scaling then work on a plain horizontal pair,
+    # also when the frames differ by 90 or 180 deg in kappa (strips flown in opposite directions).
+    turns = [_turn_towards(o, C2 - C1) if _preturn else 0 for o in (left, right)]
+    (K1v, D1v, R1v, S1v), (K2v, D2v, R2v, S2v) = (_turned_camera(o, t, W, H)
+                                                  for o, t in zip((left, right), turns))
+    if S1v != S2v:
+        log.warning("the frames are turned by 90 deg against each other: stereoRectify's valid-region "
+                    "scaling (alpha) uses the left frame's size for both")
+    R_rel = R2v @ R1v.T
+    T = R2v @ (C1 - C2)
+    out_size = S1v if size is None else (int(size[0]), int(size[1]))
     if min(out_size) < 1:
         raise RiverbedError(f"size must be positive, got {out_size[0]}x{out_size[1]}")
 
     def stereo(new_size):
-        return cv2.stereoRectify(left.K, left.dist, right.K, right.dist, (W, H), R_rel, T.reshape(3, 1),
-                                 flags=_ZERO_DISPARITY, alpha=float(alpha), newImageSize=new_size)
+        return cv2.stereoRectify(K1v, D1v, K2v, D2v, S1v, R_rel, T.reshape(3, 1), flags=_ZERO_DISPARITY,
+                                 alpha=float(alpha), newImageSize=new_size)
 
     R1, R2, P1, P2 = stereo(out_size)[:4]
+    # A fallback (the turns above make these cases rare): stereoRectify's vertical case (baseline along the
+    # columns) is rectified at the swapped size and turned by 90 deg; a right camera on the left, by 180 deg.
     vertical = P2[1, 3] != 0.0
-    if vertical:  # baseline along the columns: rectify at the swapped size, then turn the images by 90 deg
+    if vertical:
         if size is None:
-            out_size = (H, W)
+            out_size = (out_size[1], out_size[0])
         R1, R2, P1, P2 = stereo((out_size[1], out_size[0]))[:4]
-    R_rect = R1 @ left.R  # world -> OpenCV's rectified axes (the same for both cameras)
-    if np.abs(R2 @ right.R - R_rect).max() > 1e-9:
+    if not P1[0, 0] > 0:
+        raise RiverbedError("stereoRectify failed (non-positive rectified focal length): the orientations of "
+                            "the two frames differ too much for planar rectification")
+    R_rect = R1 @ R1v  # world -> OpenCV's rectified axes (the same for both cameras)
+    if np.abs(R2 @ R2v - R_rect).max() > 1e-9:
         raise RiverbedError("stereoRectify gave inconsistent rectified orientations (degenerate geometry)")
     b = R_rect @ (C2 - C1)
     if vertical:
@@ -519,7 +557,7 @@ def rectify(left_image, left, right_image, right, alpha=0.0, size=None, interpol
     else:
         turn = 0 if b[0] > 0 else 180
     R_fin = _QUARTER[turn] @ R_rect
-    # Make the rectified x axis exactly the baseline (a change of ~1e-16): the pair is then *exactly* rectified.
+    # Make the rectified x axis exactly the baseline (a change of ~1e-16): the pair is *exactly* rectified.
     x = (C2 - C1) / B
     z = R_fin[2] - (R_fin[2] @ x) * x
     z /= np.linalg.norm(z)
@@ -548,15 +586,21 @@ def rectify(left_image, left, right_image, right, alpha=0.0, size=None, interpol
         valid.append(round(float(inside.mean()), 6))
         rotations.append(Rr)
         maps.append((mx, my))
-    angles = [round(math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(r) - 1) / 2)))), 6) for r in rotations]
+    # Each image's turn (multiple of 90 deg) and the small rotation left once the turn is undone.
+    image_turns, angles = [], []
+    for r in rotations:
+        t = int(90 * round(math.degrees(math.atan2(r[0, 1], r[0, 0])) / 90)) % 360
+        t = t - 360 if t > 180 else t
+        image_turns.append(t)
+        rest = r @ _QUARTER[t].T if t in _QUARTER else r
+        angles.append(round(math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(rest) - 1) / 2)))), 6))
     info = {"width": out_size[0], "height": out_size[1], "focal_px": f, "baseline": B, "fB": f * B,
-            "rotation_deg": turn, "vertical_baseline": bool(vertical), "alpha": alpha,
-            "rectifying_rotation_deg": angles, "valid_share": valid, "origin": [float(v) for v in origin],
-            "crs": crs, "seconds": round(time.perf_counter() - t0, 3)}
-    if turn:
-        log.info("%s: the baseline runs %s in the left image; rectified images turned by %d deg about the optical "
-                 "axis so that the right camera lies to the right (d >= 0)", lp or "left",
-                 "along the columns" if vertical else "to the left", turn)
+            "turn_deg": image_turns, "alpha": alpha, "rectifying_rotation_deg": angles, "valid_share": valid,
+            "origin": [float(v) for v in origin], "crs": crs, "seconds": round(time.perf_counter() - t0, 3)}
+    for name, t in zip(("left", "right"), image_turns):
+        if t:
+            log.info("%s image turned by %d deg about its optical axis so that the baseline runs along the "
+                     "rows with the right camera to the right (d >= 0)", name, t)
     return Rectified(images[0], images[1], pair, tuple(maps), tuple(rotations), (K1, K2), info)
 
 
@@ -575,7 +619,7 @@ OUTPUTS = ("left.png", "right.png", "pair.yaml")
 
 def rectify_files(left_image, left_orientation, right_image, right_orientation, outdir, overwrite=False,
                   alpha=0.0, size=None, max_pixels=None):
-    """Read two raw frames and their orientation files, rectify, write ``outdir``/left.png, right.png, pair.yaml.
+    """Read two raw frames and their orientation files, rectify, write left.png, right.png, pair.yaml.
 
     ``outdir`` is created if missing (its parent must exist). All three outputs are written under temporary
     names and renamed into place only once all are complete; existing outputs are replaced only with
@@ -602,18 +646,19 @@ def rectify_files(left_image, left_orientation, right_image, right_orientation, 
         orients.append(load_orientation(or_path, image_size=(img.shape[1], img.shape[0])))
         images.append(img)
     if images[0].shape[:2] != images[1].shape[:2]:
-        raise RiverbedError(f"image is {images[1].shape[1]}x{images[1].shape[0]} but {left_image} is "
-                            f"{images[0].shape[1]}x{images[0].shape[0]} (WxH); stereoRectify needs frames of one "
-                            "camera size", right_image)
+        (w0, h0), (w1, h1) = images[0].shape[1::-1], images[1].shape[1::-1]
+        raise RiverbedError(f"image is {w1}x{h1} but {left_image} is {w0}x{h0} (WxH); stereoRectify needs "
+                            "frames of one camera size", right_image)
     result = rectify(images[0], orients[0], images[1], orients[1], alpha=alpha, size=size)
     outdir.mkdir(exist_ok=True)
     paths = [outdir / name for name in OUTPUTS]
     pair = result.pair.replace(left=paths[0].absolute(), right=paths[1].absolute())
     info = result.info
-    comment = (f"Rectified by riverbed rectify from {Path(left_image).name} ({Path(left_orientation).name}) and "
-               f"{Path(right_image).name} ({Path(right_orientation).name}).\n"
+    names = [Path(p).name for p in (left_image, left_orientation, right_image, right_orientation)]
+    comment = (f"Rectified by riverbed rectify from {names[0]} ({names[1]}) and {names[2]} ({names[3]}).\n"
                f"f = {info['focal_px']:.6f} px, baseline {info['baseline']:.6f}: d = x_left - x_right = "
-               f"{info['fB']:.6f} / depth (px); in-plane rotation {info['rotation_deg']} deg.")
+               f"{info['fB']:.6f} / depth (px); images turned by {info['turn_deg'][0]} (left) and "
+               f"{info['turn_deg'][1]} deg (right).")
     with atomic_output(paths[0], overwrite) as t_left, atomic_output(paths[1], overwrite) as t_right, \
             atomic_output(paths[2], overwrite) as t_pair:
         _imwrite(t_left, result.left)
