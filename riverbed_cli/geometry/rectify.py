@@ -56,6 +56,7 @@ import numpy as np
 import yaml
 
 from ..errors import RiverbedError
+from ..io.textfiles import parse_yaml, read_text
 from .cameras import PairGeometry, _number, as_matrix
 
 log = logging.getLogger(__name__)
@@ -162,25 +163,7 @@ class FrameOrientation:
 
 
 def _read_yaml(path):
-    path = Path(path)
-    if not path.exists():
-        raise RiverbedError("file not found", path)
-    if not path.is_file():
-        raise RiverbedError("not a file", path)
-    size = path.stat().st_size
-    if size > MAX_BYTES:
-        raise RiverbedError(f"too large for an orientation file ({size} bytes, limit {MAX_BYTES})", path)
-    try:
-        text = path.read_bytes().decode("utf-8")
-    except UnicodeDecodeError:
-        raise RiverbedError("not an orientation file (not UTF-8 text)", path) from None
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        problem = getattr(e, "problem", None) or type(e).__name__
-        raise RiverbedError(f"invalid YAML{where}: {problem}", path) from None
+    return parse_yaml(read_text(path, "orientation file", MAX_BYTES), Path(path))
 
 
 def _mapping(data, key, allowed, path):

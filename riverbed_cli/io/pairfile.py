@@ -25,6 +25,7 @@ import numpy as np
 import yaml
 
 from ..errors import RiverbedError
+from .textfiles import parse_yaml, read_text
 from ..geometry.cameras import PairGeometry, as_matrix, check_registration
 from .atomic import atomic_output
 
@@ -35,29 +36,13 @@ KEYS = ("left", "right", "width", "height", "P_left", "P_right", "origin", "crs"
 
 def _parse(path, what):
     path = Path(path)
-    if not path.exists():
-        raise RiverbedError("file not found", path)
-    if not path.is_file():
-        raise RiverbedError("not a file", path)
-    size = path.stat().st_size
-    if size > MAX_BYTES:
-        raise RiverbedError(f"too large for a {what} ({size} bytes, limit {MAX_BYTES})", path)
-    try:
-        text = path.read_bytes().decode("utf-8")
-    except UnicodeDecodeError:
-        raise RiverbedError(f"not a {what} (not UTF-8 text)", path) from None
+    text = read_text(path, what, MAX_BYTES)
     if path.suffix.lower() == ".json" or text.lstrip().startswith("{"):
         try:
             return json.loads(text), text
         except json.JSONDecodeError as e:
             raise RiverbedError(f"invalid JSON at line {e.lineno}, column {e.colno}: {e.msg}", path) from None
-    try:
-        return yaml.safe_load(text), text
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        problem = getattr(e, "problem", None) or type(e).__name__
-        raise RiverbedError(f"invalid YAML{where}: {problem}", path) from None
+    return parse_yaml(text, path), text
 
 
 def _check_crs(crs, path):

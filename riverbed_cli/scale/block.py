@@ -86,9 +86,9 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from ..errors import RiverbedError
+from ..io.textfiles import parse_yaml, read_text
 from ..io.atomic import atomic_output
 
 log = logging.getLogger(__name__)
@@ -303,24 +303,7 @@ class Manifest:
 
 
 def _read_manifest(path):
-    if not path.exists():
-        raise RiverbedError("file not found", path)
-    if not path.is_file():
-        raise RiverbedError("not a file", path)
-    size = path.stat().st_size
-    if size > MANIFEST_MAX_BYTES:
-        raise RiverbedError(f"too large for a block manifest ({size} bytes, limit {MANIFEST_MAX_BYTES})", path)
-    try:
-        text = path.read_bytes().decode("utf-8")
-    except UnicodeDecodeError:
-        raise RiverbedError("not a block manifest (not UTF-8 text)", path) from None
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        problem = getattr(e, "problem", None) or type(e).__name__
-        raise RiverbedError(f"invalid YAML{where}: {problem}", path) from None
+    return parse_yaml(read_text(path, "block manifest", MANIFEST_MAX_BYTES), path)
 
 
 def _settings(raw, where, spec, path, base, block_wide):
