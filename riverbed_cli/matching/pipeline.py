@@ -1,4 +1,11 @@
-"""``match_pair``: the matching stages in order (cost, guidance, aggregation, selection, refinement), timed."""
+"""``match_pair``: the matching stages in order (cost, guidance, aggregation, selection, refinement), timed.
+
+Two matchers: ``sgm`` (census cost, guidance, Semi-Global Matching, winner-takes-all) and ``adcensus`` (Mei et al.
+2011, :mod:`adcensus`: AD-Census cost, cross-based aggregation, guidance, scanline optimisation, multi-step
+refinement). Guides: ``none``, ``gauss``, ``riverbed`` (the paper, default with LiDAR), ``diffusion``
+(:mod:`diffusion`) and ``riverbed+`` (:mod:`riverbed_plus`), applied to the cost volume right before the
+SGM-style optimisation in both matchers.
+"""
 
 import logging
 import math
@@ -39,14 +46,16 @@ class MatchParams:
     gamma: float = 0.3
     band: float = 3.0
     form: str = "additive"
-    wall_scale: object = "auto"  # F_bar of the additive walls; auto = half the census bits (a random mismatch)
+    wall_scale: object = "auto"  # F_bar of the additive walls; auto = half the largest cost (a random mismatch):
+    #                              half the census bits (sgm), 1.0 of AD-Census's [0, 2] (adcensus)
     cost_scale: int = 4  # guided costs are kept in uint16 at this resolution (1/4 of a Hamming unit)
     window_target: float = 4.0  # auto window: smallest odd s with s*s*p >= window_target (measured, docs/method.md)
     literal_eq3: bool = False  # homogeneous pixels by eq. 3 as printed (W > gamma); only to reproduce that reading
     matcher: str = "sgm"  # "sgm" (census + SGM) or "adcensus" (Mei et al. 2011, adcensus.py)
     adcensus: object = None  # adcensus.ADCensusParams; None = its defaults (the paper's)
-    diffusion: object = None  # dict of diffusion.diffusion_modulate keywords (radius, sigma_s, sigma_i); None = defaults
+    diffusion: object = None  # dict of diffusion_modulate keywords (radius, sigma_s, sigma_i); None = defaults
     plus: object = None  # riverbed_plus.PlusParams; None = defaults (guide "riverbed+")
+    _status: bool = False  # internal: AD-Census returns its left-right outlier map in info["status"]
 
 
 @dataclass
@@ -114,7 +123,12 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, **
     -------
     MatchResult
         ``disparity``: (H, W) float32, NaN invalid; ``info``: ``seconds`` (whole matching time), ``stages``
-        (seconds per stage), ``lidar_share``, ``window``, ``d_min``, ``d_max``, ``guide``, ``guided_pixels``.
+        (seconds per stage; ``first_pass`` for riverbed+), ``lidar_share``, ``window``, ``d_min``, ``d_max``,
+        ``guide``, ``matcher``, and for AD-Census ``refinement`` (outlier counts and step timings).
+
+    ``p1``, ``p2``, ``paths``, ``lr_check`` and ``cost_scale`` apply to the SGM matcher; AD-Census takes its
+    settings from ``params.adcensus`` (:class:`adcensus.ADCensusParams`) and always checks left-right consistency in
+    its refinement.
     """
     p = MatchParams(**{**(params.__dict__ if params else {}), **overrides})
     if p.guide not in GUIDES:
@@ -146,17 +160,13 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, **
     shape = left.shape[:2]
     if sparse is not None:
         sparse = _prepare_sparse(sparse, shape, d_min, d_max)
+    unreliable = None
+    if p.guide == "riverbed+":
+        t0 = time.perf_counter()
+        unreliable = _unreliable_pixels(left, right, sparse, d_min, d_max, p)
+        lap("first_pass", t0)
     if p.matcher == "adcensus":
-        return _match_adcensus(left, right, sparse, d_min, d_max, p, t_all)
-    if p.guide == "riverbed+" and (p.plus is not None and p.plus.confidence == "lr") and getattr(p, "_plus_mask", None) is None:
-        first = match_pair(left, right, sparse, d_min, d_max, p, guide="riverbed", lr_check=True, median=1)
-        p._plus_mask = ~np.isfinite(first.disparity)
-        if p.plus.check_slope >= 0:
-            p._plus_first = first.disparity
-        if p.plus.dilate > 0:
-            import cv2
-            k = 2 * p.plus.dilate + 1
-            p._plus_mask = cv2.dilate(p._plus_mask.astype(np.uint8), np.ones((k, k), np.uint8)).astype(bool)
+        return _match_adcensus(left, right, sparse, d_min, d_max, p, t_all, stages, unreliable)
 
     t0 = time.perf_counter()
     win = census.parse_census_window(p.census)
@@ -186,7 +196,8 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, **
                                            fbar=fbar)
             max_cost = cap
         elif p.guide in ("diffusion", "riverbed+"):
-            cost, window = _modulate(cost, sparse, to_guide(left, bits), d_min, p, share, scale, cap, fbar)
+            cost, window = _modulate(cost, sparse, to_guide(left, bits), d_min, p, share, scale, cap, fbar,
+                                     unreliable)
         else:
             window = guidance.auto_window(share, p.window_target) if p.window == "auto" else int(p.window)
             cost = guidance.riverbed_modulate(cost, sparse, to_guide(left, bits), d_min, window, p.k, p.c, p.sigma_xy,
@@ -224,35 +235,76 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, **
     return MatchResult(disp, info)
 
 
-def _modulate(cost, sparse, guide_img, d_min, p, share, scale, cap, fbar):
-    """Guide a cost volume (uint16 in units of ``1 / scale``, modulated in place) with ``p.guide``; ``fbar`` is
-    the wall scale ``F_bar`` in plain cost units.
+def _plus_params(p):
+    from .riverbed_plus import PlusParams
 
-    Returns ``(volume, window)`` (the riverbed window, None for guides without one).
+    return p.plus or PlusParams()
+
+
+def _unreliable_pixels(left, right, sparse, d_min, d_max, p):
+    """riverbed+ confidence: pixels whose riverbed-guided match fails the left-right check (None: extend to all)."""
+    q = _plus_params(p)
+    if q.confidence == "none":
+        return None
+    if q.confidence != "lr":
+        raise RiverbedError(f"unknown riverbed+ confidence '{q.confidence}' (use lr or none)")
+    if p.matcher == "adcensus":
+        first = match_pair(left, right, sparse, d_min, d_max, p, guide="riverbed", _status=True)
+        return first.info.pop("status") > 0
+    first = match_pair(left, right, sparse, d_min, d_max, p, guide="riverbed", lr_check=True,
+                       lr_threshold=q.lr_threshold, median=1)
+    return ~np.isfinite(first.disparity)
+
+
+def _modulate(cost, sparse, guide_img, d_min, p, share, scale, cap, fbar, unreliable=None, want_support=False):
+    """Guide a cost volume (uint16 in units of ``1 / scale``, modulated in place) with ``p.guide``; ``fbar`` is
+    the wall scale ``F_bar`` in plain cost units, ``unreliable`` the riverbed+ first-pass mask.
+
+    Returns ``(volume, window)`` (the riverbed window, None for guides without one), and with ``want_support`` also
+    the ``(lo, hi)`` disparity interval the guide vouches for per pixel (NaN elsewhere; AD-Census's refinement keeps
+    those winners): the LiDAR disparity at LiDAR pixels (Gauss), riverbed's band at its homogeneous pixels
+    (similarity >= gamma), the disparity a pixel received from the diffusion with a weight >= gamma, riverbed+'s
+    extended band.
     """
     window = None
+    support = None
     if p.guide == "gauss":
         cost = guidance.gauss_modulate(cost, sparse, d_min, p.k, p.c, p.form, scale, cap, inplace=True, fbar=fbar)
+        if want_support:
+            support = (sparse, sparse)
     elif p.guide == "riverbed":
         window = guidance.auto_window(share, p.window_target) if p.window == "auto" else int(p.window)
+        owners = guidance.homogeneous_owners(sparse, guide_img, window, p.sigma_xy, p.sigma_i, p.gamma,
+                                             p.literal_eq3)
         cost = guidance.riverbed_modulate(cost, sparse, guide_img, d_min, window, p.k, p.c, p.sigma_xy, p.sigma_i,
-                                          p.gamma, p.band, p.form, scale, cap, inplace=True,
+                                          p.gamma, p.band, p.form, scale, cap, owners=owners, inplace=True,
                                           literal_eq3=p.literal_eq3, fbar=fbar)
+        if want_support:
+            from .riverbed_plus import riverbed_support
+
+            support = riverbed_support(sparse, owners, p.band)
     elif p.guide == "diffusion":
-        from .diffusion import diffusion_modulate
+        from .diffusion import diffusion_modulate, diffusion_support
 
         cost = diffusion_modulate(cost, sparse, guide_img, d_min, cost_scale=scale, inplace=True,
                                   **(p.diffusion or {}))
+        if want_support:
+            dref = diffusion_support(sparse, guide_img, **(p.diffusion or {}), min_weight=p.gamma)
+            support = (dref, dref)
     elif p.guide == "riverbed+":
         from .riverbed_plus import riverbed_plus_modulate
 
         window = guidance.auto_window(share, p.window_target) if p.window == "auto" else int(p.window)
-        cost = riverbed_plus_modulate(cost, sparse, guide_img, d_min, window, p, scale, cap, fbar, inplace=True,
-                                      mask=getattr(p, "_plus_mask", None), first=getattr(p, "_plus_first", None))
+        cost, extra = riverbed_plus_modulate(cost, sparse, guide_img, d_min, window, p.k, p.c, p.sigma_xy,
+                                             p.sigma_i, p.gamma, p.band, p.form, scale, cap, fbar, _plus_params(p),
+                                             unreliable, share, inplace=True, return_support=want_support)
+        support = extra.get("support")
+    if want_support:
+        return cost, window, support
     return cost, window
 
 
-def _match_adcensus(left, right, sparse, d_min, d_max, p, t_all):
+def _match_adcensus(left, right, sparse, d_min, d_max, p, t_all, stages, unreliable=None):
     """``match_pair`` with the AD-Census matcher: guidance between cross aggregation and scanline optimisation."""
     ap = p.adcensus or adcensus.ADCensusParams()
     bits = effective_bits(left, right)
@@ -267,16 +319,17 @@ def _match_adcensus(left, right, sparse, d_min, d_max, p, t_all):
         # two paths within int16)
         cap = 16383 - int(adcensus.so_penalties(ap.pi1, ap.pi2, ap.scale)[1][0])
         # wall scale: half the largest AD-Census cost (1.0 of the paper's [0, 2]), as half the census bits for SGM
-        fbar = float(ap.scale) if p.wall_scale == "auto" else float(p.wall_scale)
+        fbar = 1.0 if p.wall_scale == "auto" else float(p.wall_scale)
 
         def modulate(vol, max_cost):
-            vol, used["window"] = _modulate(vol, sparse, guide_img, d_min, p, share, 1, cap, fbar)
-            return vol, cap
+            vol, used["window"], support = _modulate(vol, sparse, guide_img, d_min, p, share, ap.scale, cap, fbar,
+                                                     unreliable, want_support=True)
+            return vol, cap, support
 
-    stages = {}
-    disp, ref = adcensus.adcensus_disparity(il, ir, d_min, d_max, ap, parse_census(p.census), grey, modulate,
-                                            p.subpixel, p.median, stages)
-    stages = {k: round(v, 4) for k, v in stages.items()}
+    timings = {}
+    disp, ref = adcensus.adcensus_disparity(il, ir, d_min, d_max, ap, census.parse_census_window(p.census), grey,
+                                            modulate, p.subpixel, p.median, timings, return_status=p._status)
+    stages.update({k: round(v, 4) for k, v in timings.items()})
     info = {
         "seconds": round(time.perf_counter() - t_all, 4),
         "stages": stages,
@@ -290,11 +343,9 @@ def _match_adcensus(left, right, sparse, d_min, d_max, p, t_all):
         "size": [int(left.shape[1]), int(left.shape[0])],
         "refinement": ref,
     }
+    if p._status:
+        info["status"] = ref.pop("status")
     return MatchResult(disp, info)
-
-
-def parse_census(spec):
-    return census.parse_census_window(spec)
 
 
 def warm_up(matcher="sgm", guides=("none", "gauss", "riverbed")):
