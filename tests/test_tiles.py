@@ -87,3 +87,39 @@ def test_16_bit_tiles_share_one_scale(cones):
     tiled = match_tiled(l16, r16, sparse, 0, 59, tile=128, overlap=160, lidar_range=False).disparity
     inner = (slice(BORDER, -BORDER), slice(BORDER, -BORDER))
     assert (np.abs(tiled[inner] - full[inner]) <= 0.01).mean() >= 0.999
+
+
+def test_match_command_tiles_tiff_inputs(cones, tmp_path):
+    import json
+
+    import rasterio
+    from click.testing import CliRunner
+
+    from riverbed_cli.cli.main import cli
+    from riverbed_cli.io.disparity import read_disparity, write_disparity
+
+    left, right, gt = cones
+    for name, img in (("l.tif", left), ("r.tif", right)):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+            ds = rasterio.open(tmp_path / name, "w", driver="GTiff", width=img.shape[1], height=img.shape[0],
+                               count=3, dtype="uint8", tiled=True, blockxsize=64, blockysize=64)
+        with ds:
+            ds.write(np.moveaxis(img, -1, 0))
+    sparse = simulate_lidar(gt, 0.05, seed=0)
+    write_disparity(tmp_path / "s.tif", sparse)
+    common = [str(tmp_path / "l.tif"), str(tmp_path / "r.tif"), "--sparse", str(tmp_path / "s.tif"),
+              "--min-disp", "0", "--max-disp", "59", "--global-range"]
+    r = CliRunner().invoke(cli, ["match", *common, "--tile", "128", "--overlap", "160", "-o", str(tmp_path / "t.tif"),
+                                 "--json", "--color", str(tmp_path / "t.png")])
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.output)["tiles"] == 12
+    r = CliRunner().invoke(cli, ["match", *common, "--tile", "0", "-o", str(tmp_path / "u.tif")])
+    assert r.exit_code == 0, r.output
+    a, b = read_disparity(tmp_path / "t.tif"), read_disparity(tmp_path / "u.tif")
+    inner = (slice(BORDER, -BORDER), slice(BORDER, -BORDER))
+    assert (np.abs(a[inner] - b[inner]) <= 0.01).mean() >= 0.999
+    assert (tmp_path / "t.png").is_file()
+    r = CliRunner().invoke(cli, ["match", *common, "--tile", "8", "-o", str(tmp_path / "x.tif")])
+    assert r.exit_code == 1
+    assert r.output == "riverbed: error: --tile must be auto, 0 or a size of at least 16 px, not '8'\n"
