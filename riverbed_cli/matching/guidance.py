@@ -79,9 +79,10 @@ def auto_window(share, target=4.0, smallest=5, largest=25):
 
 
 @njit(cache=True, inline="always")
-def _claim(j, rows, cols, guide, half, a, b, gamma, wmax, literal, owner, dissim):
+def _claim(j, rows, cols, guide, half, a, b, e_lo, e_hi, owner, dissim):
     # Offer LiDAR point j's window to its pixels; a pixel keeps the most similar point (ties: lower index), so the
-    # result does not depend on the order in which points are offered.
+    # result does not depend on the order in which points are offered. Works on the exponent e of eq. 2
+    # (W = 1 - exp(-e), increasing in e): no exp in the loop; pixels with e outside [e_lo, e_hi] are not homogeneous.
     H, W, C = guide.shape
     r0 = rows[j]
     c0 = cols[j]
@@ -93,10 +94,9 @@ def _claim(j, rows, cols, guide, half, a, b, gamma, wmax, literal, owner, dissim
             for ch in range(C):
                 t = guide[r, c, ch] - guide[r0, c0, ch]
                 dd += t * t
-            w = 1.0 - math.exp(-((r - r0) ** 2 + (c - c0) ** 2) * a - dd * b)
-            keep = w > gamma if literal else w <= wmax
-            if keep and (w < dissim[r, c] or (w == dissim[r, c] and j < owner[r, c])):
-                dissim[r, c] = w
+            e = ((r - r0) ** 2 + (c - c0) ** 2) * a + dd * b
+            if e_lo < e <= e_hi and (e < dissim[r, c] or (e == dissim[r, c] and j < owner[r, c])):
+                dissim[r, c] = e
                 owner[r, c] = j
 
 
@@ -113,7 +113,11 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
         dissim[rows[j], cols[j]] = 0.0
     a = 1.0 / (2.0 * sigma_xy * sigma_xy)
     b = 1.0 / (2.0 * sigma_i * sigma_i * C)  # mean over channels of the squared colour difference
-    wmax = 1.0 - gamma
+    # Homogeneous: 1 - W >= gamma, i.e. e <= -ln(gamma); eq. 3 as printed (W > gamma): e > -ln(1 - gamma).
+    if literal:
+        e_lo, e_hi = -math.log(1.0 - gamma), np.inf
+    else:
+        e_lo, e_hi = 0.0, -math.log(gamma)
     nb = max(1, min(64, H // (8 * half + 8)))
     edges = np.empty(nb + 1, dtype=np.int64)
     for k in range(nb + 1):
@@ -124,11 +128,13 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
         hi = np.searchsorted(rows, edges[k + 1] - half)
         for j in range(lo, hi):
             inner[j] = True
-            _claim(j, rows, cols, guide, half, a, b, gamma, wmax, literal, owner, dissim)
+            _claim(j, rows, cols, guide, half, a, b, e_lo, e_hi, owner, dissim)
     for j in range(n):
         if not inner[j]:
-            _claim(j, rows, cols, guide, half, a, b, gamma, wmax, literal, owner, dissim)
-    return owner, dissim.astype(np.float32)
+            _claim(j, rows, cols, guide, half, a, b, e_lo, e_hi, owner, dissim)
+    # exponent -> W (0 stays 0 at LiDAR pixels, inf stays inf where there is no owner)
+    w = np.where(np.isinf(dissim), np.inf, -np.expm1(-dissim))
+    return owner, w.astype(np.float32)
 
 
 def homogeneous_owners(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0.3, literal_eq3=False):
@@ -193,10 +199,29 @@ def _modulate_kernel(cost, grows, gcols, owner, dissim, values, d_min, k, c, ban
         g1 = np.float32(gamma + 0.5)  # + 0.5: truncating a positive value then rounds
         for i in range(lo):
             cy[i] = np.uint16(min(a1 * np.float32(cy[i]) + g1, fcap))
-        for i in range(lo, hi):
-            t = abs(d_min + i - dm) - half
-            g = 0.0 if t <= 0.0 else 1.0 - math.exp(-t * t * inv2c2)
+        # The walls' Gaussians by a multiplicative recurrence (two exp per side instead of one per disparity):
+        # E(t + 1) = E(t) * exp(-(2t + 1) k) and that factor shrinks by exp(-2k) at every step (k = 1 / 2c^2).
+        mid_lo = min(hi, max(lo, int(math.ceil(dm - half)) - d_min))  # first index with d >= dm - half
+        mid_hi = max(mid_lo, min(hi, int(math.floor(dm + half)) - d_min + 1))  # first index with d > dm + half
+        for i in range(mid_lo, mid_hi):  # inside the band: g = 0
+            cy[i] = np.uint16(min(alpha * cy[i] + 0.5, cap))
+        step2 = math.exp(-2.0 * inv2c2)
+        t = (d_min + mid_hi) - (dm + half)  # right wall, t increasing
+        e = math.exp(-t * t * inv2c2)
+        q = math.exp(-(2.0 * t + 1.0) * inv2c2)
+        for i in range(mid_hi, hi):
+            g = 1.0 - e
             cy[i] = np.uint16(min((alpha + beta * g) * cy[i] + gamma * g + 0.5, cap))
+            e *= q
+            q *= step2
+        t = (dm - half) - (d_min + mid_lo - 1)  # left wall, walking down from the band, t increasing
+        e = math.exp(-t * t * inv2c2)
+        q = math.exp(-(2.0 * t + 1.0) * inv2c2)
+        for i in range(mid_lo - 1, lo - 1, -1):
+            g = 1.0 - e
+            cy[i] = np.uint16(min((alpha + beta * g) * cy[i] + gamma * g + 0.5, cap))
+            e *= q
+            q *= step2
         for i in range(hi, D):
             cy[i] = np.uint16(min(a1 * np.float32(cy[i]) + g1, fcap))
 
