@@ -123,7 +123,7 @@ ERRORS = [
     ({"pairs": [GOOD], "extra": 1}, "unknown key 'extra' (manifest keys: defaults, pairs)"),
     ({"defaults": {"windw": 5}, "pairs": [GOOD]}, "defaults: unknown key 'windw' (settings: resolution, crs, agg, "),
     ({"pairs": [{**GOOD, "colour": 1}]},
-     "pairs[0]: unknown key 'colour' (pair keys: pair, cloud, name, and the settings of defaults)"),
+     "pairs[0]: unknown key 'colour' (pair keys: pair, raw, cloud, name, and the settings of defaults)"),
     ({"pairs": []}, "pairs: expected a non-empty list of {pair: PAIR_FILE, cloud: CLOUDS}"),
     ({"pairs": [GOOD, {"pair": "x/pair.yaml", "cloud": "lidar/west.laz"}]},
      "pairs[1].pair: file not found: x/pair.yaml"),
@@ -339,3 +339,32 @@ def test_plan_marks_unreadable_pair_file_failed(block, tmp_path):
     m.write_text(yaml.safe_dump({"pairs": [{"pair": "p/pair.yaml", "cloud": str(base / "lidar" / "west.laz")}]}))
     plan = plan_block(m, tmp_path / "out")
     assert plan.jobs[0].status == "failed" and plan.jobs[0].error.endswith("P_right: missing (a 3x4 projection matrix)")
+
+
+def test_raw_frames_in_the_manifest_are_rectified_then_matched(tmp_path):
+    """A manifest entry may list raw frames with their orientations: the block rectifies them first."""
+    sample = Path(__file__).resolve().parent.parent / "sample_data" / "block"
+    for f in ("raw/frame0.png", "raw/frame0.yaml", "raw/frame1.png", "raw/frame1.yaml", "lidar.laz"):
+        (tmp_path / f).parent.mkdir(exist_ok=True)
+        shutil.copy(sample / f, tmp_path / f)
+    (tmp_path / "block.yaml").write_text(yaml.safe_dump({
+        "defaults": {"resolution": 0.5},
+        "pairs": [{"name": "strip", "cloud": "lidar.laz",
+                   "raw": {"left": "raw/frame0.png", "left_orientation": "raw/frame0.yaml",
+                           "right": "raw/frame1.png", "right_orientation": "raw/frame1.yaml"}}]}))
+    res = run(["block", str(tmp_path / "block.yaml"), "-o", str(tmp_path / "out"), "--workers", "0", "--json"])
+    assert res.exit_code == 0, res.stderr
+    assert [p["status"] for p in summary(res)["pairs"]] == ["done"]
+    rect = tmp_path / "out" / "pairs" / "strip" / "rectified"
+    assert all((rect / f).is_file() for f in ("left.png", "right.png", "pair.yaml"))
+    with rasterio.open(tmp_path / "out" / "dsm.tif") as ds:
+        assert ds.crs.to_epsg() == 32632 and np.isfinite(ds.read(1, masked=True).filled(np.nan)).mean() > 0.2
+    res = run(["block", str(tmp_path / "block.yaml"), "-o", str(tmp_path / "out"), "--workers", "0", "--json"])
+    assert [p["status"] for p in summary(res)["pairs"]] == ["skipped"]
+    bad = yaml.safe_load((tmp_path / "block.yaml").read_text())
+    bad["pairs"][0]["pair"] = "x.yaml"
+    (tmp_path / "bad.yaml").write_text(yaml.safe_dump(bad))
+    res = run(["block", str(tmp_path / "bad.yaml"), "-o", str(tmp_path / "out2")])
+    assert res.exit_code == 1
+    assert res.stderr == (f"riverbed: error: {tmp_path / 'bad.yaml'}: pairs[0]: give either pair (a rectified pair "
+                          "file) or raw (frames and orientations)\n")

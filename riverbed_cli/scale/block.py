@@ -12,6 +12,9 @@ The manifest (YAML, read with ``yaml.safe_load`` only; paths relative to the man
       drop_classes: [7, 18]    # projection: outliers visibility side footprint classes drop_classes
                                #             registration (a 4x4 file) lidar_crs
     pairs:
+      - raw: {left: raw/f0.png, left_orientation: raw/f0.yaml,   # or raw frames with their orientations
+              right: raw/f1.png, right_orientation: raw/f1.yaml}   # (riverbed rectify's inputs): rectified into
+        cloud: lidar.laz                                           # OUTDIR/pairs/NAME/rectified/ first
       - pair: a/pair.yaml      # a pair file naming the rectified left and right images
         cloud: lidar/*.laz     # a path, a glob or a list of them (several clouds: per pixel the nearer point)
         name: a                # optional; default the pair file's path without suffix, '/' -> '_' (a_pair)
@@ -96,7 +99,8 @@ log = logging.getLogger(__name__)
 #: Manifests larger than this are refused before parsing.
 MANIFEST_MAX_BYTES = 10_000_000
 TOP_KEYS = ("defaults", "pairs")
-PAIR_KEYS = ("pair", "cloud", "name")
+PAIR_KEYS = ("pair", "raw", "cloud", "name")
+RAW_KEYS = ("left", "left_orientation", "right", "right_orientation")
 #: Settings that shape the merged DSM: one value for the whole block, given under ``defaults`` only.
 BLOCK_KEYS = ("resolution", "crs", "agg")
 OUTPUTS = ("sparse.tif", "disparity.tif", "points.laz", "dsm.tif")
@@ -290,9 +294,10 @@ class PairSpec:
 
     index: int
     name: str
-    pair: Path
+    pair: Path  # for a raw entry: None until plan_block has rectified it
     clouds: list
     settings: dict
+    raw: dict = None  # raw frames and orientations (absolute paths), rectified by plan_block
 
 
 @dataclass
@@ -348,6 +353,41 @@ def _clouds(value, where, path, base):
     return out
 
 
+def _raw_frames(value, where, path, base):
+    """The ``raw:`` entry of a pair: two frame images and their orientation files (riverbed rectify's inputs)."""
+    if not isinstance(value, dict):
+        raise RiverbedError(f"{where}.raw: expected a mapping with {', '.join(RAW_KEYS)}, got {_show(value)}", path)
+    unknown = [str(k) for k in value if k not in RAW_KEYS]
+    if unknown:
+        raise RiverbedError(f"{where}.raw: unknown key '{unknown[0]}' (raw keys: {', '.join(RAW_KEYS)})", path)
+    out = {}
+    for key in RAW_KEYS:
+        v = value.get(key)
+        if not isinstance(v, str) or not v:
+            raise RiverbedError(f"{where}.raw.{key}: missing (a file name)", path)
+        p = Path(os.path.normpath(base / v))
+        if not p.is_file():
+            raise RiverbedError(f"{where}.raw.{key}: file not found: {v}", path)
+        out[key] = p
+    return out
+
+
+def rectify_raw(spec, outdir):
+    """Rectify a raw entry into ``outdir/pairs/NAME/rectified/`` (unless done for the same inputs); its pair file."""
+    from ..geometry.rectify import rectify_files
+
+    folder = Path(outdir) / "pairs" / spec.name / "rectified"
+    stamp = folder / "inputs.json"
+    inputs = [_stat(spec.raw[k], spec.raw[k].parent) for k in RAW_KEYS]
+    if (folder / "pair.yaml").is_file() and stamp.is_file() and json.loads(stamp.read_text()) == inputs:
+        return folder / "pair.yaml"
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    r = spec.raw
+    rectify_files(r["left"], r["left_orientation"], r["right"], r["right_orientation"], folder, overwrite=True)
+    _write_json(stamp, inputs)
+    return folder / "pair.yaml"
+
+
 def default_name(pair_path, base):
     """A pair's default name: its pair file's path relative to the manifest, without suffix, '/' -> '_'."""
     rel = Path(os.path.relpath(pair_path, base)).with_suffix("")
@@ -391,19 +431,26 @@ def load_manifest(path):
         if unknown:
             raise RiverbedError(f"{where}: unknown key '{unknown[0]}' (pair keys: {', '.join(PAIR_KEYS)}, and "
                                 "the settings of defaults)", path)
-        for key in ("pair", "cloud"):
-            if key not in entry:
-                raise RiverbedError(f"{where}.{key}: missing", path)
-        value = entry["pair"]
-        if not isinstance(value, str) or not value:
-            raise RiverbedError(f"{where}.pair: expected a file name, got {_show(value)}", path)
-        pair_path = Path(os.path.normpath(base / value))
-        if not pair_path.is_file():
-            raise RiverbedError(f"{where}.pair: file not found: {value}", path)
+        if "cloud" not in entry:
+            raise RiverbedError(f"{where}.cloud: missing", path)
+        if ("pair" in entry) == ("raw" in entry):
+            raise RiverbedError(f"{where}: give either pair (a rectified pair file) or raw (frames and orientations)",
+                                path)
+        raw = None
+        if "raw" in entry:
+            raw = _raw_frames(entry["raw"], where, path, base)
+            pair_path = None
+        else:
+            value = entry["pair"]
+            if not isinstance(value, str) or not value:
+                raise RiverbedError(f"{where}.pair: expected a file name, got {_show(value)}", path)
+            pair_path = Path(os.path.normpath(base / value))
+            if not pair_path.is_file():
+                raise RiverbedError(f"{where}.pair: file not found: {value}", path)
         clouds = _clouds(entry["cloud"], where, path, base)
         name = entry.get("name")
         if name is None:
-            name = default_name(pair_path, base)
+            name = default_name(pair_path if raw is None else raw["left_orientation"], base)
         elif not isinstance(name, str) or not _NAME.fullmatch(name):
             raise RiverbedError(f"{where}.name: expected letters, digits, '.', '_' or '-' (at most 100, not "
                                 f"starting with '.', '_' or '-'), got {_show(name)}", path)
@@ -417,7 +464,7 @@ def load_manifest(path):
         lo, hi = settings["min_disp"], settings["max_disp"]
         if lo is not None and hi is not None and lo > hi:
             raise RiverbedError(f"{where}: min_disp {lo} > max_disp {hi}", path)
-        specs.append(PairSpec(i, name, pair_path, clouds, settings))
+        specs.append(PairSpec(i, name, pair_path, clouds, settings, raw))
     return Manifest(path.absolute(), {**default_settings(), **defaults}, specs)
 
 
@@ -584,13 +631,17 @@ def plan_block(manifest, outdir, overwrite=False):
                       str(outdir / "pairs" / spec.name))
         jobs.append(job)
         try:
+            if spec.raw is not None:
+                # raw frames: rectify first (cheap, here in the planner), then the pair runs like any other
+                spec.pair = rectify_raw(spec, outdir)
+                job.pair = str(spec.pair)
             pair = load_pairfile(spec.pair)
             for side in ("left", "right"):
                 if getattr(pair, side) is None:
                     raise RiverbedError(f"{side}: missing (a block needs the rectified images)", spec.pair)
             shape = pair.image_size or _image_size(pair.left)
             job.shape = tuple(int(v) for v in shape)
-            files = [spec.pair, pair.left, pair.right, *spec.clouds]
+            files = [spec.pair, pair.left, pair.right, *spec.clouds, *(spec.raw or {}).values()]
             if s["registration"]:
                 files.append(Path(s["registration"]))
             job.inputs = [_stat(p, base) for p in files]
