@@ -136,9 +136,8 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, **
     if p.matcher not in MATCHERS:
         raise RiverbedError(f"unknown matcher '{p.matcher}' (use one of {', '.join(MATCHERS)})")
     if left.shape[:2] != right.shape[:2]:
-        raise RiverbedError(
-            f"left and right images differ in size: {left.shape[1]}x{left.shape[0]} vs {right.shape[1]}x{right.shape[0]}"
-        )
+        raise RiverbedError(f"left and right images differ in size: {left.shape[1]}x{left.shape[0]} vs "
+                            f"{right.shape[1]}x{right.shape[0]}")
     if p.guide != "none" and sparse is None:
         raise RiverbedError(f"guide '{p.guide}' needs a sparse LiDAR map (--sparse)")
     if d_min is None or d_max is None:
