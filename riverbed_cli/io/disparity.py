@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from ..errors import RiverbedError
+from .paths import require_file
 from .atomic import atomic_output
 
 _PNG_MAX = 65535 / 256  # largest disparity a KITTI 16-bit PNG holds
@@ -35,12 +36,8 @@ def _kind(path):
 
 
 def _check_input(path):
-    path = Path(path)
-    kind = _kind(path)
-    if not path.exists():
-        raise RiverbedError("file not found", path)
-    if not path.is_file():
-        raise RiverbedError("not a file", path)
+    kind = _kind(Path(path))
+    path = require_file(path)
     return path, kind
 
 

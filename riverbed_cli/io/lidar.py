@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import RiverbedError
+from .paths import require_file
 
 _log = logging.getLogger(__name__)
 
@@ -237,12 +238,8 @@ def _kind(path):
 
 
 def _check_input(path):
-    path = Path(path)
-    kind = _kind(path)
-    if not path.exists():
-        raise RiverbedError("file not found", path)
-    if not path.is_file():
-        raise RiverbedError("not a file", path)
+    kind = _kind(Path(path))
+    path = require_file(path)
     if path.stat().st_size == 0:
         raise RiverbedError("empty file", path)
     return path, kind

@@ -1,19 +1,15 @@
 """Small text inputs from strangers (pair files, orientations, manifests): size-checked, UTF-8, safe YAML."""
 
-from pathlib import Path
 
 import yaml
 
 from ..errors import RiverbedError
+from .paths import require_file
 
 
 def read_text(path, what, max_bytes):
     """The UTF-8 text of ``path``; one-line errors for a missing, non-regular, oversized or binary file."""
-    path = Path(path)
-    if not path.exists():
-        raise RiverbedError("file not found", path)
-    if not path.is_file():
-        raise RiverbedError("not a file", path)
+    path = require_file(path)
     size = path.stat().st_size
     if size > max_bytes:
         raise RiverbedError(f"too large for a {what} ({size} bytes, limit {max_bytes})", path)

@@ -64,6 +64,7 @@ from numba import njit, prange
 
 from ..errors import RiverbedError
 from .census import popcount64
+from .sgm import _path_start
 
 GUIDE_STAGES = ("aggregated", "initial")
 
@@ -632,15 +633,7 @@ def _so_step(prev, cur, c, acc, p1, p2, mp):
     return m
 
 
-@njit(cache=True, inline="always")
-def _so_start(cur, c, acc):
-    m = np.int16(_SENTINEL)
-    for d in range(c.shape[0]):
-        v = np.int16(c[d])
-        cur[d + 1] = v
-        acc[d] += v
-        m = min(m, v)
-    return m
+_so_start = _path_start  # a path starts with its own cost, as in SGM
 
 
 @njit(cache=True, inline="always")
