@@ -18,12 +18,19 @@ from .matching.guidance import (
 )
 from .matching.pipeline import MatchParams, MatchResult, match_pair
 from .matching.sgm import sgm_aggregate
+from .geometry.cameras import PairGeometry
+from .geometry.projection import project_cloud
+from .io.pairfile import load_pairfile, write_pairfile
+from .products.dsm import build_dsm, rasterize
+from .products.dsm_compare import compare_dsm
 from .products.evaluate import evaluate_disparity
 from .products.simulate import simulate_lidar
+from .scale.tiles import match_tiled
 
 __all__ = [
     "RiverbedError", "read_disparity", "write_disparity", "read_image", "to_grey", "to_guide", "census_cost",
     "census_transform", "median_filter", "select_disparity", "auto_window", "gauss_modulate", "homogeneous_owners",
     "lidar_share", "riverbed_modulate", "MatchParams", "MatchResult", "match_pair", "sgm_aggregate",
-    "evaluate_disparity", "simulate_lidar",
+    "evaluate_disparity", "simulate_lidar", "PairGeometry", "project_cloud", "load_pairfile", "write_pairfile",
+    "build_dsm", "rasterize", "compare_dsm", "match_tiled",
 ]
