@@ -79,6 +79,37 @@ def disparity_range_from_sparse(sparse, margin=None):
     return int(math.floor(lo - margin)), int(math.ceil(hi + margin))
 
 
+def resolve_disparity_range(d_min, d_max, sparse_values):
+    """``(d_min, d_max)`` as ints, the missing ends derived from the sparse disparities (any array, NaN ignored)."""
+    if d_min is None or d_max is None:
+        if sparse_values is None:
+            raise RiverbedError("give the disparity range (--min-disp/--max-disp) or a sparse map to derive it from")
+        lo, hi = disparity_range_from_sparse(sparse_values)
+        d_min = lo if d_min is None else d_min
+        d_max = hi if d_max is None else d_max
+    d_min, d_max = int(d_min), int(d_max)
+    if d_max < d_min:
+        raise RiverbedError(f"empty disparity range: --min-disp {d_min} > --max-disp {d_max}")
+    return d_min, d_max
+
+
+def _match_info(p, t_all, stages, share, sparse, window, d_min, d_max, shape, **extra):
+    """The ``info`` of a :class:`MatchResult`."""
+    return {
+        "seconds": round(time.perf_counter() - t_all, 4),
+        "stages": stages,
+        "guide": p.guide,
+        "matcher": p.matcher,
+        "lidar_share": share,
+        "lidar_points": int(np.isfinite(sparse).sum()) if sparse is not None else 0,
+        "window": window,
+        "d_min": d_min,
+        "d_max": d_max,
+        "size": [int(shape[1]), int(shape[0])],
+        **extra,
+    }
+
+
 def _prepare_sparse(sparse, shape, d_min, d_max):
     sparse = np.asarray(sparse, dtype=np.float32)
     if sparse.shape != shape:
@@ -140,15 +171,7 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, **
                             f"{right.shape[1]}x{right.shape[0]}")
     if p.guide != "none" and sparse is None:
         raise RiverbedError(f"guide '{p.guide}' needs a sparse LiDAR map (--sparse)")
-    if d_min is None or d_max is None:
-        if sparse is None:
-            raise RiverbedError("give the disparity range (--min-disp/--max-disp) or a sparse map to derive it from")
-        lo, hi = disparity_range_from_sparse(sparse)
-        d_min = lo if d_min is None else d_min
-        d_max = hi if d_max is None else d_max
-    d_min, d_max = int(d_min), int(d_max)
-    if d_max < d_min:
-        raise RiverbedError(f"empty disparity range: --min-disp {d_min} > --max-disp {d_max}")
+    d_min, d_max = resolve_disparity_range(d_min, d_max, sparse)
 
     t_all = time.perf_counter()
     stages = {}
@@ -219,19 +242,7 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, **
     disp = disparity.median_filter(disp, p.median)
     lap("refinement", t0)
 
-    info = {
-        "seconds": round(time.perf_counter() - t_all, 4),
-        "stages": stages,
-        "guide": p.guide,
-        "matcher": p.matcher,
-        "lidar_share": share,
-        "lidar_points": int(np.isfinite(sparse).sum()) if sparse is not None else 0,
-        "window": window,
-        "d_min": d_min,
-        "d_max": d_max,
-        "size": [int(shape[1]), int(shape[0])],
-    }
-    return MatchResult(disp, info)
+    return MatchResult(disp, _match_info(p, t_all, stages, share, sparse, window, d_min, d_max, shape))
 
 
 def _plus_params(p):
@@ -329,19 +340,7 @@ def _match_adcensus(left, right, sparse, d_min, d_max, p, t_all, stages, unrelia
     disp, ref = adcensus.adcensus_disparity(il, ir, d_min, d_max, ap, census.parse_census_window(p.census), grey,
                                             modulate, p.subpixel, p.median, timings, return_status=p._status)
     stages.update({k: round(v, 4) for k, v in timings.items()})
-    info = {
-        "seconds": round(time.perf_counter() - t_all, 4),
-        "stages": stages,
-        "guide": p.guide,
-        "matcher": p.matcher,
-        "lidar_share": share,
-        "lidar_points": int(np.isfinite(sparse).sum()) if sparse is not None else 0,
-        "window": used["window"],
-        "d_min": d_min,
-        "d_max": d_max,
-        "size": [int(left.shape[1]), int(left.shape[0])],
-        "refinement": ref,
-    }
+    info = _match_info(p, t_all, stages, share, sparse, used["window"], d_min, d_max, left.shape, refinement=ref)
     if p._status:
         info["status"] = ref.pop("status")
     return MatchResult(disp, info)

@@ -744,7 +744,7 @@ def project_stage(job):
     from ..io.disparity import write_disparity
     from ..io.pairfile import load_pairfile, load_registration
     from ..matching.guidance import auto_window, lidar_share_of_points
-    from ..matching.pipeline import disparity_range_from_sparse
+    from ..matching.pipeline import resolve_disparity_range
     from .tiles import image_bits, plan_tiles, sparse_points_any
 
     t0 = time.perf_counter()
@@ -788,12 +788,7 @@ def project_stage(job):
     tile, overlap = s["tile"], s["overlap"]
     pr, pc, pv = sparse_points_any(sparse)
     share = lidar_share_of_points(pr, pc, (H, W))
-    d_min, d_max = s["min_disp"], s["max_disp"]
-    if d_min is None or d_max is None:
-        lo, hi = disparity_range_from_sparse(pv)
-        d_min = lo if d_min is None else d_min
-        d_max = hi if d_max is None else d_max
-    d_min, d_max = int(d_min), int(d_max)
+    d_min, d_max = resolve_disparity_range(s["min_disp"], s["max_disp"], pv)
 
     planned, tile = plan_tiles(H, W, sparse, d_min, d_max, tile, overlap, s["lidar_range"])
     tiles, window, bits = [], p.window, None

@@ -303,7 +303,7 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
     import time
 
     from ..matching.guidance import auto_window, lidar_share_of_points
-    from ..matching.pipeline import disparity_range_from_sparse
+    from ..matching.pipeline import resolve_disparity_range
 
     p = MatchParams(**{**(params.__dict__ if params else {}), **overrides})
     H, W = left.shape[:2]
@@ -318,13 +318,7 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
         if pv.size == 0:
             raise RiverbedError("sparse map has no valid disparities")
         share = lidar_share_of_points(pr, pc, (H, W))
-    if d_min is None or d_max is None:
-        if sparse is None:
-            raise RiverbedError("give the disparity range (--min-disp/--max-disp) or a sparse map to derive it from")
-        lo, hi = disparity_range_from_sparse(pv)
-        d_min = lo if d_min is None else d_min
-        d_max = hi if d_max is None else d_max
-    d_min, d_max = int(d_min), int(d_max)
+    d_min, d_max = resolve_disparity_range(d_min, d_max, pv if sparse is not None else None)
     if overlap < 0:
         raise RiverbedError(f"--overlap must be >= 0, got {overlap}")
     bits = image_bits(left, right)
