@@ -390,6 +390,22 @@ def _segment_sums(pre, lo, hi, out, f, norm):
             out[d] = pb[d] - pa[d]
 
 
+@njit(cache=True, inline="always")
+def _prefix_step(p0, p1, sx):
+    # One step of a running sum over disparity rows: p1 = p0 + sx (int32).
+    for d in range(p0.shape[0]):
+        p1[d] = p0[d] + np.int32(sx[d])
+
+
+@njit(cache=True, inline="always")
+def _prefix(rows, pre):
+    # Prefix sums along the first axis: pre[0] = 0, pre[x + 1] = pre[x] + rows[x].
+    for d in range(pre.shape[1]):
+        pre[0, d] = 0
+    for x in range(rows.shape[0]):
+        _prefix_step(pre[x], pre[x + 1], rows[x])
+
+
 @njit(cache=True, parallel=True)
 def _hstage(src, arms, out, inv, first_norm, chain):
     # One horizontal stage per row, in cache: segment sums of src (normalised with inv when first_norm); when chain,
@@ -398,14 +414,7 @@ def _hstage(src, arms, out, inv, first_norm, chain):
     for y in prange(H):
         pre = np.empty((W + 1, D), dtype=np.int32)
         mid = np.empty((W, D), dtype=np.uint16)
-        for d in range(D):
-            pre[0, d] = 0
-        for x in range(W):
-            sx = src[y, x]
-            p0 = pre[x]
-            p1 = pre[x + 1]
-            for d in range(D):
-                p1[d] = p0[d] + np.int32(sx[d])
+        _prefix(src[y], pre)
         for x in range(W):
             lo = x - np.int64(arms[y, x, 0])
             hi = x + np.int64(arms[y, x, 1]) + 1
@@ -414,12 +423,7 @@ def _hstage(src, arms, out, inv, first_norm, chain):
             else:
                 _segment_sums(pre, lo, hi, out[y, x], inv[y, x], first_norm)
         if chain:
-            for x in range(W):
-                sx = mid[x]
-                p0 = pre[x]
-                p1 = pre[x + 1]
-                for d in range(D):
-                    p1[d] = p0[d] + np.int32(sx[d])
+            _prefix(mid, pre)
             for x in range(W):
                 lo = x - np.int64(arms[y, x, 0])
                 hi = x + np.int64(arms[y, x, 1]) + 1
@@ -435,14 +439,7 @@ def _cost_hstage(left, right, cl, cr, d_min, ad_lut, cen_lut, outside, arms, out
         row = np.empty((W, D), dtype=np.uint16)
         _cost_row(left, right, cl, cr, y, d_min, ad_lut, cen_lut, outside, row)
         pre = np.empty((W + 1, D), dtype=np.int32)
-        for d in range(D):
-            pre[0, d] = 0
-        for x in range(W):
-            sx = row[x]
-            p0 = pre[x]
-            p1 = pre[x + 1]
-            for d in range(D):
-                p1[d] = p0[d] + np.int32(sx[d])
+        _prefix(row, pre)
         for x in range(W):
             lo = x - np.int64(arms[y, x, 0])
             hi = x + np.int64(arms[y, x, 1]) + 1
@@ -465,11 +462,7 @@ def _vstage(src, arms, out, inv, first_norm, chain, strip):
                 pre[j, 0, d] = 0
         for y in range(H):
             for j in range(sw):
-                sx = src[y, x0 + j]
-                p0 = pre[j, y]
-                p1 = pre[j, y + 1]
-                for d in range(D):
-                    p1[d] = p0[d] + np.int32(sx[d])
+                _prefix_step(pre[j, y], pre[j, y + 1], src[y, x0 + j])
         for y in range(H):
             for j in range(sw):
                 x = x0 + j
@@ -484,11 +477,7 @@ def _vstage(src, arms, out, inv, first_norm, chain, strip):
                 pj = pre[j]
                 mj = mid[j]
                 for y in range(H):
-                    p0 = pj[y]
-                    p1 = pj[y + 1]
-                    sx = mj[y]
-                    for d in range(D):
-                        p1[d] = p0[d] + np.int32(sx[d])
+                    _prefix_step(pj[y], pj[y + 1], mj[y])
             for y in range(H):
                 for j in range(sw):
                     x = x0 + j
