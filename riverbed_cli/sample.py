@@ -214,19 +214,26 @@ def _patch_root(pu, pv, pz, du, dv, dz, L, h00, h10, h01, h11, cell):
     return root
 
 
+@njit(cache=True, inline="always")
+def _traversal_start(ou, ov, du, dv, t, u0, v0, size):
+    # Grid traversal set-up (cells of ``size``): per axis the next grid line, the ray parameter there and the step.
+    ku, tu, su = 0.0, np.inf, 0.0
+    kv, tv, sv = 0.0, np.inf, 0.0
+    if du != 0.0:
+        ku, tu = _first_line(ou, du, t, u0, size)
+        su = 1.0 if du > 0.0 else -1.0
+    if dv != 0.0:
+        kv, tv = _first_line(ov, dv, t, v0, size)
+        sv = 1.0 if dv > 0.0 else -1.0
+    return ku, tu, su, kv, tv, sv
+
+
 @njit(cache=True)
 def _cast_cells(ou, ov, oz, du, dv, dz, ta, tb, hgt, u0, v0, cell):
     """First hit in ``[ta, tb]`` by a cell-by-cell traversal, or -1."""
     nv, nu = hgt.shape
     t = ta
-    ku, tu, su = 0.0, np.inf, 0.0
-    kv, tv, sv = 0.0, np.inf, 0.0
-    if du != 0.0:
-        ku, tu = _first_line(ou, du, t, u0, cell)
-        su = 1.0 if du > 0.0 else -1.0
-    if dv != 0.0:
-        kv, tv = _first_line(ov, dv, t, v0, cell)
-        sv = 1.0 if dv > 0.0 else -1.0
+    ku, tu, su, kv, tv, sv = _traversal_start(ou, ov, du, dv, t, u0, v0, cell)
     while t < tb:
         tn = min(tu, tv, tb)
         if tn > t:
@@ -287,14 +294,7 @@ def _cast(ou, ov, oz, du, dv, dz, tmin, tmax, hgt, bmax, u0, v0, cell, bs, zlo, 
     bsz = cell * bs
     nbv, nbu = bmax.shape
     t = t0
-    ku, tu, su = 0.0, np.inf, 0.0
-    kv, tv, sv = 0.0, np.inf, 0.0
-    if du != 0.0:
-        ku, tu = _first_line(ou, du, t, u0, bsz)
-        su = 1.0 if du > 0.0 else -1.0
-    if dv != 0.0:
-        kv, tv = _first_line(ov, dv, t, v0, bsz)
-        sv = 1.0 if dv > 0.0 else -1.0
+    ku, tu, su, kv, tv, sv = _traversal_start(ou, ov, du, dv, t, u0, v0, bsz)
     while t < t1:
         tn = min(tu, tv, t1)
         if tn > t:
