@@ -1764,17 +1764,14 @@ def write_block(block, outdir, overwrite=False, command=None):
     dict
         File name -> size in bytes.
     """
+    from .io.atomic import check_output_folder
     from .io.disparity import write_disparity
     from .io.pairfile import write_pairfile
     from .io.raster import write_geotiff
     from .products.visualize import write_png
 
     outdir = Path(outdir)
-    parent = outdir.parent if str(outdir.parent) else Path(".")
-    if not parent.is_dir():
-        raise RiverbedError(f"folder {parent} does not exist", outdir)
-    if outdir.exists() and not outdir.is_dir():
-        raise RiverbedError("exists and is not a folder", outdir)
+    parent = check_output_folder(outdir)
     if outdir.is_dir() and not overwrite:
         present = [f for f in FILES if (outdir / f).exists()]
         if present:

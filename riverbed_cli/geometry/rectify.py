@@ -587,16 +587,6 @@ def rectify(left_image, left, right_image, right, alpha=0.0, size=None, interpol
     return Rectified(images[0], images[1], pair, tuple(maps), tuple(rotations), (K1, K2), info)
 
 
-def _imwrite(path, img):
-    bgr = cv2.cvtColor(img, cv2.COLOR_RGB2BGR) if img.ndim == 3 else img
-    try:
-        ok = cv2.imwrite(str(path), bgr)
-    except cv2.error:
-        ok = False
-    if not ok:
-        raise RiverbedError("cannot write PNG", path)
-
-
 OUTPUTS = ("left.png", "right.png", "pair.yaml")
 
 
@@ -608,17 +598,14 @@ def rectify_files(left_image, left_orientation, right_image, right_orientation, 
     names and renamed into place only once all are complete; existing outputs are replaced only with
     ``overwrite``. Returns a summary dict (files and sizes, focal length, baseline, rotation, valid shares).
     """
-    from ..io.atomic import atomic_output, check_output
+    from ..io.atomic import atomic_output, check_output, check_output_folder
+    from ..io.images import write_png_file
     from ..io.images import MAX_PIXELS, read_image
     from ..io.pairfile import write_pairfile
 
     t0 = time.perf_counter()
     outdir = Path(outdir)
-    parent = outdir.parent if str(outdir.parent) else Path(".")
-    if not parent.is_dir():
-        raise RiverbedError(f"folder {parent} does not exist", outdir)
-    if outdir.exists() and not outdir.is_dir():
-        raise RiverbedError("exists and is not a folder", outdir)
+    check_output_folder(outdir)
     if outdir.is_dir():
         for name in OUTPUTS:
             check_output(outdir / name, overwrite)
@@ -644,8 +631,8 @@ def rectify_files(left_image, left_orientation, right_image, right_orientation, 
                f"{info['turn_deg'][1]} deg (right).")
     with atomic_output(paths[0], overwrite) as t_left, atomic_output(paths[1], overwrite) as t_right, \
             atomic_output(paths[2], overwrite) as t_pair:
-        _imwrite(t_left, result.left)
-        _imwrite(t_right, result.right)
+        write_png_file(t_left, result.left)
+        write_png_file(t_right, result.right)
         write_pairfile(t_pair, pair, comment=comment)
     files = {name: p.stat().st_size for name, p in zip(OUTPUTS, paths)}
     return {"outdir": str(outdir), "files": files, **info,

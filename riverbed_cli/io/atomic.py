@@ -18,6 +18,17 @@ def check_output(path, overwrite=False):
         raise RiverbedError(f"output folder {parent} does not exist", path)
 
 
+def check_output_folder(outdir):
+    """Raise unless ``outdir`` is an existing folder or a new name inside an existing one; returns its parent."""
+    outdir = Path(outdir)
+    parent = outdir.parent if str(outdir.parent) else Path(".")
+    if not parent.is_dir():
+        raise RiverbedError(f"folder {parent} does not exist", outdir)
+    if outdir.exists() and not outdir.is_dir():
+        raise RiverbedError("exists and is not a folder", outdir)
+    return parent
+
+
 @contextlib.contextmanager
 def atomic_output(path, overwrite=False):
     """Yield a temporary path beside ``path`` with the same suffix; rename it to ``path`` on success.

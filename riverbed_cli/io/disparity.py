@@ -16,8 +16,9 @@ import cv2
 import numpy as np
 
 from ..errors import RiverbedError
-from .paths import require_file
 from .atomic import atomic_output
+from .images import write_png_file
+from .paths import require_file
 
 _PNG_MAX = 65535 / 256  # largest disparity a KITTI 16-bit PNG holds
 _WHITESPACE = b" \t\r\n\v\f"
@@ -256,12 +257,7 @@ def write_disparity(path, disp, overwrite=False, tags=None):
     if kind == "png":
         out = _encode_png(path, disp, valid)
         with atomic_output(path, overwrite) as tmp:
-            try:
-                ok = cv2.imwrite(str(tmp), out)
-            except cv2.error:
-                ok = False
-            if not ok:
-                raise RiverbedError("cannot write PNG", path)
+            write_png_file(tmp, out)
     elif kind == "pfm":
         data = np.where(valid, disp, np.float32(np.inf)).astype("<f4")[::-1]
         header = f"Pf\n{disp.shape[1]} {disp.shape[0]}\n-1.0\n".encode("ascii")

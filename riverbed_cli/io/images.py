@@ -241,3 +241,18 @@ def check_pair(left, right, left_path=None, right_path=None):
             f"left and right images differ in size: {hl}x{wl} vs {hr}x{wr} (height x width{left_name})",
             right_path,
         )
+
+
+def write_png_file(path, img):
+    """Write ``img`` (uint8/uint16, H x W, or H x W x 3 in RGB order) as PNG with OpenCV; one-line error on failure.
+
+    Writes ``path`` directly: callers wrap it in :func:`~riverbed_cli.io.atomic.atomic_output`.
+    """
+    img = np.asarray(img)
+    out = cv2.cvtColor(img, cv2.COLOR_RGB2BGR) if img.ndim == 3 else img
+    try:
+        ok = cv2.imwrite(str(path), out)
+    except cv2.error:
+        ok = False
+    if not ok:
+        raise RiverbedError("cannot write PNG", path)

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..errors import RiverbedError
 from ..io.atomic import atomic_output
+from ..io.images import write_png_file
 
 #: Colour bins of the absolute error, in pixels: ``(upper bound, RGB)``; the colours are the KITTI devkit's
 #: (blue for small errors ... red for large), the bounds double from 1/16 px to 16 px.
@@ -127,11 +128,5 @@ def write_png(path, rgb, overwrite=False):
     rgb = np.asarray(rgb)
     if rgb.dtype != np.uint8 or not (rgb.ndim == 2 or (rgb.ndim == 3 and rgb.shape[2] == 3)):
         raise RiverbedError(f"PNG output needs uint8 HxW or HxWx3, got {rgb.dtype} {rgb.shape}", path)
-    bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR) if rgb.ndim == 3 else rgb
     with atomic_output(path, overwrite) as tmp:
-        try:
-            ok = cv2.imwrite(str(tmp), bgr)
-        except cv2.error:
-            ok = False
-        if not ok:
-            raise RiverbedError("cannot write PNG", path)
+        write_png_file(tmp, rgb)
