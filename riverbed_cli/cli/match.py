@@ -219,8 +219,8 @@ def _match_tiled_cmd(left_src, right_src, sparse_src, min_disp, max_disp, params
             with atomic_output(output, overwrite) as tmp, TiffSink(tmp, H, W) as sink:
                 result = match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, params, size, overlap,
                                      lidar_range, progress=bar.update, out=sink)
-                sink._ds.update_tags(riverbed_guide=params.guide, riverbed_window=str(result.info["window"]),
-                                     riverbed_tiles=str(result.info["tiles"]))
+                sink.update_tags(riverbed_guide=params.guide, riverbed_window=result.info["window"],
+                                 riverbed_tiles=result.info["tiles"])
             disp = None
         else:
             result = match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, params, size, overlap,

@@ -132,7 +132,7 @@ class TiffSink:
                                      dtype="float32", nodata=float("nan"), compress="deflate", predictor=3,
                                      tiled=True, blockxsize=256, blockysize=256, BIGTIFF="IF_SAFER")
         if tags:
-            self._ds.update_tags(**{str(k): str(v) for k, v in tags.items()})
+            self.update_tags(**tags)
         self.shape = (height, width)
 
     def __setitem__(self, key, block):
@@ -142,6 +142,9 @@ class TiffSink:
         y0, y1, _ = rows.indices(self.shape[0])
         x0, x1, _ = cols.indices(self.shape[1])
         self._ds.write(np.asarray(block, np.float32), 1, window=Window(x0, y0, x1 - x0, y1 - y0))
+
+    def update_tags(self, **tags):
+        self._ds.update_tags(**{str(k): str(v) for k, v in tags.items()})
 
     def close(self):
         self._ds.close()
