@@ -54,3 +54,24 @@ def test_benchmark_bad_dataset(tmp_path):
     r = run(tmp_path, "--layout", "kitti", "-o", tmp_path / "o")
     assert r.exit_code == 1
     assert r.output == f"riverbed: error: {tmp_path}: no kitti scenes found (left/right images with ground truth)\n"
+
+
+def test_benchmark_several_seeds(dataset, tmp_path):
+    out = tmp_path / "out"
+    r = run(dataset, "--layout", "middlebury", "-o", out, "--guides", "none,riverbed", "--shares", "0.05",
+            "--seeds", "0,3", "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.output)["cases"] == 4
+    rows = json.loads((out / "results.json").read_text())
+    assert sorted({x["seed"] for x in rows}) == [0, 3]
+    r0, r3 = ([x for x in rows if x["seed"] == s and x["guide"] == "riverbed"][0] for s in (0, 3))
+    assert r0["bad3"] != r3["bad3"]  # two different LiDAR samplings, two results
+    md = (out / "results.md").read_text()
+    mean_avg = (r0["avg"] + r3["avg"]) / 2
+    assert f"| cones | 5.00 % | sgm | riverbed | {r0['bad1'] / 2 + r3['bad1'] / 2:.2f} |" in md
+    assert f"| {mean_avg:.3f} | {max(r0['avg'], r3['avg']):.3f} |" in md
+    # the single-seed spelling still works, and a bad list is one line
+    r = run(dataset, "--layout", "middlebury", "-o", tmp_path / "o2", "--guides", "none", "--shares", "0.05",
+            "--seed", "x")
+    assert r.exit_code == 1
+    assert r.output == "riverbed: error: --seeds 'x' is not a comma-separated list of integers\n"

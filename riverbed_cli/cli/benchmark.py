@@ -18,6 +18,16 @@ def _floats(value, name):
         raise RiverbedError(f"--{name} '{value}' is not a comma-separated list of numbers") from None
 
 
+def _ints(value, name):
+    try:
+        out = tuple(int(v) for v in value.split(",") if v.strip())
+    except ValueError:
+        raise RiverbedError(f"--{name} '{value}' is not a comma-separated list of integers") from None
+    if not out:
+        raise RiverbedError(f"--{name} is empty")
+    return out
+
+
 @click.command("benchmark")
 @click.argument("dataset", type=click.Path(file_okay=False))
 @click.option("--layout", type=click.Choice(["middlebury", "kitti"]), required=True, help="Folder layout.")
@@ -27,7 +37,8 @@ def _floats(value, name):
 @click.option("--guides", default="none,gauss,riverbed", show_default=True, help="Comma-separated guides.")
 @click.option("--shares", default="0.05,0.0123,0.0016", show_default=True, help="LiDAR shares of the pixels.")
 @click.option("--windows", default="", help="Extra riverbed windows, e.g. 5,9,15,25 (Figure 5).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the LiDAR sampling.")
+@click.option("--seeds", "--seed", "seeds", default="0", show_default=True,
+              help="Seeds of the LiDAR sampling, comma-separated: each case runs once per sampling.")
 @click.option("--scenes", default="", help="Only these scenes (comma-separated names).")
 @click.option("--gt-scale", type=float, default=None, help="GT value per pixel of disparity (8-bit PNG).")
 @click.option("--figure-scene", default=None, help="Scene of Figure 5 [default: mean over scenes].")
@@ -36,7 +47,7 @@ def _floats(value, name):
 @click.option("--write-expected", type=click.Path(dir_okay=False), default=None,
               help="Store these results as expectations (for a later --check).")
 @json_opt
-def benchmark_cmd(dataset, layout, outdir, matchers, guides, shares, windows, seed, scenes, gt_scale, figure_scene,
+def benchmark_cmd(dataset, layout, outdir, matchers, guides, shares, windows, seeds, scenes, gt_scale, figure_scene,
                   expected, write_expected, as_json):
     """Run the paper's protocol on DATASET: seeded LiDAR sampled from the ground truth at each share, every
     matcher x guide, evaluated on the GT pixels not sampled. Cases are cached in OUTPUT/cache, so an interrupted run
@@ -53,10 +64,11 @@ def benchmark_cmd(dataset, layout, outdir, matchers, guides, shares, windows, se
     gs = tuple(g for g in guides.split(",") if g)
     sh = _floats(shares, "shares")
     ws = tuple(int(w) for w in _floats(windows, "windows"))
+    se = _ints(seeds, "seeds")
     out.mkdir(parents=True, exist_ok=True)
-    total = bm.count_cases(scene_list, ms, gs, sh, ws)
+    total = bm.count_cases(scene_list, ms, gs, sh, ws, se)
     with tqdm(total=total, desc="benchmark", unit="case", disable=not progress_enabled()) as bar:
-        rows = bm.run_benchmark(scene_list, ms, gs, sh, ws, seed, out / "cache", progress=bar.update)
+        rows = bm.run_benchmark(scene_list, ms, gs, sh, ws, se, out / "cache", progress=bar.update)
     bm.write_tables(rows, out)
     fig = None
     if ws:
