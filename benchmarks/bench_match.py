@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from datasets import all_scenes, middlebury  # noqa: E402
+from datasets import all_scenes, speed_pair  # noqa: E402
 
 from riverbed_cli.io.disparity import write_disparity  # noqa: E402
 from riverbed_cli.io.images import to_grey  # noqa: E402
@@ -84,12 +84,7 @@ def accuracy(args):
 
 def speed(args):
     """The ~740x500 / 80-disparity speed case: riverbed (census 9x7, 8 paths) vs OpenCV in the same run."""
-    sc = middlebury(args.data_dir, "Reindeer")
-    left = cv2.resize(sc.left, (740, 500), interpolation=cv2.INTER_AREA)
-    right = cv2.resize(sc.right, (740, 500), interpolation=cv2.INTER_AREA)
-    gt = cv2.resize(sc.gt, (740, 500), interpolation=cv2.INTER_NEAREST) * (740 / sc.gt.shape[1])
-    gt[gt > 79] = np.nan  # keep the LiDAR inside the 80-disparity range
-    sparse = simulate_lidar(gt, 0.05, seed=args.seed)
+    left, right, sparse = speed_pair(args.data_dir, args.seed)
     out = {}
     for label, kw in [("riverbed", {"guide": "riverbed"}), ("none", {"guide": "none"})]:
         match_pair(left, right, sparse, 0, 79, **kw)  # JIT warm-up

@@ -51,3 +51,21 @@ def all_scenes(data_dir, held_out=True):
     if held_out and (Path(data_dir) / KITTI2015).is_dir():
         scenes.append(kitti2015(data_dir))
     return scenes
+
+
+def speed_pair(data_dir, seed=0, share=0.05):
+    """The issue's speed case: Reindeer resized to 740x500 with 80 disparities (0..79) and LiDAR at ``share``.
+
+    Returns ``(left, right, sparse)``; the GT is scaled with the image and cut at 79 px so every LiDAR point lies in
+    the range.
+    """
+    import cv2
+
+    from riverbed_cli.products.simulate import simulate_lidar
+
+    sc = middlebury(data_dir, "Reindeer")
+    left = cv2.resize(sc.left, (740, 500), interpolation=cv2.INTER_AREA)
+    right = cv2.resize(sc.right, (740, 500), interpolation=cv2.INTER_AREA)
+    gt = cv2.resize(sc.gt, (740, 500), interpolation=cv2.INTER_NEAREST) * (740 / sc.gt.shape[1])
+    gt[gt > 79] = np.nan
+    return left, right, simulate_lidar(gt, share, seed=seed)

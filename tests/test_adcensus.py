@@ -142,7 +142,9 @@ def wta_lr_ref(S, d_min, thr):
                 back[xr + d_min + rb[xr]] = True
         for x in range(W):
             xr = x - d_min - best[y, x]
-            if not (0 <= xr < W) or abs(best[y, x] - rb[xr]) > thr:
+            if not (0 <= xr < W):
+                status[y, x] = 1  # out of view: filled like a mismatch
+            elif abs(best[y, x] - rb[xr]) > thr:
                 status[y, x] = 1 if back[x] else 2
     return best, status
 
@@ -317,15 +319,15 @@ def cones_results(cones):
 def test_adcensus_is_a_real_matcher(cones_results):
     m = cones_results["none"]
     assert m["density"] == 100.0  # the refinement fills every outlier
-    assert m["bad3"] < 11.0 and m["avg"] < 1.6  # measured: 8.2 % and 1.17 px
+    assert m["bad3"] < 7.5 and m["avg"] < 1.0  # measured: 6.0 % and 0.84 px
 
 
 def test_adcensus_riverbed_cuts_bad3(cones_results):
-    # measured on Cones at 5 % LiDAR (bad1 / bad2 / bad3 %, avg px): AD-Census 10.88 / 9.15 / 8.17 / 1.17;
-    # + Gauss 7.29 / 5.70 / 4.90 / 0.76; + diffusion 2.36 / 1.99 / 1.60 / 0.30; + riverbed 2.37 / 1.90 / 1.58 / 0.28
+    # measured on Cones at 5 % LiDAR (bad1 / bad2 / bad3 %, avg px): AD-Census 10.19 / 7.40 / 6.02 / 0.84;
+    # + Gauss 6.43 / 4.95 / 4.15 / 0.65; + diffusion 2.35 / 1.98 / 1.59 / 0.30; + riverbed 2.34 / 1.88 / 1.58 / 0.27
     # (Cones is the closest race with diffusion among the dev scenes, docs/riverbed_plus.md)
     none, rb, gauss, diff = (cones_results[g] for g in ("none", "riverbed", "gauss", "diffusion"))
-    assert rb["bad3"] <= 0.25 * none["bad3"]
+    assert rb["bad3"] <= 0.3 * none["bad3"]
     assert rb["avg"] <= 0.35
     for key in ("bad1", "bad2", "bad3", "avg"):
         assert rb[key] < 0.7 * gauss[key], key

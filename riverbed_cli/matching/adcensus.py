@@ -34,7 +34,8 @@ Stages (each a function on numpy arrays; :func:`adcensus_disparity` runs them in
    sub-pixel vertex).
 6. **Refinement** (:func:`refine`): left-right check (right disparities taken from the same volume,
    ``min_d S(x_r + d, d)``; outliers differing by more than ``lr_threshold``) with outliers split into *mismatches*
-   (some right pixel on the epipolar line maps back to ``p``) and *occlusions* (none does); iterative region voting
+   (some right pixel on the epipolar line maps back to ``p``, or the match leaves the right image: *out of view*,
+   nothing there to be occluded behind) and *occlusions* (none does); iterative region voting
    (5 iterations; an outlier takes the most voted reliable disparity of its support region if more than
    ``vote_ts = 20`` reliable pixels vote and the winner has more than ``vote_th = 0.4`` of the votes; updates of one
    iteration are applied together, so the result does not depend on the pixel order); proper interpolation (the
@@ -811,7 +812,11 @@ def _wta_lr_kernel(fwd, bwd, d_min, lr_threshold):
         for x in range(W):
             bi = best[y, x]
             xr = x - (d_min + bi)
-            if xr < 0 or xr >= W or abs(bi - rbest[W - 1 - xr + pad]) > lr_threshold:
+            if xr < 0 or xr >= W:
+                # out of view: no right pixel to be occluded behind; filled like a mismatch (by colour), not with
+                # the smallest neighbouring disparity (measured: AD-Census dev bad3 7.99 -> 7.17 %)
+                status[y, x] = 1
+            elif abs(bi - rbest[W - 1 - xr + pad]) > lr_threshold:
                 status[y, x] = 1 if back[x] else 2
     return best, status
 
