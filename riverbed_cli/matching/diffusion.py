@@ -44,30 +44,47 @@ from ..errors import RiverbedError
 from .guidance import _check_inputs, _scaled
 
 
+def _row_points(sparse):
+    """LiDAR pixels by row (CSR): columns of row ``y`` are ``cols[ptr[y]:ptr[y + 1]]``, ascending."""
+    rows, cols = np.nonzero(~np.isnan(sparse))
+    ptr = np.zeros(sparse.shape[0] + 1, dtype=np.int64)
+    np.cumsum(np.bincount(rows, minlength=sparse.shape[0]), out=ptr[1:])
+    return ptr, cols.astype(np.int64)
+
+
 @njit(cache=True, parallel=True)
-def _diffusion_kernel(cost, sparse, guide, d_min, radius, a, b):
-    # Pixel-centric: every pixel looks for LiDAR pixels in its (2 radius + 1)^2 window, so rows are independent.
+def _diffusion_kernel(cost, sparse, ptr, cols, guide, d_min, radius, a, b, dref, min_weight):
+    # Pixel-centric: every pixel visits the LiDAR pixels of its (2 radius + 1)^2 window (rows as CSR lists, so only
+    # LiDAR pixels are touched), so rows are independent. With ``dref`` (H x W, or 0 x 0 for none) it also records
+    # the disparity of the strongest weight >= min_weight (diffusion_support), in the same pass.
     H, W, D = cost.shape
     C = guide.shape[2]
     n = (2 * radius + 1) * (2 * radius + 1) * 2
+    want_ref = dref.shape[0] == H
     for y in prange(H):
         idx = np.empty(n, dtype=np.int64)
         fac = np.empty(n, dtype=np.float64)
         for x in range(W):
             m = 0
             own = not math.isnan(sparse[y, x])
+            best_w = -1.0
             for yy in range(max(0, y - radius), min(H, y + radius + 1)):
-                for xx in range(max(0, x - radius), min(W, x + radius + 1)):
-                    dp = sparse[yy, xx]
-                    if math.isnan(dp):
-                        continue
+                row = cols[ptr[yy]:ptr[yy + 1]]
+                j = np.searchsorted(row, x - radius)
+                while j < row.shape[0] and row[j] <= x + radius:
+                    xx = row[j]
+                    j += 1
                     if own and (yy != y or xx != x):
                         continue  # a LiDAR pixel keeps its own measurement
+                    dp = sparse[yy, xx]
                     dd = 0.0
                     for ch in range(C):
                         t = guide[y, x, ch] - guide[yy, xx, ch]
                         dd += t * t
                     w = math.exp(-((yy - y) ** 2 + (xx - x) ** 2) * a - dd * b)
+                    if want_ref and w >= min_weight and w > best_w:
+                        best_w = w
+                        dref[y, x] = dp
                     f0 = math.floor(dp)
                     for k in range(2):
                         dk = f0 + k
@@ -94,7 +111,7 @@ def _diffusion_kernel(cost, sparse, guide, d_min, radius, a, b):
 
 
 def diffusion_modulate(cost, sparse, guide, d_min, radius=5, sigma_s=10.0, sigma_i=20.0, cost_scale=4,
-                       inplace=False):
+                       inplace=False, support_weight=None):
     """Diffusion-based guidance (Shivakumar et al. 2019, as read in the module docstring).
 
     Parameters
@@ -114,12 +131,14 @@ def diffusion_modulate(cost, sparse, guide, d_min, radius=5, sigma_s=10.0, sigma
         Fixed-point scale of the output (a ``uint8`` input is multiplied by it).
     inplace : bool
         Modulate a scaled ``uint16`` input in place.
+    support_weight : float, optional
+        Also return :func:`diffusion_support` with ``min_weight = support_weight``, computed in the same pass.
 
     Returns
     -------
     (H, W, D) uint16
         Scaled costs; only costs at the spread disparities of pixels within ``radius`` of a LiDAR pixel change, and
-        they only decrease.
+        they only decrease. With ``support_weight``: ``(costs, support)``.
     """
     _check_inputs(cost, sparse)
     radius = int(radius)
@@ -132,36 +151,17 @@ def diffusion_modulate(cost, sparse, guide, d_min, radius=5, sigma_s=10.0, sigma
         raise RiverbedError(f"guide image {guide.shape[:2]} and sparse map {sparse.shape} differ in size")
     out = _scaled(cost, cost_scale, inplace)
     C = guide.shape[2]
-    _diffusion_kernel(out, np.ascontiguousarray(sparse, dtype=np.float32), np.ascontiguousarray(guide), int(d_min),
-                      radius, 1.0 / (2.0 * sigma_s * sigma_s), 1.0 / (2.0 * sigma_i * sigma_i * C))
-    return out
-
-
-@njit(cache=True, parallel=True)
-def _support_kernel(sparse, guide, radius, a, b, min_weight):
-    H, W = sparse.shape
-    C = guide.shape[2]
-    dref = np.full((H, W), np.nan, dtype=np.float32)
-    for y in prange(H):
-        for x in range(W):
-            if not math.isnan(sparse[y, x]):
-                dref[y, x] = sparse[y, x]
-                continue
-            best = -1.0
-            for yy in range(max(0, y - radius), min(H, y + radius + 1)):
-                for xx in range(max(0, x - radius), min(W, x + radius + 1)):
-                    dp = sparse[yy, xx]
-                    if math.isnan(dp):
-                        continue
-                    dd = 0.0
-                    for ch in range(C):
-                        t = guide[y, x, ch] - guide[yy, xx, ch]
-                        dd += t * t
-                    w = math.exp(-((yy - y) ** 2 + (xx - x) ** 2) * a - dd * b)
-                    if w >= min_weight and w > best:
-                        best = w
-                        dref[y, x] = dp
-    return dref
+    sparse = np.ascontiguousarray(sparse, dtype=np.float32)
+    ptr, cols = _row_points(sparse)
+    shape = sparse.shape if support_weight is not None else (0, 0)
+    dref = np.full(shape, np.nan, dtype=np.float32)
+    _diffusion_kernel(out, sparse, ptr, cols, np.ascontiguousarray(guide), int(d_min), radius,
+                      1.0 / (2.0 * sigma_s * sigma_s), 1.0 / (2.0 * sigma_i * sigma_i * C), dref,
+                      float(support_weight or 0.0))
+    if support_weight is None:
+        return out
+    dref[~np.isnan(sparse)] = sparse[~np.isnan(sparse)]  # a LiDAR pixel vouches for its own measurement
+    return out, dref
 
 
 def diffusion_support(sparse, guide, radius=5, sigma_s=10.0, sigma_i=20.0, min_weight=0.3):
@@ -170,9 +170,5 @@ def diffusion_support(sparse, guide, radius=5, sigma_s=10.0, sigma_i=20.0, min_w
 
     ``min_weight`` defaults to riverbed's similarity threshold ``gamma = 0.3``, so that both guides vouch under the
     same rule (AD-Census keeps vouched winners through its left-right check)."""
-    guide = np.asarray(guide, dtype=np.float32)
-    if guide.ndim == 2:
-        guide = guide[:, :, None]
-    C = guide.shape[2]
-    return _support_kernel(np.ascontiguousarray(sparse, dtype=np.float32), np.ascontiguousarray(guide), int(radius),
-                           1.0 / (2.0 * sigma_s * sigma_s), 1.0 / (2.0 * sigma_i * sigma_i * C), float(min_weight))
+    empty = np.zeros(np.shape(sparse) + (0,), dtype=np.uint16)  # no disparities: the weights only
+    return diffusion_modulate(empty, sparse, guide, 0, radius, sigma_s, sigma_i, 1, True, min_weight)[1]

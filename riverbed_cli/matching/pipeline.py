@@ -294,12 +294,12 @@ def _modulate(cost, sparse, guide_img, d_min, p, share, scale, cap, fbar, unreli
 
             support = riverbed_support(sparse, owners, p.band)
     elif p.guide == "diffusion":
-        from .diffusion import diffusion_modulate, diffusion_support
+        from .diffusion import diffusion_modulate
 
         cost = diffusion_modulate(cost, sparse, guide_img, d_min, cost_scale=scale, inplace=True,
-                                  **(p.diffusion or {}))
+                                  support_weight=p.gamma if want_support else None, **(p.diffusion or {}))
         if want_support:
-            dref = diffusion_support(sparse, guide_img, **(p.diffusion or {}), min_weight=p.gamma)
+            cost, dref = cost
             support = (dref, dref)
     elif p.guide == "riverbed+":
         from .riverbed_plus import riverbed_plus_modulate
