@@ -75,3 +75,15 @@ def test_benchmark_several_seeds(dataset, tmp_path):
             "--seed", "x")
     assert r.exit_code == 1
     assert r.output == "riverbed: error: --seeds 'x' is not a comma-separated list of integers\n"
+
+
+def test_benchmark_names_checked_before_running(dataset, tmp_path):
+    out = tmp_path / "o"
+    r = run(dataset, "--layout", "middlebury", "-o", out, "--guides", "none,riverbd")
+    assert r.exit_code == 1
+    assert r.output == ("riverbed: error: --guides 'none,riverbd': use a comma-separated list of none, gauss, "
+                        "riverbed, diffusion, riverbed+\n")
+    r = run(dataset, "--layout", "middlebury", "-o", out, "--scenes", "cones,teddy")
+    assert r.exit_code == 1
+    assert r.output == f"riverbed: error: {dataset}: no scene named teddy (found: cones)\n"
+    assert not out.exists()  # nothing ran, nothing written

@@ -7,6 +7,7 @@ import click
 from tqdm import tqdm
 
 from ..errors import RiverbedError
+from ..matching.pipeline import GUIDES, MATCHERS
 from ..products import benchmark as bm
 from .options import json_opt, print_json, progress_enabled
 
@@ -16,6 +17,15 @@ def _floats(value, name):
         return tuple(float(v) for v in value.split(",") if v.strip())
     except ValueError:
         raise RiverbedError(f"--{name} '{value}' is not a comma-separated list of numbers") from None
+
+
+def _names(value, name, allowed):
+    # checked before anything runs, so a typo does not cost a half-finished benchmark
+    out = tuple(v.strip() for v in value.split(",") if v.strip())
+    bad = [v for v in out if v not in allowed]
+    if bad or not out:
+        raise RiverbedError(f"--{name} '{value}': use a comma-separated list of {', '.join(allowed)}")
+    return out
 
 
 def _ints(value, name):
@@ -60,8 +70,8 @@ def benchmark_cmd(dataset, layout, outdir, matchers, guides, shares, windows, se
         except (OSError, json.JSONDecodeError) as e:
             raise RiverbedError(f"cannot read expectations ({e})", expected) from None
     scene_list = bm.load_dataset(dataset, layout, gt_scale, [s for s in scenes.split(",") if s])
-    ms = tuple(m for m in matchers.split(",") if m)
-    gs = tuple(g for g in guides.split(",") if g)
+    ms = _names(matchers, "matchers", MATCHERS)
+    gs = _names(guides, "guides", GUIDES)
     sh = _floats(shares, "shares")
     ws = tuple(int(w) for w in _floats(windows, "windows"))
     se = _ints(seeds, "seeds")

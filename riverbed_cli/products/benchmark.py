@@ -71,10 +71,14 @@ def load_dataset(path, layout, gt_scale=None, scenes=None):
                                    read_disparity(g, scale=gt_scale)))
     else:
         raise RiverbedError(f"unknown layout '{layout}' (use middlebury or kitti)")
-    if scenes:
-        found = [s for s in found if s.name in scenes]
     if not found:
         raise RiverbedError(f"no {layout} scenes found (left/right images with ground truth)", path)
+    if scenes:
+        missing = [n for n in scenes if n not in {s.name for s in found}]
+        if missing:
+            raise RiverbedError(f"no scene named {', '.join(missing)} (found: {', '.join(s.name for s in found)})",
+                                path)
+        found = [s for s in found if s.name in scenes]
     return found
 
 
