@@ -361,6 +361,30 @@ def test_raw_frames_in_the_manifest_are_rectified_then_matched(tmp_path):
         assert ds.crs.to_epsg() == 32632 and np.isfinite(ds.read(1, masked=True).filled(np.nan)).mean() > 0.2
     res = run(["block", str(tmp_path / "block.yaml"), "-o", str(tmp_path / "out"), "--workers", "0", "--json"])
     assert [p["status"] for p in summary(res)["pairs"]] == ["skipped"]
+    # rectification settings in the manifest: a new alpha re-rectifies (every source pixel kept: a new camera
+    # matrix) and re-runs the pair; so does a new size
+    m = yaml.safe_load((tmp_path / "block.yaml").read_text())
+    size0 = tuple(read_image(rect / "left.png").shape[1::-1])
+    pair0 = (rect / "pair.yaml").read_text()
+    m["pairs"][0]["raw"]["alpha"] = 1
+    (tmp_path / "block.yaml").write_text(yaml.safe_dump(m))
+    res = run(["block", str(tmp_path / "block.yaml"), "-o", str(tmp_path / "out"), "--workers", "0", "--json"])
+    assert [p["status"] for p in summary(res)["pairs"]] == ["done"]
+    assert json.loads((rect / "inputs.json").read_text())[-1] == {"alpha": 1.0, "size": None}
+    assert (rect / "pair.yaml").read_text() != pair0
+    m["pairs"][0]["raw"]["size"] = "600x400"
+    (tmp_path / "block.yaml").write_text(yaml.safe_dump(m))
+    res = run(["block", str(tmp_path / "block.yaml"), "-o", str(tmp_path / "out"), "--workers", "0", "--json"])
+    assert [p["status"] for p in summary(res)["pairs"]] == ["done"]
+    assert tuple(read_image(rect / "left.png").shape[1::-1]) == (600, 400) != size0
+    for key, value, msg in (("alpha", 2, "expected a number from 0 to 1 (or -1), got 2"),
+                            ("size", "600 by 400", "expected WIDTHxHEIGHT in pixels, e.g. 1200x800, got '600 by 400'")):
+        bad = yaml.safe_load((tmp_path / "block.yaml").read_text())
+        bad["pairs"][0]["raw"][key] = value
+        (tmp_path / "bad.yaml").write_text(yaml.safe_dump(bad))
+        res = run(["block", str(tmp_path / "bad.yaml"), "-o", str(tmp_path / "out3")])
+        assert res.exit_code == 1
+        assert res.stderr == f"riverbed: error: {tmp_path / 'bad.yaml'}: pairs[0].raw.{key}: {msg}\n"
     bad = yaml.safe_load((tmp_path / "block.yaml").read_text())
     bad["pairs"][0]["pair"] = "x.yaml"
     (tmp_path / "bad.yaml").write_text(yaml.safe_dump(bad))

@@ -1,12 +1,11 @@
 """``riverbed rectify``: a rectified pair and its pair file from two raw frames and their orientations."""
 
 import logging
-import re
 
 import click
 
 from ..errors import RiverbedError
-from ..geometry.rectify import rectify_files
+from ..geometry.rectify import check_alpha, parse_size, rectify_files
 from ..io.images import MAX_PIXELS
 from .options import input_path, json_opt, overwrite_opt, print_json
 
@@ -16,16 +15,17 @@ log = logging.getLogger(__name__)
 def _size(ctx, param, value):
     if value is None:
         return None
-    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", value)
-    if not m or int(m.group(1)) < 1 or int(m.group(2)) < 1:
-        raise click.BadParameter(f"expected WIDTHxHEIGHT in pixels, e.g. 1200x800, got {value!r}")
-    return int(m.group(1)), int(m.group(2))
+    try:
+        return parse_size(value)
+    except ValueError as e:
+        raise click.BadParameter(str(e)) from None
 
 
 def _alpha(ctx, param, value):
-    if not (value == -1 or 0.0 <= value <= 1.0):
-        raise click.BadParameter(f"expected a number from 0 to 1 (or -1), got {value:g}")
-    return value
+    try:
+        return check_alpha(value)
+    except ValueError as e:
+        raise click.BadParameter(str(e)) from None
 
 
 @click.command("rectify")

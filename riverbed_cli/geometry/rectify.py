@@ -47,6 +47,7 @@ always made from the first image: nothing is swapped. ``info["turn_deg"]`` repor
 
 import logging
 import math
+import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -588,6 +589,23 @@ def rectify(left_image, left, right_image, right, alpha=0.0, size=None, interpol
 
 
 OUTPUTS = ("left.png", "right.png", "pair.yaml")
+
+
+def parse_size(value):
+    """A rectified image size ``"WxH"`` (or a ``[W, H]`` list) -> ``(W, H)``; raises ValueError with a message."""
+    if isinstance(value, (list, tuple)) and len(value) == 2 and all(isinstance(v, int) and v >= 1 for v in value):
+        return int(value[0]), int(value[1])
+    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", value) if isinstance(value, str) else None
+    if not m or int(m.group(1)) < 1 or int(m.group(2)) < 1:
+        raise ValueError(f"expected WIDTHxHEIGHT in pixels, e.g. 1200x800, got {value!r}")
+    return int(m.group(1)), int(m.group(2))
+
+
+def check_alpha(value):
+    """stereoRectify's free scaling: a number from 0 to 1, or -1 (OpenCV's default); raises ValueError."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (value == -1 or 0.0 <= value <= 1.0):
+        raise ValueError(f"expected a number from 0 to 1 (or -1), got {value!r}")
+    return float(value)
 
 
 def rectify_files(left_image, left_orientation, right_image, right_orientation, outdir, overwrite=False,

@@ -14,7 +14,8 @@ The manifest (YAML, read with ``yaml.safe_load`` only; paths relative to the man
     pairs:
       - raw: {left: raw/f0.png, left_orientation: raw/f0.yaml,   # or raw frames with their orientations
               right: raw/f1.png, right_orientation: raw/f1.yaml}   # (riverbed rectify's inputs): rectified into
-        cloud: lidar.laz                                           # OUTDIR/pairs/NAME/rectified/ first
+        cloud: lidar.laz                                           # OUTDIR/pairs/NAME/rectified/ first; optional
+                                                                   # alpha (0..1, -1) and size (WxH) as rectify's
       - pair: a/pair.yaml      # a pair file naming the rectified left and right images
         cloud: lidar/*.laz     # a path, a glob or a list of them (several clouds: per pixel the nearer point)
         name: a                # optional; default the pair file's path without suffix, '/' -> '_' (a_pair)
@@ -101,6 +102,8 @@ MANIFEST_MAX_BYTES = 10_000_000
 TOP_KEYS = ("defaults", "pairs")
 PAIR_KEYS = ("pair", "raw", "cloud", "name")
 RAW_KEYS = ("left", "left_orientation", "right", "right_orientation")
+#: Optional rectification settings of a ``raw:`` entry (as ``riverbed rectify --alpha / --size``).
+RAW_OPTIONS = ("alpha", "size")
 #: Settings that shape the merged DSM: one value for the whole block, given under ``defaults`` only.
 BLOCK_KEYS = ("resolution", "crs", "agg")
 OUTPUTS = ("sparse.tif", "disparity.tif", "points.laz", "dsm.tif")
@@ -357,10 +360,21 @@ def _raw_frames(value, where, path, base):
     """The ``raw:`` entry of a pair: two frame images and their orientation files (riverbed rectify's inputs)."""
     if not isinstance(value, dict):
         raise RiverbedError(f"{where}.raw: expected a mapping with {', '.join(RAW_KEYS)}, got {_show(value)}", path)
-    unknown = [str(k) for k in value if k not in RAW_KEYS]
+    unknown = [str(k) for k in value if k not in RAW_KEYS + RAW_OPTIONS]
     if unknown:
-        raise RiverbedError(f"{where}.raw: unknown key '{unknown[0]}' (raw keys: {', '.join(RAW_KEYS)})", path)
+        raise RiverbedError(f"{where}.raw: unknown key '{unknown[0]}' (raw keys: {', '.join(RAW_KEYS + RAW_OPTIONS)})",
+                            path)
+    from ..geometry.rectify import check_alpha, parse_size
+
     out = {}
+    try:
+        out["alpha"] = check_alpha(value.get("alpha", 0.0))
+    except ValueError as e:
+        raise RiverbedError(f"{where}.raw.alpha: {e}", path) from None
+    try:
+        out["size"] = None if value.get("size") is None else parse_size(value["size"])
+    except ValueError as e:
+        raise RiverbedError(f"{where}.raw.size: {e}", path) from None
     for key in RAW_KEYS:
         v = value.get(key)
         if not isinstance(v, str) or not v:
@@ -378,12 +392,15 @@ def rectify_raw(spec, outdir):
 
     folder = Path(outdir) / "pairs" / spec.name / "rectified"
     stamp = folder / "inputs.json"
-    inputs = [_stat(spec.raw[k], spec.raw[k].parent) for k in RAW_KEYS]
+    r = spec.raw
+    # the stamp holds the inputs and the settings: changing alpha or size re-rectifies
+    inputs = [_stat(r[k], r[k].parent) for k in RAW_KEYS] + [
+        {"alpha": r["alpha"], "size": list(r["size"]) if r["size"] else None}]
     if (folder / "pair.yaml").is_file() and stamp.is_file() and json.loads(stamp.read_text()) == inputs:
         return folder / "pair.yaml"
     folder.parent.mkdir(parents=True, exist_ok=True)
-    r = spec.raw
-    rectify_files(r["left"], r["left_orientation"], r["right"], r["right_orientation"], folder, overwrite=True)
+    rectify_files(r["left"], r["left_orientation"], r["right"], r["right_orientation"], folder, overwrite=True,
+                  alpha=r["alpha"], size=r["size"])
     _write_json(stamp, inputs)
     return folder / "pair.yaml"
 
@@ -641,7 +658,8 @@ def plan_block(manifest, outdir, overwrite=False):
                     raise RiverbedError(f"{side}: missing (a block needs the rectified images)", spec.pair)
             shape = pair.image_size or _image_size(pair.left)
             job.shape = tuple(int(v) for v in shape)
-            files = [spec.pair, pair.left, pair.right, *spec.clouds, *(spec.raw or {}).values()]
+            raw_files = [spec.raw[k] for k in RAW_KEYS] if spec.raw else []
+            files = [spec.pair, pair.left, pair.right, *spec.clouds, *raw_files]
             if s["registration"]:
                 files.append(Path(s["registration"]))
             job.inputs = [_stat(p, base) for p in files]
