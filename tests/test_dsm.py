@@ -106,6 +106,27 @@ def test_points_round_trip_las_laz_ply(tmp_path):
         write_points(tmp_path / "p.xyz", xyz)
 
 
+@pytest.mark.parametrize("ext", ["las", "laz"])
+def test_points_written_in_chunks_equal_one_write(tmp_path, monkeypatch, ext):
+    import riverbed_cli.io.pointcloud as pointcloud
+
+    rng = np.random.default_rng(3)
+    xyz = np.c_[rng.uniform(500000, 500500, 1003), rng.uniform(5e6, 5e6 + 500, 1003), rng.uniform(200, 260, 1003)]
+    rgb = rng.integers(0, 256, (1003, 3)).astype(np.uint8)
+    cls = rng.integers(0, 19, 1003).astype(np.uint8)
+    write_points(tmp_path / f"one.{ext}", xyz, rgb, "EPSG:32632", cls)
+    monkeypatch.setattr(pointcloud, "CHUNK", 100)  # 11 chunks, the last one of 3 points
+    write_points(tmp_path / f"chunks.{ext}", xyz, rgb, "EPSG:32632", cls)
+    one, chunks = (laspy.read(tmp_path / f"{n}.{ext}") for n in ("one", "chunks"))
+    assert chunks.header.point_count == 1003
+    np.testing.assert_array_equal(chunks.points.array, one.points.array)
+    np.testing.assert_array_equal(chunks.header.mins, one.header.mins)
+    np.testing.assert_array_equal(chunks.header.maxs, one.header.maxs)
+    np.testing.assert_array_equal(chunks.classification, cls)
+    write_points(tmp_path / f"empty.{ext}", np.zeros((0, 3)), crs="EPSG:32632")
+    assert laspy.read(tmp_path / f"empty.{ext}").header.point_count == 0
+
+
 def nadir_pair(f=1000.0, B=50.0, H=400.0, W=120, Hh=100, origin=(500000.0, 5000000.0, 0.0)):
     """A rectified nadir pair 400 m above ground: x right = east, image rows = south; world = UTM minus origin."""
     K = np.array([[f, 0, W / 2], [0, f, Hh / 2], [0, 0, 1.0]])

@@ -8,6 +8,7 @@ from ..errors import RiverbedError
 from .atomic import atomic_output
 
 POINT_FORMATS = (".las", ".laz", ".ply")
+CHUNK = 1_000_000  # points per LAS/LAZ write
 
 
 def check_pointcloud_path(path):
@@ -76,15 +77,20 @@ def _write_las(path, xyz, rgb, crs, classification, scale, compress):
             header.add_crs(pyproj.CRS.from_user_input(crs))
         except pyproj.exceptions.CRSError:
             raise RiverbedError(f"unknown CRS '{crs}'", path) from None
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-    if rgb is not None:
-        c = rgb.astype(np.uint16) * (257 if rgb.dtype == np.uint8 else 1)
-        las.red, las.green, las.blue = c[:, 0], c[:, 1], c[:, 2]
-    if classification is not None:
-        las.classification = np.asarray(classification, np.uint8)
+    backend = laspy.LazBackend.Lazrs if compress else None
     try:
-        las.write(str(path), do_compress=compress, laz_backend=laspy.LazBackend.Lazrs if compress else None)
+        # written in chunks: the scaled integer records of a chunk, not of the whole cloud, are in memory at once
+        with laspy.open(str(path), mode="w", header=header, do_compress=compress, laz_backend=backend) as writer:
+            for i in range(0, len(xyz), CHUNK) if len(xyz) else [0]:
+                sl = slice(i, i + CHUNK)
+                rec = laspy.ScaleAwarePointRecord.zeros(len(xyz[sl]), header=header)
+                rec.x, rec.y, rec.z = xyz[sl, 0], xyz[sl, 1], xyz[sl, 2]
+                if rgb is not None:
+                    c = rgb[sl].astype(np.uint16) * (257 if rgb.dtype == np.uint8 else 1)
+                    rec.red, rec.green, rec.blue = c[:, 0], c[:, 1], c[:, 2]
+                if classification is not None:
+                    rec.classification = np.asarray(classification[sl], np.uint8)
+                writer.write_points(rec)
     except (laspy.errors.LaspyException, OSError, ValueError) as e:
         raise RiverbedError(f"cannot write point cloud ({e})", path) from None
 
