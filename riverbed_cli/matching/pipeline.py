@@ -296,11 +296,13 @@ def _modulate(cost, sparse, guide_img, d_min, p, share, scale, cap, fbar, unreli
     elif p.guide == "diffusion":
         from .diffusion import diffusion_modulate
 
-        cost = diffusion_modulate(cost, sparse, guide_img, d_min, cost_scale=scale, inplace=True,
-                                  support_weight=p.gamma if want_support else None, **(p.diffusion or {}))
         if want_support:
-            cost, dref = cost
+            cost, dref = diffusion_modulate(cost, sparse, guide_img, d_min, cost_scale=scale, inplace=True,
+                                            support_weight=p.gamma, **(p.diffusion or {}))
             support = (dref, dref)
+        else:
+            cost = diffusion_modulate(cost, sparse, guide_img, d_min, cost_scale=scale, inplace=True,
+                                      **(p.diffusion or {}))
     elif p.guide == "riverbed+":
         from .riverbed_plus import riverbed_plus_modulate
 
