@@ -87,3 +87,34 @@ def test_benchmark_names_checked_before_running(dataset, tmp_path):
     assert r.exit_code == 1
     assert r.output == f"riverbed: error: {dataset}: no scene named teddy (found: cones)\n"
     assert not out.exists()  # nothing ran, nothing written
+
+
+def test_benchmark_check_on_a_subset(dataset, tmp_path):
+    """A CI job may gate on part of a full expectations file; cases outside its selection are not compared."""
+    args = [dataset, "--layout", "middlebury", "--guides", "none,riverbed", "--shares", "0.05,0.0016"]
+    r = run(*args, "-o", tmp_path / "full", "--write-expected", tmp_path / "exp.json", "--json")
+    assert r.exit_code == 0, r.output
+    r = run(dataset, "--layout", "middlebury", "--guides", "riverbed", "--shares", "0.05", "-o", tmp_path / "sub",
+            "--check", tmp_path / "exp.json", "--json")
+    s = json.loads(r.output)
+    assert r.exit_code == 0 and s["checked"] == 1 and s["regressions"] == []
+    # an expected case inside the selection that did not run is still a failure
+    exp = json.loads((tmp_path / "exp.json").read_text())
+    exp["cases"].append({**exp["cases"][0], "key": "cones|sgm|riverbed|0.05|None|7"})
+    (tmp_path / "exp2.json").write_text(json.dumps(exp))
+    r = run(dataset, "--layout", "middlebury", "--guides", "riverbed", "--shares", "0.05", "--seeds", "0", "-o",
+            tmp_path / "sub", "--check", tmp_path / "exp2.json")
+    assert r.exit_code == 0  # seed 7 was not asked for
+    r = run(dataset, "--layout", "middlebury", "--guides", "riverbed", "--shares", "0.05", "--seeds", "0,7", "-o",
+            tmp_path / "sub", "--check", tmp_path / "exp2.json", "--json")
+    # seed 7 ran now, so it was compared (against the unguided case's metrics, which riverbed beats)
+    assert r.exit_code == 0 and json.loads(r.output)["checked"] == 2
+    # expectations of another dataset: nothing compared is a failure, not a pass
+    other = {"tolerance": exp["tolerance"], "cases": [{**exp["cases"][0], "key": "teddy|sgm|riverbed|0.05|None|0"}]}
+    (tmp_path / "other.json").write_text(json.dumps(other))
+    r = CliRunner().invoke(cli, ["benchmark", str(dataset), "--layout", "middlebury", "--guides", "riverbed",
+                                 "--shares", "0.05", "-o", str(tmp_path / "sub"),
+                                 "--check", str(tmp_path / "other.json")])
+    assert r.exit_code == 1
+    assert "riverbed: regression: none of the 1 expected cases ran (expectations of another dataset or selection?)" \
+        in r.output

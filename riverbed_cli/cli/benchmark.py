@@ -87,7 +87,8 @@ def benchmark_cmd(dataset, layout, outdir, matchers, guides, shares, windows, se
         Path(write_expected).write_text(json.dumps(bm.expectations(rows), indent=1))
     failures = bm.check(rows, exp) if exp is not None else []
     summary = {"cases": len(rows), "cached": sum(r["cached"] for r in rows), "results": str(out / "results.md"),
-               "figure": str(fig) if fig else None, "regressions": failures}
+               "figure": str(fig) if fig else None, "regressions": failures,
+               "checked": bm.checked(rows, exp) if exp is not None else 0}
     if as_json:
         print_json(summary)
     else:
