@@ -407,6 +407,15 @@ def _prefix(rows, pre):
         _prefix_step(pre[x], pre[x + 1], rows[x])
 
 
+@njit(cache=True, inline="always")
+def _row_segments(pre, arms_row, out_row, inv_row, norm):
+    # every pixel x of a row: the sum (or with norm, the average) over its horizontal segment, from the row's prefix
+    for x in range(out_row.shape[0]):
+        lo = x - np.int64(arms_row[x, 0])
+        hi = x + np.int64(arms_row[x, 1]) + 1
+        _segment_sums(pre, lo, hi, out_row[x], inv_row[x], norm)
+
+
 @njit(cache=True, parallel=True)
 def _hstage(src, arms, out, inv, first_norm, chain):
     # One horizontal stage per row, in cache: segment sums of src (normalised with inv when first_norm); when chain,
@@ -414,21 +423,14 @@ def _hstage(src, arms, out, inv, first_norm, chain):
     H, W, D = src.shape
     for y in prange(H):
         pre = np.empty((W + 1, D), dtype=np.int32)
-        mid = np.empty((W, D), dtype=np.uint16)
         _prefix(src[y], pre)
-        for x in range(W):
-            lo = x - np.int64(arms[y, x, 0])
-            hi = x + np.int64(arms[y, x, 1]) + 1
-            if chain:
-                _segment_sums(pre, lo, hi, mid[x], inv[y, x], first_norm)
-            else:
-                _segment_sums(pre, lo, hi, out[y, x], inv[y, x], first_norm)
         if chain:
+            mid = np.empty((W, D), dtype=np.uint16)
+            _row_segments(pre, arms[y], mid, inv[y], first_norm)
             _prefix(mid, pre)
-            for x in range(W):
-                lo = x - np.int64(arms[y, x, 0])
-                hi = x + np.int64(arms[y, x, 1]) + 1
-                _segment_sums(pre, lo, hi, out[y, x], np.float32(1.0), False)
+            _row_segments(pre, arms[y], out[y], inv[y], False)
+        else:
+            _row_segments(pre, arms[y], out[y], inv[y], first_norm)
 
 
 @njit(cache=True, parallel=True)
@@ -441,10 +443,7 @@ def _cost_hstage(left, right, cl, cr, d_min, ad_lut, cen_lut, outside, arms, out
         _cost_row(left, right, cl, cr, y, d_min, ad_lut, cen_lut, outside, row)
         pre = np.empty((W + 1, D), dtype=np.int32)
         _prefix(row, pre)
-        for x in range(W):
-            lo = x - np.int64(arms[y, x, 0])
-            hi = x + np.int64(arms[y, x, 1]) + 1
-            _segment_sums(pre, lo, hi, out[y, x], np.float32(1.0), False)
+        _row_segments(pre, arms[y], out[y], np.ones(W, dtype=np.float32), False)
 
 
 @njit(cache=True, parallel=True)

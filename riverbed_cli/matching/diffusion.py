@@ -41,7 +41,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
-from .guidance import _check_inputs, _scaled
+from .guidance import _check_inputs, _scaled, guide_image
 
 
 def _row_points(sparse):
@@ -144,18 +144,14 @@ def diffusion_modulate(cost, sparse, guide, d_min, radius=5, sigma_s=10.0, sigma
     radius = int(radius)
     if radius < 0 or sigma_s <= 0 or sigma_i <= 0:
         raise RiverbedError(f"diffusion needs radius >= 0 and positive sigmas (got {radius}, {sigma_s}, {sigma_i})")
-    guide = np.asarray(guide, dtype=np.float32)
-    if guide.ndim == 2:
-        guide = guide[:, :, None]
-    if guide.shape[:2] != sparse.shape:
-        raise RiverbedError(f"guide image {guide.shape[:2]} and sparse map {sparse.shape} differ in size")
+    guide = guide_image(guide, sparse.shape)
     out = _scaled(cost, cost_scale, inplace)
     C = guide.shape[2]
     sparse = np.ascontiguousarray(sparse, dtype=np.float32)
     ptr, cols = _row_points(sparse)
     shape = sparse.shape if support_weight is not None else (0, 0)
     dref = np.full(shape, np.nan, dtype=np.float32)
-    _diffusion_kernel(out, sparse, ptr, cols, np.ascontiguousarray(guide), int(d_min), radius,
+    _diffusion_kernel(out, sparse, ptr, cols, guide, int(d_min), radius,
                       1.0 / (2.0 * sigma_s * sigma_s), 1.0 / (2.0 * sigma_i * sigma_i * C), dref,
                       float(support_weight or 0.0))
     if support_weight is None:

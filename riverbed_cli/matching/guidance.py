@@ -137,6 +137,17 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
     return owner, w.astype(np.float32)
 
 
+def guide_image(guide, shape):
+    """The left image for colour similarities as contiguous float32 ``H x W x C`` (a grey image gets ``C = 1``),
+    checked against the sparse map's ``shape``."""
+    guide = np.asarray(guide, dtype=np.float32)
+    if guide.ndim == 2:
+        guide = guide[:, :, None]
+    if guide.shape[:2] != tuple(shape):
+        raise RiverbedError(f"guide image {guide.shape[:2]} and sparse map {tuple(shape)} differ in size")
+    return np.ascontiguousarray(guide)
+
+
 def homogeneous_owners(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0.3, literal_eq3=False):
     """Ownership image of the riverbed enhancement.
 
@@ -162,13 +173,9 @@ def homogeneous_owners(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0
     window = int(window)
     if window < 1 or window % 2 == 0:
         raise RiverbedError(f"riverbed window must be a positive odd number, got {window}")
-    guide = np.asarray(guide, dtype=np.float32)
-    if guide.ndim == 2:
-        guide = guide[:, :, None]
-    if guide.shape[:2] != sparse.shape:
-        raise RiverbedError(f"guide image {guide.shape[:2]} and sparse map {sparse.shape} differ in size")
+    guide = guide_image(guide, sparse.shape)
     rows, cols, _ = lidar_points(sparse)
-    return _owners_kernel(rows, cols, np.ascontiguousarray(guide), window // 2,
+    return _owners_kernel(rows, cols, guide, window // 2,
                           float(sigma_xy), float(sigma_i), float(gamma), bool(literal_eq3))
 
 
