@@ -8,6 +8,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
+from ..settings import parse_census_window
 
 # SWAR popcount constants. They must be np.uint64: mixing uint64 with int64 silently gives float64 in Numba.
 _M1 = np.uint64(0x5555555555555555)
@@ -27,24 +28,6 @@ def popcount64(x):
     x = (x & _M2) + ((x >> _S2) & _M2)
     x = (x + (x >> _S4)) & _M4
     return (x * _H01) >> _S56
-
-
-def parse_census_window(spec):
-    """Parse ``"9x7"`` (width x height, both odd, at most 65 cells) into ``(width, height)``."""
-    if isinstance(spec, str):
-        try:
-            w, h = (int(v) for v in spec.lower().split("x"))
-        except ValueError:
-            raise RiverbedError(f"census window '{spec}' is not WIDTHxHEIGHT, e.g. 9x7") from None
-    else:
-        w, h = (int(v) for v in spec)
-    if w < 1 or h < 1 or w % 2 == 0 or h % 2 == 0:
-        raise RiverbedError(f"census window {w}x{h}: width and height must be odd and positive")
-    if w * h - 1 > 64:
-        raise RiverbedError(f"census window {w}x{h} has {w * h - 1} bits; at most 64 fit (e.g. 9x7)")
-    if w * h < 9:
-        raise RiverbedError(f"census window {w}x{h} is too small; use at least 3x3")
-    return w, h
 
 
 @njit(cache=True, parallel=True)

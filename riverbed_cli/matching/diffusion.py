@@ -41,7 +41,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
-from .guidance import _check_inputs, _scaled, guide_image
+from .guidance import check_volume, guide_image, scaled_volume
 
 
 def _row_points(sparse):
@@ -140,12 +140,12 @@ def diffusion_modulate(cost, sparse, guide, d_min, radius=5, sigma_s=10.0, sigma
         Scaled costs; only costs at the spread disparities of pixels within ``radius`` of a LiDAR pixel change, and
         they only decrease. With ``support_weight``: ``(costs, support)``.
     """
-    _check_inputs(cost, sparse)
+    check_volume(cost, sparse)
     radius = int(radius)
     if radius < 0 or sigma_s <= 0 or sigma_i <= 0:
         raise RiverbedError(f"diffusion needs radius >= 0 and positive sigmas (got {radius}, {sigma_s}, {sigma_i})")
     guide = guide_image(guide, sparse.shape)
-    out = _scaled(cost, cost_scale, inplace)
+    out = scaled_volume(cost, cost_scale, inplace)
     C = guide.shape[2]
     sparse = np.ascontiguousarray(sparse, dtype=np.float32)
     ptr, cols = _row_points(sparse)

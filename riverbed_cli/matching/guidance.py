@@ -233,14 +233,15 @@ def _modulate_kernel(cost, grows, gcols, owner, dissim, values, d_min, k, c, ban
             cy[i] = np.uint16(min(a1 * np.float32(cy[i]) + g1, fcap))
 
 
-def _check_inputs(cost, sparse):
+def check_volume(cost, sparse):
+    """A cost volume (H, W, D) and a sparse map (H, W) of the same image, or :class:`RiverbedError`."""
     if cost.ndim != 3:
         raise RiverbedError(f"cost volume must be (H, W, D), got shape {cost.shape}")
     if sparse.shape != cost.shape[:2]:
         raise RiverbedError(f"sparse map {sparse.shape} and cost volume {cost.shape[:2]} differ in size")
 
 
-def _scaled(cost, cost_scale, inplace):
+def scaled_volume(cost, cost_scale, inplace):
     """The uint16 volume to modulate: ``cost`` itself when it is already scaled uint16 and ``inplace``."""
     if cost.dtype == np.uint16 and inplace:
         return cost
@@ -294,12 +295,12 @@ def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_sca
     (H, W, D) uint16
         Scaled costs, modulated at the LiDAR pixels and unchanged (times ``cost_scale``) elsewhere.
     """
-    _check_inputs(cost, sparse)
+    check_volume(cost, sparse)
     rows, cols, values = lidar_points(sparse)
     owner = np.full(sparse.shape, -1, dtype=np.int32)
     owner[rows, cols] = np.arange(rows.size, dtype=np.int32)
     dissim = np.zeros(sparse.shape, dtype=np.float32)
-    out = _scaled(cost, cost_scale, inplace)
+    out = scaled_volume(cost, cost_scale, inplace)
     return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, 0.0, form, cost_scale, cap, fbar)
 
 
@@ -317,10 +318,10 @@ def riverbed_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, sigma_x
     -------
     (H, W, D) uint16
     """
-    _check_inputs(cost, sparse)
+    check_volume(cost, sparse)
     rows, cols, values = lidar_points(sparse)
     if owners is None:
         owners = homogeneous_owners(sparse, guide, window, sigma_xy, sigma_i, gamma, literal_eq3)
     owner, dissim = owners
-    out = _scaled(cost, cost_scale, inplace)
+    out = scaled_volume(cost, cost_scale, inplace)
     return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, cap, fbar)

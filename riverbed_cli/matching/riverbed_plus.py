@@ -38,31 +38,18 @@ Conventions: left image reference, ``d = x_left - x_right``; volumes ``H x W x D
 """
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
 from . import guidance
+from .config import CONFIDENCES, PlusConfig  # noqa: F401  (CONFIDENCES: the valid confidence rules)
 from .adcensus import cross_arms, to_u8
-from .guidance import _check_inputs, _scaled, lidar_points
+from .guidance import check_volume, lidar_points, scaled_volume
 
-CONFIDENCES = ("lr", "none")
-
-
-@dataclass
-class PlusParams:
-    """riverbed+ settings (module docstring); measured on the Middlebury dev scenes and KITTI, docs/riverbed_plus.md."""
-
-    hops: object = "auto"  # number of support-region hops, or "auto" (round(spacing / 6), clipped to 1..8)
-    margin: float = 2.0  # band half-margin around the connected LiDAR range (disparity px)
-    confidence: str = "lr"  # "lr": extend only to pixels failing a first pass's left-right check; "none": to all
-    lr_threshold: int = 1
-    arm_l1: int = 34  # cross construction (Mei et al. 2011 values)
-    arm_l2: int = 17
-    arm_tau1: int = 20
-    arm_tau2: int = 6
+#: riverbed+ settings (frozen; defaults and meaning in :class:`~.config.PlusConfig`).
+PlusParams = PlusConfig
 
 
 def auto_hops(share, per_hop=6.0, largest=8):
@@ -154,7 +141,7 @@ def band_modulate(cost, lo, hi, extend, d_min, margin=2.0, k=10.0, c=1.0, fbar=1
     """
     if cost.ndim != 3 or lo.shape != cost.shape[:2] or hi.shape != lo.shape or extend.shape != lo.shape:
         raise RiverbedError(f"band inputs do not match the cost volume {cost.shape}")
-    out = _scaled(cost, cost_scale, inplace)
+    out = scaled_volume(cost, cost_scale, inplace)
     ext = np.ascontiguousarray(extend, dtype=np.bool_) & np.isfinite(lo) & np.isfinite(hi)
     _band_kernel(out, np.ascontiguousarray(lo, np.float32), np.ascontiguousarray(hi, np.float32), ext, int(d_min),
                  float(margin), float(k * fbar * cost_scale), float(c), float(cap))
@@ -184,10 +171,10 @@ def riverbed_plus_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, si
         disparity interval guidance vouches for per pixel (riverbed's band at its pixels, the extended band at the
         extended ones, NaN elsewhere).
     """
-    _check_inputs(cost, sparse)
+    check_volume(cost, sparse)
     q = plus or PlusParams()
     rows, cols, _ = lidar_points(sparse)
-    out = _scaled(cost, cost_scale, inplace)
+    out = scaled_volume(cost, cost_scale, inplace)
     if fbar is None:
         fbar = guidance.wall_scale(out, rows, cols, cost_scale)
     g = np.asarray(guide, dtype=np.float32)

@@ -12,148 +12,22 @@ d_max - off]``; ``off`` is added back. Only the tile's own pixels (not the overl
 
 import logging
 import math
-import warnings
+import time
 from dataclasses import dataclass
 
 import numpy as np
+import psutil
 
 from ..errors import RiverbedError
-from ..matching.pipeline import MatchParams, MatchResult, match_pair
+from ..io.images import to_guide
+from ..io.windowed import TiffSink, WindowedRaster, image_bits, open_windowed, sparse_points_any  # noqa: F401
+from ..matching.config import OVERLAP_DEFAULT, TILE_DEFAULT
+from ..matching.guidance import lidar_share_of_points
+from ..matching.pipeline import make_config, match_pair, resolve_disparity_range
+from ..matching.registry import get_guide
+from ..matching.results import MatchResult, TiledMatchInfo
 
 log = logging.getLogger(__name__)
-
-
-class WindowedRaster:
-    """A raster file read window by window (rasterio), sliced like a numpy array: ``src[y0:y1, x0:x1]``.
-
-    ``kind="image"``: bands become channels (H x W or H x W x 3, samples unchanged); ``kind="disparity"``: band 1
-    as float32 with nodata, inf and NaN as NaN. Only what a tile needs is ever in memory.
-    """
-
-    def __init__(self, path, kind="image"):
-        import rasterio
-
-        self.path, self.kind = str(path), kind
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
-                self._ds = rasterio.open(self.path)
-        except rasterio.errors.RasterioError as e:
-            raise RiverbedError(f"cannot read raster ({str(e).splitlines()[0]})", path) from None
-        H, W = self._ds.height, self._ds.width
-        self.bands = 1 if kind == "disparity" else min(self._ds.count, 3)
-        self.shape = (H, W) if self.bands == 1 else (H, W, self.bands)
-        self.dtype = np.dtype(np.float32 if kind == "disparity" else self._ds.dtypes[0])
-        self.ndim = len(self.shape)
-
-    def __getitem__(self, key):
-        from rasterio.windows import Window
-
-        rows, cols = key[:2]
-        H, W = self.shape[:2]
-        y0, y1, _ = rows.indices(H)
-        x0, x1, _ = cols.indices(W)
-        win = Window(x0, y0, max(0, x1 - x0), max(0, y1 - y0))
-        if self.kind == "disparity":
-            a = self._ds.read(1, window=win, masked=True).astype(np.float32).filled(np.nan)
-            a[~np.isfinite(a)] = np.nan
-            return a
-        a = self._ds.read(list(range(1, self.bands + 1)), window=win)
-        return a[0] if self.bands == 1 else np.moveaxis(a, 0, -1)
-
-    def row_blocks(self, rows=512):
-        for y in range(0, self.shape[0], rows):
-            yield y, self[y:y + rows, 0:self.shape[1]]
-
-    def __getstate__(self):  # dask ships sources to workers: reopen there
-        return {"path": self.path, "kind": self.kind}
-
-    def __setstate__(self, state):
-        self.__init__(state["path"], state["kind"])
-
-
-def open_windowed(path, kind="image"):
-    """A :class:`WindowedRaster` for TIFF files (read by windows); other formats are read whole into numpy."""
-    from ..io.disparity import read_disparity
-    from ..io.images import read_image
-
-    with open(path, "rb") as f:
-        head = f.read(4)
-    if head in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+"):
-        return WindowedRaster(path, kind)
-    return read_disparity(path) if kind == "disparity" else read_image(path)
-
-
-def _blocks(a, rows=512):
-    if isinstance(a, WindowedRaster):
-        yield from a.row_blocks(rows)
-    else:
-        for y in range(0, a.shape[0], rows):
-            yield y, a[y:y + rows]
-
-
-def sparse_points_any(sparse):
-    """Rows, columns and values of the LiDAR pixels of an in-memory or windowed sparse map, block by block."""
-    rows, cols, vals = [], [], []
-    for y, blk in _blocks(sparse):
-        r, c = np.nonzero(np.isfinite(blk))
-        rows.append(r + y)
-        cols.append(c)
-        vals.append(blk[r, c])
-    return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals).astype(np.float32)
-
-
-def image_bits(*images):
-    """Effective bit depth over whole images (in memory or windowed), so every tile scales 16-bit data alike."""
-    from ..io.images import effective_bits
-
-    if all(np.dtype(getattr(a, "dtype", np.uint8)) == np.uint8 for a in images):
-        return 8
-    top = 0
-    for a in images:
-        for _, blk in _blocks(a):
-            top = max(top, int(blk.max()) if blk.size else 0)
-    return effective_bits(np.array([top], np.uint16))
-
-
-class TiffSink:
-    """A float32 GeoTIFF written tile by tile (``sink[y0:y1, x0:x1] = block``); NaN nodata, DEFLATE, 256 x 256 tiles.
-
-    Use as a context manager on a temporary path and rename it when the work succeeded (the CLI does).
-    """
-
-    def __init__(self, path, height, width, tags=None):
-        import rasterio
-
-        self.path = str(path)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
-            self._ds = rasterio.open(self.path, "w", driver="GTiff", width=width, height=height, count=1,
-                                     dtype="float32", nodata=float("nan"), compress="deflate", predictor=3,
-                                     tiled=True, blockxsize=256, blockysize=256, BIGTIFF="IF_SAFER")
-        if tags:
-            self.update_tags(**tags)
-        self.shape = (height, width)
-
-    def __setitem__(self, key, block):
-        from rasterio.windows import Window
-
-        rows, cols = key
-        y0, y1, _ = rows.indices(self.shape[0])
-        x0, x1, _ = cols.indices(self.shape[1])
-        self._ds.write(np.asarray(block, np.float32), 1, window=Window(x0, y0, x1 - x0, y1 - y0))
-
-    def update_tags(self, **tags):
-        self._ds.update_tags(**{str(k): str(v) for k, v in tags.items()})
-
-    def close(self):
-        self._ds.close()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
 
 
 #: Memory a tile may use for its cost volumes (three uint16 volumes: cost, forward and reverse SGM sums).
@@ -239,12 +113,38 @@ def lidar_ranges(tiles, sparse, d_min, d_max, reach=None, margin=4.0, thin_margi
     return tiles
 
 
-def plan_tiles(height, width, sparse, d_min, d_max, tile="auto", overlap=128, lidar_range=True):
-    """The tiles of a tiled match and the tile size: ``tile="auto"`` sizes tiles for :data:`TILE_BUDGET` from the
-    widest range a 1024 px tile would search; each tile gets its LiDAR range (or the global one)."""
+@dataclass
+class TilePlan:
+    """The tiles of a tiled match: ``tiles`` (each with its disparity range), ``size`` (tile side, px) and
+    ``tiled`` (False: the image fits one tile and is matched whole)."""
 
+    tiles: list
+    size: int
+    tiled: bool
+
+    def to_dict(self):
+        return {"tiles": len(self.tiles), "tile": self.size, "tiled": self.tiled,
+                "tile_ranges": {s: sum(1 for t in self.tiles if t.source == s) for s in ("lidar", "neighbours",
+                                                                                          "global")}}
+
+
+def tile_budget():
+    """Bytes a tile's volumes may take: :data:`TILE_BUDGET`, or a quarter of the free memory when that is less."""
+    return int(min(TILE_BUDGET, psutil.virtual_memory().available // 4))
+
+
+def plan_tiles(height, width, sparse, d_min, d_max, tile=TILE_DEFAULT, overlap=OVERLAP_DEFAULT, lidar_range=True,
+               budget=None):
+    """The tiling of a ``height x width`` match over ``[d_min, d_max]``: one rule for ``riverbed match`` and blocks.
+
+    ``tile="auto"``: the image is matched whole when its volumes fit ``budget`` (:func:`tile_budget` by default)
+    for the whole range; otherwise tiles take the largest side that fits ``budget`` for the widest range a 1024 px
+    tile would search (its LiDAR range with ``lidar_range``, else the global one). ``tile=0``: never tile. An
+    integer: tiles of that side when the image is larger. Each tile gets its LiDAR range (:func:`lidar_ranges`) or
+    the global one. Returns a :class:`TilePlan`; an untiled plan holds the one tile covering the image.
+    """
     def plan(size):
-        ts = tile_grid(height, width, size)
+        ts = tile_grid(height, width, max(size, 16))
         if sparse is not None and lidar_range:
             lidar_ranges(ts, sparse, d_min, d_max, reach=overlap)
         else:
@@ -252,11 +152,18 @@ def plan_tiles(height, width, sparse, d_min, d_max, tile="auto", overlap=128, li
                 t.d_min, t.d_max = d_min, d_max
         return ts
 
+    whole = max(height, width)
+    if tile == 0:
+        return TilePlan(plan(whole), whole, False)
     if tile == "auto":
-        tile = auto_tile(max(t.d_max - t.d_min for t in plan(1024)), overlap)
-        if max(height, width) <= tile:
-            tile = max(height, width)
-    return plan(int(tile)), int(tile)
+        budget = tile_budget() if budget is None else budget
+        if whole <= auto_tile(d_max - d_min, overlap, budget):
+            return TilePlan(plan(whole), whole, False)
+        tile = auto_tile(max(t.d_max - t.d_min for t in plan(1024)), overlap, budget)
+    tile = int(tile)
+    if whole <= tile:
+        return TilePlan(plan(whole), whole, False)
+    return TilePlan(plan(tile), tile, True)
 
 
 def match_tile(left, right, sparse, t, overlap, params, bits=8):
@@ -266,8 +173,6 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8):
     t.x0``), the disparity evaluations done on its crop, and the stage timings. ``params.window`` should be fixed
     (not "auto") so every tile uses the same riverbed window; ``bits`` is the whole pair's effective bit depth.
     """
-    from ..io.images import to_guide
-
     H, W = left.shape[:2]
     ya, yb = max(0, t.y0 - overlap), min(H, t.y1 + overlap)
     a = max(0, t.x0 - overlap - (t.d_max - t.d_min))
@@ -283,32 +188,29 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8):
         sc = np.asarray(sparse[ya:yb, a:b], np.float32) - np.float32(off)
         # LiDAR outside the tile's range cannot guide it (match_pair would warn about every tile)
         sc = np.where((sc >= t.d_min - off) & (sc <= t.d_max - off), sc, np.float32(np.nan))
-        if params.guide != "none" and not np.isfinite(sc).any():
+        if get_guide(params.guide).needs_sparse and not np.isfinite(sc).any():
             sc = None
-    kw = {} if sc is not None or params.guide == "none" else {"guide": "none"}
+    kw = {} if sc is not None or not get_guide(params.guide).needs_sparse else {"guide": "none"}
     res = match_pair(lc, rc, sc, t.d_min - off, t.d_max - off, params, **kw)
     block = res.disparity[t.y0 - ya:t.y1 - ya, t.x0 - a:t.x1 - a] + np.float32(off)
     return np.ascontiguousarray(block), lc.shape[0] * lc.shape[1] * (t.d_max - t.d_min + 1), res.info["stages"]
 
 
-def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, tile="auto", overlap=128,
-                lidar_range=True, progress=None, out=None, **overrides):
-    """:func:`match_pair` tile by tile; same arguments plus ``tile`` (px), ``overlap`` (px) and ``lidar_range``.
+def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, tile=TILE_DEFAULT,
+                overlap=OVERLAP_DEFAULT, lidar_range=True, progress=None, out=None, **overrides):
+    """:func:`match_pair` tile by tile; same arguments plus ``tile`` (px, ``"auto"`` or 0), ``overlap`` (px) and
+    ``lidar_range``.
 
     ``left``, ``right`` and ``sparse`` may be numpy arrays or :class:`WindowedRaster` (read tile by tile); ``out``
     receives each tile by ``out[y0:y1, x0:x1] = block`` (default: a new float32 array, returned in the result).
-    ``tile="auto"`` picks the largest tile whose volumes fit :data:`TILE_BUDGET` for the widest disparity range a
-    tile will search (its LiDAR range, or the global one).
+    The tiling is :func:`plan_tiles`'s (an image that fits one tile is one tile).
 
-    Returns a :class:`MatchResult` whose ``info`` adds ``tiles`` (count), ``tile``, ``overlap``,
-    ``disparity_evaluations`` (sum over tiles of pixels x disparities, the work done) and per-stage sums.
+    Returns a :class:`MatchResult` whose ``info`` (:class:`TiledMatchInfo`) adds ``tiles`` (count), ``tile``,
+    ``overlap``, ``disparity_evaluations`` (sum over tiles of pixels x disparities, the work done) and per-stage
+    sums.
     """
-    import time
-
-    from ..matching.guidance import auto_window, lidar_share_of_points
-    from ..matching.pipeline import resolve_disparity_range
-
-    p = MatchParams(**{**(params.__dict__ if params else {}), **overrides})
+    p = make_config(params, **overrides)
+    guide = get_guide(p.guide)
     H, W = left.shape[:2]
     if right.shape[:2] != (H, W):
         raise RiverbedError(f"left and right images differ in size: {W}x{H} vs {right.shape[1]}x{right.shape[0]}")
@@ -325,15 +227,15 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
     if overlap < 0:
         raise RiverbedError(f"--overlap must be >= 0, got {overlap}")
     bits = image_bits(left, right)
-    if p.guide != "none" and p.window == "auto":
+    if guide.uses_window and p.guidance.window == "auto":
         # One window for the whole image: a tile's own LiDAR share would change it from tile to tile.
-        p = MatchParams(**{**p.__dict__, "window": auto_window(share, p.window_target)})
-    tiles, tile = plan_tiles(H, W, sparse, d_min, d_max, tile, overlap, lidar_range)
+        p = p.replace(window=guide.window(share, p))
+    plan = plan_tiles(H, W, sparse, d_min, d_max, tile, overlap, lidar_range)
     if out is None:
         out = np.full((H, W), np.nan, np.float32)
     stages = {}
     evaluations = 0
-    for t in tiles:
+    for t in plan.tiles:
         block, n, st = match_tile(left, right, sparse, t, overlap, p, bits)
         out[t.y0:t.y1, t.x0:t.x1] = block
         evaluations += n
@@ -341,9 +243,7 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
             stages[k] = round(stages.get(k, 0.0) + v, 4)
         if progress:
             progress(1)
-    info = {"seconds": round(time.perf_counter() - t_all, 4), "stages": stages, "guide": p.guide,
-            "lidar_share": share, "window": p.window if p.guide != "none" else None, "d_min": d_min, "d_max": d_max,
-            "size": [W, H], "tiles": len(tiles), "tile": tile, "overlap": overlap,
-            "disparity_evaluations": int(evaluations),
-            "tile_ranges": {s: sum(1 for t in tiles if t.source == s) for s in ("lidar", "neighbours", "global")}}
+    info = TiledMatchInfo(round(time.perf_counter() - t_all, 4), stages, p.guide, share,
+                          p.guidance.window if guide.uses_window else None, d_min, d_max, [W, H], len(plan.tiles),
+                          plan.size, overlap, int(evaluations), plan.to_dict()["tile_ranges"])
     return MatchResult(out, info)

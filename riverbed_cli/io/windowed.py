@@ -1,0 +1,137 @@
+"""Rasters read and written window by window: :class:`WindowedRaster` (a TIFF sliced like a numpy array),
+:class:`TiffSink` (a float32 GeoTIFF written tile by tile), and whole-raster scans that read block by block."""
+
+import warnings
+
+import numpy as np
+import rasterio
+from rasterio.windows import Window
+
+from ..errors import RiverbedError
+from .disparity import read_disparity
+from .images import effective_bits, read_image
+
+
+class WindowedRaster:
+    """A raster file read window by window (rasterio), sliced like a numpy array: ``src[y0:y1, x0:x1]``.
+
+    ``kind="image"``: bands become channels (H x W or H x W x 3, samples unchanged); ``kind="disparity"``: band 1
+    as float32 with nodata, inf and NaN as NaN. Only what a tile needs is ever in memory.
+    """
+
+    def __init__(self, path, kind="image"):
+        self.path, self.kind = str(path), kind
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+                self._ds = rasterio.open(self.path)
+        except rasterio.errors.RasterioError as e:
+            raise RiverbedError(f"cannot read raster ({str(e).splitlines()[0]})", path) from None
+        H, W = self._ds.height, self._ds.width
+        self.bands = 1 if kind == "disparity" else min(self._ds.count, 3)
+        self.shape = (H, W) if self.bands == 1 else (H, W, self.bands)
+        self.dtype = np.dtype(np.float32 if kind == "disparity" else self._ds.dtypes[0])
+        self.ndim = len(self.shape)
+
+    def __getitem__(self, key):
+        rows, cols = key[:2]
+        H, W = self.shape[:2]
+        y0, y1, _ = rows.indices(H)
+        x0, x1, _ = cols.indices(W)
+        win = Window(x0, y0, max(0, x1 - x0), max(0, y1 - y0))
+        if self.kind == "disparity":
+            a = self._ds.read(1, window=win, masked=True).astype(np.float32).filled(np.nan)
+            a[~np.isfinite(a)] = np.nan
+            return a
+        a = self._ds.read(list(range(1, self.bands + 1)), window=win)
+        return a[0] if self.bands == 1 else np.moveaxis(a, 0, -1)
+
+    def row_blocks(self, rows=512):
+        for y in range(0, self.shape[0], rows):
+            yield y, self[y:y + rows, 0:self.shape[1]]
+
+    def __getstate__(self):  # dask ships sources to workers: reopen there
+        return {"path": self.path, "kind": self.kind}
+
+    def __setstate__(self, state):
+        self.__init__(state["path"], state["kind"])
+
+
+def is_tiff(path):
+    """True when the file starts with a TIFF or BigTIFF signature."""
+    with open(path, "rb") as f:
+        return f.read(4) in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
+
+
+def open_windowed(path, kind="image"):
+    """A :class:`WindowedRaster` for TIFF files (read by windows); other formats are read whole into numpy."""
+    if is_tiff(path):
+        return WindowedRaster(path, kind)
+    return read_disparity(path) if kind == "disparity" else read_image(path)
+
+
+def row_blocks(a, rows=512):
+    """``(first row, block)`` of an in-memory or windowed raster, ``rows`` rows at a time."""
+    if isinstance(a, WindowedRaster):
+        yield from a.row_blocks(rows)
+    else:
+        for y in range(0, a.shape[0], rows):
+            yield y, a[y:y + rows]
+
+
+def sparse_points_any(sparse):
+    """Rows, columns and values of the LiDAR pixels of an in-memory or windowed sparse map, block by block."""
+    rows, cols, vals = [], [], []
+    for y, blk in row_blocks(sparse):
+        r, c = np.nonzero(np.isfinite(blk))
+        rows.append(r + y)
+        cols.append(c)
+        vals.append(blk[r, c])
+    return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals).astype(np.float32)
+
+
+def image_bits(*images):
+    """Effective bit depth over whole images (in memory or windowed), so every tile scales 16-bit data alike."""
+    if all(np.dtype(getattr(a, "dtype", np.uint8)) == np.uint8 for a in images):
+        return 8
+    top = 0
+    for a in images:
+        for _, blk in row_blocks(a):
+            top = max(top, int(blk.max()) if blk.size else 0)
+    return effective_bits(np.array([top], np.uint16))
+
+
+class TiffSink:
+    """A float32 GeoTIFF written tile by tile (``sink[y0:y1, x0:x1] = block``); NaN nodata, DEFLATE, 256 x 256 tiles.
+
+    Use as a context manager on a temporary path and rename it when the work succeeded (the CLI does).
+    """
+
+    def __init__(self, path, height, width, tags=None):
+        self.path = str(path)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+            self._ds = rasterio.open(self.path, "w", driver="GTiff", width=width, height=height, count=1,
+                                     dtype="float32", nodata=float("nan"), compress="deflate", predictor=3,
+                                     tiled=True, blockxsize=256, blockysize=256, BIGTIFF="IF_SAFER")
+        if tags:
+            self.update_tags(**tags)
+        self.shape = (height, width)
+
+    def __setitem__(self, key, block):
+        rows, cols = key
+        y0, y1, _ = rows.indices(self.shape[0])
+        x0, x1, _ = cols.indices(self.shape[1])
+        self._ds.write(np.asarray(block, np.float32), 1, window=Window(x0, y0, x1 - x0, y1 - y0))
+
+    def update_tags(self, **tags):
+        self._ds.update_tags(**{str(k): str(v) for k, v in tags.items()})
+
+    def close(self):
+        self._ds.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

@@ -1,0 +1,357 @@
+"""The matching settings: one table, from which the command line, the block manifest and :class:`MatchConfig` come.
+
+:data:`MATCH_SETTINGS` lists every setting a ``riverbed match`` user can set: its flat name (``--name`` on the
+command line, ``name`` in a block manifest's ``defaults:`` or per pair), default, validator, help, and the part of
+:class:`MatchConfig` it fills (``group.field``). ``riverbed match``'s options, the manifest's keys and their
+validation messages are generated from it, so a new setting is one new row (and a field of its group).
+
+:class:`MatchConfig` is nested and frozen: the matcher and guide names, the settings every matcher shares (census
+window, sub-pixel fit, median), and one frozen group per matcher or guide (:class:`SGMConfig`,
+:class:`GuidanceConfig` for Gauss and riverbed, :class:`DiffusionConfig`, :class:`PlusConfig`,
+:class:`ADCensusConfig`). ``MatchConfig().replace(guide="gauss", p2=150)`` takes flat names.
+
+This module imports no Numba kernel (``riverbed match --help`` reads it).
+"""
+
+from dataclasses import dataclass, field, fields, replace
+
+from ..errors import RiverbedError
+from ..settings import (
+    Setting,
+    SettingError,
+    auto_or,
+    boolean,
+    census_window,
+    choice,
+    integer,
+    number,
+    odd_window,
+    show,
+)
+
+#: Matchers and guides by name; each has an implementation registered under that name (``matching/matchers/``,
+#: ``matching/guides/``; :mod:`.registry` checks the two lists agree).
+MATCHER_NAMES = ("sgm", "adcensus")
+GUIDE_NAMES = ("none", "gauss", "riverbed", "diffusion", "riverbed+")
+FORMS = ("additive", "product")
+CONFIDENCES = ("lr", "none")
+GUIDE_STAGES = ("aggregated", "initial")
+
+# Defaults of the run settings (tiling, range, input size), shared by match_tiled and the command line.
+TILE_DEFAULT = "auto"
+OVERLAP_DEFAULT = 128
+MAX_PIXELS = 200_000_000
+
+
+@dataclass(frozen=True)
+class SGMConfig:
+    """Census + SGM matcher settings (penalties in Hamming units)."""
+
+    paths: int = 8  # SGM path directions: 4, 8 or 16
+    p1: int = 10  # penalty of a 1 px disparity change
+    p2: int = 120  # penalty of a larger change
+    lr_check: bool = False  # invalidate pixels failing the left-right consistency check
+    lr_threshold: int = 1  # px
+    outside_cost: object = "auto"  # cost where the match leaves the right image; auto = a quarter of the bits
+    cost_scale: int = 4  # guided costs are kept in uint16 at this resolution (1/4 of a Hamming unit)
+
+
+@dataclass(frozen=True)
+class GuidanceConfig:
+    """Gauss and riverbed guidance (the paper's k = 10, c = 1, sigma = 8, gamma = 0.3)."""
+
+    k: float = 10.0  # height of the Gaussian walls (times the wall scale)
+    c: float = 1.0  # width of the walls (disparity px)
+    form: str = "additive"  # additive or product walls (docs/method.md)
+    wall_scale: object = "auto"  # F_bar of the additive walls; auto = half the largest cost of a random mismatch
+    window: object = "auto"  # riverbed window side s (odd px) or "auto"
+    window_target: float = 4.0  # auto window: smallest odd s with s * s * p >= window_target (docs/method.md)
+    sigma_xy: float = 8.0  # px
+    sigma_i: float = 8.0  # grey levels
+    gamma: float = 0.3  # similarity threshold of homogeneous pixels
+    band: float = 3.0  # band half-width per unit of dissimilarity W (disparity px)
+    literal_eq3: bool = False  # homogeneous pixels by eq. 3 as printed (W > gamma); only to reproduce that reading
+
+
+@dataclass(frozen=True)
+class DiffusionConfig:
+    """Diffusion guidance (Shivakumar et al. 2019; :mod:`..diffusion`)."""
+
+    radius: int = 5  # half side of the neighbourhood a measurement spreads to (px)
+    sigma_s: float = 10.0  # spatial width of the bilateral weight (px)
+    sigma_i: float = 20.0  # colour width (grey levels)
+
+
+@dataclass(frozen=True)
+class PlusConfig:
+    """riverbed+ settings (:mod:`..riverbed_plus`; measured in docs/riverbed_plus.md)."""
+
+    hops: object = "auto"  # support-region hops, or "auto" (round(spacing / 6), clipped to 1..8)
+    margin: float = 2.0  # band half-margin around the connected LiDAR range (disparity px)
+    confidence: str = "lr"  # "lr": extend only to pixels failing a first pass's left-right check; "none": to all
+    lr_threshold: int = 1  # px
+    arm_l1: int = 34  # cross construction (Mei et al. 2011 values)
+    arm_l2: int = 17
+    arm_tau1: int = 20
+    arm_tau2: int = 6
+
+
+@dataclass(frozen=True)
+class ADCensusConfig:
+    """AD-Census settings; defaults are the paper's (Mei et al. 2011, Table 1) where it gives them."""
+
+    lambda_ad: float = 10.0
+    lambda_census: float = 30.0
+    scale: int = 256  # fixed-point cost units per 1.0 of the paper's cost (raw costs then lie in [0, 512])
+    outside: float = 1.0  # cost (paper units) where the match leaves the right image
+    arm_l1: int = 34
+    arm_l2: int = 17
+    arm_tau1: int = 20
+    arm_tau2: int = 6
+    iterations: int = 4
+    pi1: float = 1.0
+    pi2: float = 3.0
+    tau_so: int = 15
+    lr_threshold: int = 1
+    vote_iterations: int = 5
+    vote_ts: int = 20
+    vote_th: float = 0.4
+    interpolate: bool = True
+    discontinuity: bool = True
+    edge_threshold: float = 5.0  # Sobel |gx| + |gy| of the disparity map above which a pixel is a disparity edge
+    guide_stage: str = "aggregated"  # where guidance modulates the volume: "aggregated" (before SO) or "initial"
+
+
+_GROUPS = {"sgm": SGMConfig, "guidance": GuidanceConfig, "diffusion": DiffusionConfig, "plus": PlusConfig,
+           "adcensus": ADCensusConfig}
+
+
+@dataclass(frozen=True)
+class MatchConfig:
+    """Everything :func:`~riverbed_cli.matching.pipeline.match_pair` is told, nested by matcher and guide."""
+
+    matcher: str = "sgm"
+    guide: str = "riverbed"
+    census: str = "9x7"  # census window WIDTHxHEIGHT (both matchers)
+    subpixel: bool = True
+    median: int = 3
+    sgm: SGMConfig = field(default_factory=SGMConfig)
+    guidance: GuidanceConfig = field(default_factory=GuidanceConfig)
+    diffusion: DiffusionConfig = field(default_factory=DiffusionConfig)
+    plus: PlusConfig = field(default_factory=PlusConfig)
+    adcensus: ADCensusConfig = field(default_factory=ADCensusConfig)
+
+    def replace(self, **changes):
+        """A copy with flat settings (``p2=150``, names of :data:`MATCH_SETTINGS`) or whole groups replaced.
+
+        A group may be given as its object, as a dict of its fields, or as None (its defaults). Values are taken
+        as given (validation is the command line's and the manifest's job, through :func:`validate_settings`).
+        """
+        top, groups = {}, {}
+        for key, value in changes.items():
+            if key in _GROUPS:
+                if value is None:
+                    value = _GROUPS[key]()
+                elif isinstance(value, dict):
+                    value = _GROUPS[key](**value)
+                elif not isinstance(value, _GROUPS[key]):
+                    raise RiverbedError(f"{key}: expected a {_GROUPS[key].__name__}, got {type(value).__name__}")
+                top[key] = value
+                continue
+            s = SETTINGS_BY_NAME.get(key)
+            if s is None or s.group is None:
+                raise RiverbedError(f"unknown matching setting '{key}'")
+            if s.group == "match":
+                top[s.field] = value
+            else:
+                groups.setdefault(s.group, {})[s.field] = value
+        out = replace(self, **top)
+        if groups:
+            out = replace(out, **{g: replace(getattr(out, g), **kv) for g, kv in groups.items()})
+        return out
+
+    def to_settings(self):
+        """The flat settings (``{name: value}`` of every matching row of :data:`MATCH_SETTINGS`)."""
+        out = {}
+        for s in MATCH_SETTINGS:
+            if s.group is None:
+                continue
+            holder = self if s.group == "match" else getattr(self, s.group)
+            out[s.name] = getattr(holder, s.field)
+        return out
+
+    @classmethod
+    def from_settings(cls, settings):
+        """A config from flat settings; keys that are not matching settings (tile, min_disp, ...) are ignored."""
+        return cls().replace(**{k: v for k, v in settings.items()
+                                if k in SETTINGS_BY_NAME and SETTINGS_BY_NAME[k].group is not None})
+
+
+def _group_rows(group, cls, prefix, applies, helps, kinds, checks):
+    """Rows for every field of a group dataclass: ``prefix + field`` names, defaults from the dataclass."""
+    rows = []
+    for f in fields(cls):
+        rows.append(Setting(prefix + f.name, f.default, checks[f.name], helps[f.name], group, f.name, applies,
+                            kinds.get(f.name, _kind_of(f.default))))
+    return rows
+
+
+def _kind_of(default):
+    if isinstance(default, bool):
+        return "bool"
+    if isinstance(default, int):
+        return "int"
+    if isinstance(default, float):
+        return "float"
+    return "str"
+
+
+_NN = integer(0)
+_POS = number(positive=True)
+
+_SGM_HELP = {
+    "paths": "SGM path directions.",
+    "p1": "SGM penalty for a 1 px disparity change (Hamming units).",
+    "p2": "SGM penalty for a larger disparity change (Hamming units).",
+    "lr_check": "Invalidate pixels failing the left-right consistency check (AD-Census always checks and refills "
+                "them in its refinement).",
+    "lr_threshold": "Left-right check tolerance (px).",
+    "outside_cost": "Cost where the match leaves the right image (Hamming units), or auto: a quarter of the census "
+                    "bits.",
+    "cost_scale": "Guided SGM costs are kept in uint16 at 1/cost_scale of a Hamming unit.",
+}
+_SGM_CHECKS = {"paths": choice((4, 8, 16)), "p1": _NN, "p2": _NN, "lr_check": boolean, "lr_threshold": _NN,
+               "outside_cost": auto_or(_NN, "an integer >= 0"), "cost_scale": integer(1, 64)}
+
+_GUIDANCE_HELP = {
+    "k": "Height of the guidance walls (times the wall scale).",
+    "c": "Width of the guidance walls (disparity px).",
+    "form": "Wall form: additive (k F_bar (1 - exp(-t^2 / 2c^2)) added) or product (the paper's literal form).",
+    "wall_scale": "F_bar of the additive walls (plain cost units), or auto: half the largest cost.",
+    "window": "Riverbed window side s (odd px), or auto: smallest odd s with s*s*p >= window_target "
+              "(p = LiDAR share), within [5, 25].",
+    "window_target": "Auto window: LiDAR points wanted per window.",
+    "sigma_xy": "Spatial width of the riverbed similarity (px).",
+    "sigma_i": "Colour width of the riverbed similarity (grey levels).",
+    "gamma": "Similarity threshold of homogeneous pixels (also the weight a diffusion pixel needs to be vouched for).",
+    "band": "Band half-width per unit of dissimilarity (disparity px).",
+    "literal_eq3": "Homogeneous pixels by eq. 3 as printed (W > gamma), only to reproduce that reading.",
+}
+_GUIDANCE_CHECKS = {"k": number(0), "c": _POS, "form": choice(FORMS), "wall_scale": auto_or(_POS, "a positive number"),
+                    "window": auto_or(odd_window, "an odd positive integer"), "window_target": _POS,
+                    "sigma_xy": _POS, "sigma_i": _POS, "gamma": number(0), "band": number(0),
+                    "literal_eq3": boolean}
+_GUIDANCE_APPLIES = {"k": "gauss, riverbed, riverbed+", "c": "gauss, riverbed, riverbed+",
+                     "form": "gauss, riverbed, riverbed+", "wall_scale": "gauss, riverbed, riverbed+",
+                     "gamma": "riverbed, riverbed+, diffusion", "literal_eq3": "riverbed"}
+
+_DIFFUSION_HELP = {"radius": "Half side of the neighbourhood a LiDAR measurement spreads to (px).",
+                   "sigma_s": "Spatial width of the diffusion weight (px).",
+                   "sigma_i": "Colour width of the diffusion weight (grey levels)."}
+_DIFFUSION_CHECKS = {"radius": _NN, "sigma_s": _POS, "sigma_i": _POS}
+
+_PLUS_HELP = {
+    "hops": "Support-region hops, or auto: round(spacing / 6) within 1..8 (spacing = 1 / sqrt(LiDAR share)).",
+    "margin": "Band half-margin around the connected LiDAR range (disparity px).",
+    "confidence": "lr: extend only to pixels failing a first pass's left-right check; none: to every pixel.",
+    "lr_threshold": "First pass's left-right check tolerance (px).",
+    "arm_l1": "Cross arm length L1 (px).", "arm_l2": "Cross arm length L2 (px).",
+    "arm_tau1": "Cross colour threshold tau1.", "arm_tau2": "Cross colour threshold tau2 (past L2).",
+}
+_PLUS_CHECKS = {"hops": auto_or(integer(0), "an integer >= 0"), "margin": number(0), "confidence": choice(CONFIDENCES),
+                "lr_threshold": _NN, "arm_l1": integer(1, 255), "arm_l2": integer(1, 255),
+                "arm_tau1": _NN, "arm_tau2": _NN}
+
+_ADC_HELP = {
+    "lambda_ad": "AD cost scale lambda_AD.", "lambda_census": "Census cost scale lambda_census.",
+    "scale": "Fixed-point cost units per 1.0 of the paper's cost.",
+    "outside": "Cost (paper units) where the match leaves the right image.",
+    "arm_l1": "Cross arm length L1 (px).", "arm_l2": "Cross arm length L2 (px).",
+    "arm_tau1": "Cross colour threshold tau1.", "arm_tau2": "Cross colour threshold tau2 (past L2).",
+    "iterations": "Cross aggregation iterations.",
+    "pi1": "Scanline optimisation penalty Pi1.", "pi2": "Scanline optimisation penalty Pi2.",
+    "tau_so": "Scanline optimisation colour threshold tau_SO.",
+    "lr_threshold": "Left-right check tolerance (px).",
+    "vote_iterations": "Region voting iterations.", "vote_ts": "Region voting: least votes tau_S.",
+    "vote_th": "Region voting: least share tau_H.",
+    "interpolate": "Proper interpolation of outliers.", "discontinuity": "Depth discontinuity adjustment.",
+    "edge_threshold": "Sobel |gx| + |gy| of the disparity above which a pixel is a disparity edge.",
+    "guide_stage": "Where guidance modulates the volume: aggregated (before scanline optimisation) or initial.",
+}
+_ADC_CHECKS = {"lambda_ad": _POS, "lambda_census": _POS, "scale": integer(1, 4096), "outside": number(0),
+               "arm_l1": integer(1, 255), "arm_l2": integer(1, 255), "arm_tau1": _NN, "arm_tau2": _NN,
+               "iterations": _NN, "pi1": number(0), "pi2": number(0), "tau_so": _NN, "lr_threshold": _NN,
+               "vote_iterations": _NN, "vote_ts": _NN, "vote_th": number(0), "interpolate": boolean,
+               "discontinuity": boolean, "edge_threshold": number(0), "guide_stage": choice(GUIDE_STAGES)}
+
+
+def tile_size(v):
+    """A tile side: ``'auto'``, ``0`` (never tile) or an integer >= 16 (px)."""
+    if v == "auto" or v == 0 and not isinstance(v, bool):
+        return v
+    if isinstance(v, bool) or not isinstance(v, int) or v < 16:
+        raise SettingError(f"expected 'auto' or an integer >= 16 (px), got {show(v)}; 0 never tiles")
+    return v
+
+
+MATCH_SETTINGS = (
+    # the matcher and what every matcher shares
+    Setting("matcher", "sgm", choice(MATCHER_NAMES),
+            "sgm: census cost + Semi-Global Matching; adcensus: AD-Census (Mei et al. 2011: AD + census cost, "
+            "cross-based aggregation, scanline optimisation, multi-step refinement).", "match", "matcher"),
+    Setting("guide", "riverbed", choice(GUIDE_NAMES),
+            "Cost-volume guidance: gauss (Poggi et al.), riverbed (the paper), diffusion (Shivakumar et al. 2019), "
+            "riverbed+ (riverbed extended through cross-based support regions to the pixels failing a first pass's "
+            "left-right check; docs/riverbed_plus.md). Default: riverbed with sparse LiDAR, else none.",
+            "match", "guide"),
+    Setting("census", "9x7", census_window, "Census window WIDTHxHEIGHT.", "match", "census"),
+    Setting("subpixel", True, boolean, "Parabola sub-pixel fit.", "match", "subpixel", kind="bool"),
+    Setting("median", 3, integer(0, 15), "Median filter size (1 or 0: off).", "match", "median", kind="int"),
+    # census + SGM
+    *[Setting(s.name, s.default, s.check, s.help, s.group, s.field, "sgm",
+              "choice-int" if s.name == "paths" else ("auto-int" if s.name == "outside_cost" else s.kind))
+      for s in _group_rows("sgm", SGMConfig, "", "sgm", _SGM_HELP, {}, _SGM_CHECKS)],
+    # Gauss and riverbed guidance
+    *[Setting(s.name, s.default, s.check, s.help, s.group, s.field,
+              _GUIDANCE_APPLIES.get(s.name, "riverbed, riverbed+"),
+              {"window": "auto-int", "wall_scale": "auto-float"}.get(s.name, s.kind))
+      for s in _group_rows("guidance", GuidanceConfig, "", "", _GUIDANCE_HELP, {}, _GUIDANCE_CHECKS)],
+    *_group_rows("diffusion", DiffusionConfig, "diffusion_", "diffusion", _DIFFUSION_HELP, {}, _DIFFUSION_CHECKS),
+    *_group_rows("plus", PlusConfig, "plus_", "riverbed+", _PLUS_HELP, {"hops": "auto-int"}, _PLUS_CHECKS),
+    *_group_rows("adcensus", ADCensusConfig, "adcensus_", "adcensus", _ADC_HELP, {}, _ADC_CHECKS),
+    # the run: disparity range, input size, tiling (not part of MatchConfig)
+    Setting("min_disp", None, integer(-100_000, 100_000, none=True),
+            "Smallest disparity searched (px, inclusive; default: from the sparse LiDAR, else 0).", kind="int"),
+    Setting("max_disp", None, integer(-100_000, 100_000, none=True),
+            "Largest disparity searched (px, inclusive; default: from the sparse LiDAR with a margin).", kind="int"),
+    Setting("max_pixels", MAX_PIXELS, integer(1), "Refuse images larger than this (width x height).", kind="int"),
+    Setting("tile", TILE_DEFAULT, tile_size,
+            "Tile side (px) for large images, auto (from the disparity range and free memory; untiled when the "
+            "image fits one tile) or 0 (never tile).", kind="auto-int"),
+    Setting("overlap", OVERLAP_DEFAULT, integer(0), "Tile overlap (px).", kind="int"),
+    Setting("lidar_range", True, boolean,
+            "With tiles and sparse LiDAR: each tile searches only the disparities its LiDAR allows.", kind="bool"),
+)
+
+SETTINGS_BY_NAME = {s.name: s for s in MATCH_SETTINGS}
+
+
+def validate_setting(name, value):
+    """The value of setting ``name`` normalised; :class:`SettingError` with the one-line reason if it is wrong."""
+    return SETTINGS_BY_NAME[name].validate(value)
+
+
+def validate_settings(settings):
+    """Cross-setting checks of a complete flat settings dict (after each value passed :func:`validate_setting`).
+
+    Returns the one-line problem, or None.
+    """
+    lo, hi = settings.get("min_disp"), settings.get("max_disp")
+    if lo is not None and hi is not None and lo > hi:
+        return f"min_disp {lo} > max_disp {hi}"
+    return None
+
+
+def default_settings():
+    """Every setting of :data:`MATCH_SETTINGS` at its default (a fresh dict)."""
+    return {s.name: s.default for s in MATCH_SETTINGS}

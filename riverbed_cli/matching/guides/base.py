@@ -1,0 +1,75 @@
+"""The interface of a guide: what it needs, how it modulates a cost volume, what support it vouches for."""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..volume import CostVolume
+
+
+@dataclass
+class GuidanceInputs:
+    """What a matcher hands a guide.
+
+    ``sparse``: (H, W) float32 LiDAR disparities of the left image, NaN elsewhere (all inside the searched range);
+    ``image``: the left image on a 0..255 scale, (H, W, C) float32 (:func:`~riverbed_cli.io.images.to_guide`), or
+    None for guides that do not read it; ``share``: the LiDAR share of the image
+    (:func:`~riverbed_cli.matching.guidance.lidar_share`); ``fbar``: the wall scale ``F_bar`` in plain cost units;
+    ``cap``: the largest guided cost the aggregation can take (stored units); ``first_pass``: what the guide's
+    :meth:`Guide.prepare` returned; ``want_support``: also return the support (AD-Census's refinement keeps the
+    winners inside it).
+    """
+
+    sparse: np.ndarray
+    image: np.ndarray
+    share: float
+    fbar: float
+    cap: int
+    first_pass: object = None
+    want_support: bool = False
+
+
+@dataclass
+class Guidance:
+    """A guide's output: the modulated volume (its ``max_cost`` the guide's cap), the riverbed window used (None
+    for guides without one) and the support, a per-pixel ``(lo, hi)`` disparity interval the guide vouches for
+    (NaN where it vouches for nothing), or None."""
+
+    volume: CostVolume
+    window: int = None
+    support: tuple = None
+
+
+class Guide:
+    """A cost-volume guide. Subclasses set ``name`` and ``help`` and implement :meth:`modulate`.
+
+    Attributes
+    ----------
+    needs_sparse : bool
+        The guide reads LiDAR disparities (every guide but ``none``).
+    needs_image : bool
+        :meth:`modulate` reads ``inputs.image`` (colour similarities).
+    uses_window : bool
+        The guide uses the riverbed window: tiles fix it once for the whole image (:meth:`window`).
+    has_first_pass : bool
+        :meth:`prepare` runs a first matching pass (timed as the ``first_pass`` stage).
+    """
+
+    name = ""
+    needs_sparse = True
+    needs_image = False
+    uses_window = False
+    has_first_pass = False
+
+    def window(self, share, config):
+        """The riverbed window side for a LiDAR share (None for guides without one)."""
+        return None
+
+    def prepare(self, left, right, sparse, d_min, d_max, config, matcher):
+        """Work before matching (riverbed+'s first pass); its result reaches :meth:`modulate` as
+        ``inputs.first_pass``. Default: nothing."""
+        return None
+
+    def modulate(self, volume, inputs, config):
+        """Modulate ``volume`` (a :class:`CostVolume`, uint16, may be changed in place); returns :class:`Guidance`."""
+        raise NotImplementedError

@@ -1,0 +1,19 @@
+"""``gauss``: Gauss enhancement at the LiDAR pixels (Poggi et al. 2019; :func:`..guidance.gauss_modulate`)."""
+
+from .. import guidance
+from ..registry import register_guide
+from ..volume import CostVolume
+from .base import Guidance, Guide
+
+
+@register_guide
+class Gauss(Guide):
+    name = "gauss"
+
+    def modulate(self, volume, inputs, config):
+        g = config.guidance
+        data = guidance.gauss_modulate(volume.data, inputs.sparse, volume.d_min, g.k, g.c, g.form, volume.scale,
+                                       inputs.cap, inplace=True, fbar=inputs.fbar)
+        # the LiDAR pixels vouch for their own disparity
+        support = (inputs.sparse, inputs.sparse) if inputs.want_support else None
+        return Guidance(CostVolume(data, volume.d_min, volume.scale, inputs.cap), None, support)

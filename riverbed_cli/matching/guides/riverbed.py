@@ -1,0 +1,35 @@
+"""``riverbed``: the paper's guidance, Gauss at the LiDAR pixels and band-and-walls at their homogeneous pixels
+(:func:`..guidance.riverbed_modulate`)."""
+
+from .. import guidance
+from ..registry import register_guide
+from ..riverbed_plus import riverbed_support
+from ..volume import CostVolume
+from .base import Guidance, Guide
+
+
+def riverbed_window(share, config):
+    """The riverbed window: ``config.guidance.window``, or for ``"auto"`` the rule of :func:`..guidance.auto_window`."""
+    g = config.guidance
+    return guidance.auto_window(share, g.window_target) if g.window == "auto" else int(g.window)
+
+
+@register_guide
+class Riverbed(Guide):
+    name = "riverbed"
+    needs_image = True
+    uses_window = True
+
+    def window(self, share, config):
+        return riverbed_window(share, config)
+
+    def modulate(self, volume, inputs, config):
+        g = config.guidance
+        window = self.window(inputs.share, config)
+        owners = guidance.homogeneous_owners(inputs.sparse, inputs.image, window, g.sigma_xy, g.sigma_i, g.gamma,
+                                             g.literal_eq3)
+        data = guidance.riverbed_modulate(volume.data, inputs.sparse, inputs.image, volume.d_min, window, g.k, g.c,
+                                          g.sigma_xy, g.sigma_i, g.gamma, g.band, g.form, volume.scale, inputs.cap,
+                                          owners=owners, inplace=True, literal_eq3=g.literal_eq3, fbar=inputs.fbar)
+        support = riverbed_support(inputs.sparse, owners, g.band) if inputs.want_support else None
+        return Guidance(CostVolume(data, volume.d_min, volume.scale, inputs.cap), window, support)

@@ -1,0 +1,43 @@
+"""``riverbed+``: riverbed, extended through cross-based support regions to the pixels a first pass could not match
+(:mod:`..riverbed_plus`)."""
+
+import numpy as np
+
+from ...errors import RiverbedError
+from ..config import CONFIDENCES
+from ..registry import register_guide
+from ..riverbed_plus import riverbed_plus_modulate
+from ..volume import CostVolume
+from .base import Guidance, Guide
+from .riverbed import riverbed_window
+
+
+@register_guide
+class RiverbedPlus(Guide):
+    name = "riverbed+"
+    needs_image = True
+    uses_window = True
+    has_first_pass = True
+
+    def window(self, share, config):
+        return riverbed_window(share, config)
+
+    def prepare(self, left, right, sparse, d_min, d_max, config, matcher):
+        """The first pass: pixels whose riverbed-guided match fails the left-right check (None: extend to all)."""
+        q = config.plus
+        if q.confidence == "none":
+            return None
+        if q.confidence not in CONFIDENCES:
+            raise RiverbedError(f"unknown riverbed+ confidence '{q.confidence}' (use lr or none)")
+        mask = matcher.unreliable(left, right, sparse, d_min, d_max, config.replace(guide="riverbed"),
+                                  q.lr_threshold)
+        return np.asarray(mask, dtype=bool)
+
+    def modulate(self, volume, inputs, config):
+        g = config.guidance
+        window = self.window(inputs.share, config)
+        data, extra = riverbed_plus_modulate(volume.data, inputs.sparse, inputs.image, volume.d_min, window, g.k, g.c,
+                                             g.sigma_xy, g.sigma_i, g.gamma, g.band, g.form, volume.scale,
+                                             inputs.cap, inputs.fbar, config.plus, inputs.first_pass, inputs.share,
+                                             inplace=True, return_support=inputs.want_support)
+        return Guidance(CostVolume(data, volume.d_min, volume.scale, inputs.cap), window, extra.get("support"))

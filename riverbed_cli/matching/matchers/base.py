@@ -1,0 +1,36 @@
+"""The interface of a matcher: a rectified pair and a guide in, a dense disparity map out."""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class MatcherOutput:
+    """A matcher's result: ``disparity`` (H, W) float32, NaN invalid; ``window`` the riverbed window its guide
+    used (or None); ``refinement`` a matcher's own report (AD-Census's outlier counts) or None; ``status`` the
+    left-right outcome per pixel when asked for (AD-Census: 0 consistent, 1 mismatch, 2 occlusion)."""
+
+    disparity: np.ndarray
+    window: int = None
+    refinement: dict = None
+    status: np.ndarray = None
+
+
+class Matcher:
+    """A stereo matcher. Subclasses set ``name`` and implement :meth:`match` and :meth:`unreliable`."""
+
+    name = ""
+
+    def match(self, left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages):
+        """Match a rectified pair (left image the reference) over ``[d_min, d_max]``.
+
+        ``sparse`` is checked and inside the range (or None for ``guide`` ``none``), ``share`` its LiDAR share,
+        ``first_pass`` what ``guide.prepare`` returned; ``stages`` is filled with seconds per stage. Returns a
+        :class:`MatcherOutput`.
+        """
+        raise NotImplementedError
+
+    def unreliable(self, left, right, sparse, d_min, d_max, config, lr_threshold):
+        """(H, W) bool: pixels whose match with ``config`` (riverbed-guided) fails the left-right check."""
+        raise NotImplementedError

@@ -1,0 +1,79 @@
+"""``sgm``: census cost, guidance, Semi-Global Matching, winner-takes-all with sub-pixel fit, median.
+
+Stages: :func:`..census.census_cost` -> the guide -> :func:`..sgm.sgm_aggregate_passes` ->
+:func:`..disparity.select_disparity` -> :func:`..disparity.median_filter`.
+"""
+
+import time
+
+import numpy as np
+
+from ...errors import RiverbedError
+from ...io.images import effective_bits, to_grey, to_guide
+from .. import census, disparity, guidance, sgm
+from ..guides.base import GuidanceInputs
+from ..registry import get_guide, register_matcher
+from ..volume import CostVolume
+from .base import Matcher, MatcherOutput
+
+
+def _lap(stages, name, t0):
+    stages[name] = round(time.perf_counter() - t0, 4)
+
+
+@register_matcher
+class SGMMatcher(Matcher):
+    name = "sgm"
+
+    def match(self, left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages):
+        s = config.sgm
+        t0 = time.perf_counter()
+        win = census.parse_census_window(config.census)
+        nbits = win[0] * win[1] - 1
+        outside = nbits // 4 if s.outside_cost == "auto" else int(s.outside_cost)
+        guided = guide.needs_sparse
+        scale = int(s.cost_scale) if guided else 1
+        bits = effective_bits(left, right)  # one scale for both images of a 16-bit pair
+        cl = census.census_transform(to_grey(left, bits), win)
+        cr = census.census_transform(to_grey(right, bits), win)
+        volume = CostVolume(census.census_cost(cl, cr, d_min, d_max, outside, scale), d_min, scale,
+                            max(nbits, outside) * scale)
+        del cl, cr
+        _lap(stages, "cost", t0)
+
+        window = None
+        t0 = time.perf_counter()
+        if guided:
+            cap = 65535 // s.paths - s.p2 * scale
+            # A fixed wall scale (not the mean cost at this image's LiDAR pixels) keeps tiles consistent with the
+            # whole image; the walls' height barely matters (docs/method.md).
+            g = config.guidance
+            fbar = nbits / 2.0 if g.wall_scale == "auto" else float(g.wall_scale)
+            if cap <= nbits * scale:
+                raise RiverbedError(f"P2 {s.p2} is too large for {s.paths} paths with guided uint16 costs")
+            image = to_guide(left, bits) if guide.needs_image else None
+            result = guide.modulate(volume, GuidanceInputs(sparse, image, share, fbar, cap, first_pass), config)
+            volume, window = result.volume, result.window
+        _lap(stages, "guidance", t0)
+
+        t0 = time.perf_counter()
+        fwd, bwd = sgm.sgm_aggregate_passes(volume.data, s.p1 * scale, s.p2 * scale, s.paths,
+                                            max_cost=volume.max_cost)
+        del volume
+        _lap(stages, "aggregation", t0)
+
+        t0 = time.perf_counter()
+        disp = disparity.select_disparity(fwd, d_min, config.subpixel, s.lr_check, s.lr_threshold, aggregated2=bwd)
+        del fwd, bwd
+        _lap(stages, "selection", t0)
+
+        t0 = time.perf_counter()
+        disp = disparity.median_filter(disp, config.median)
+        _lap(stages, "refinement", t0)
+        return MatcherOutput(disp, window)
+
+    def unreliable(self, left, right, sparse, d_min, d_max, config, lr_threshold):
+        config = config.replace(lr_check=True, lr_threshold=lr_threshold, median=1)
+        out = self.match(left, right, sparse, d_min, d_max, config, get_guide(config.guide),
+                         guidance.lidar_share(sparse), None, {})
+        return ~np.isfinite(out.disparity)

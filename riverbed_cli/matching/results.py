@@ -1,0 +1,89 @@
+"""Typed results of matching: :class:`MatchResult` and its :class:`MatchInfo`.
+
+``MatchInfo`` reads like the dict it replaces (``result.info["seconds"]``, ``{**result.info}``) and
+:meth:`MatchInfo.to_dict` gives the ``--json`` keys of ``riverbed match``.
+"""
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+
+class RecordMapping(Mapping):
+    """A dataclass read as a mapping of its fields; fields that are None and marked ``optional`` are left out."""
+
+    _optional = ()
+
+    def to_dict(self):
+        out = {}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if v is None and f.name in self._optional:
+                continue
+            out[f.name] = v
+        return out
+
+    def __getitem__(self, key):
+        d = self.to_dict()
+        return d[key]
+
+    def __iter__(self):
+        return iter(self.to_dict())
+
+    def __len__(self):
+        return len(self.to_dict())
+
+
+@dataclass
+class MatchInfo(RecordMapping):
+    """What a match did: timings (s), the settings that mattered, the range searched.
+
+    ``stages`` holds seconds per stage (``cost``, ``guidance``, ``aggregation``, ``selection``, ``refinement``;
+    ``first_pass`` for riverbed+; AD-Census's ``optimisation``); ``window`` the riverbed window used (None for
+    guides without one); ``size`` ``[width, height]``; ``refinement`` AD-Census's outlier counts and timings.
+    """
+
+    seconds: float
+    stages: dict
+    guide: str
+    matcher: str
+    lidar_share: float
+    lidar_points: int
+    window: int = None
+    d_min: int = 0
+    d_max: int = 0
+    size: list = field(default_factory=list)
+    refinement: dict = None
+
+    _optional = ("refinement",)
+
+
+@dataclass
+class TiledMatchInfo(RecordMapping):
+    """What a tiled match did (:func:`~riverbed_cli.scale.tiles.match_tiled`): :class:`MatchInfo`'s keys that
+    hold for the whole image, plus ``tiles`` (count), ``tile`` (px), ``overlap`` (px), ``disparity_evaluations``
+    (sum over tiles of crop pixels x disparities: the work done) and ``tile_ranges`` (tiles whose range came from
+    their LiDAR, their neighbours, or the global range)."""
+
+    seconds: float
+    stages: dict
+    guide: str
+    lidar_share: float
+    window: int
+    d_min: int
+    d_max: int
+    size: list
+    tiles: int
+    tile: int
+    overlap: int
+    disparity_evaluations: int
+    tile_ranges: dict
+
+
+@dataclass
+class MatchResult:
+    """A dense disparity map (``(H, W)`` float32, NaN invalid, ``d = x_left - x_right``) and its info."""
+
+    disparity: np.ndarray
+    info: RecordMapping
