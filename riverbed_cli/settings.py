@@ -16,6 +16,10 @@ from dataclasses import dataclass
 from .errors import RiverbedError
 
 
+#: Images larger than this (width x height) are refused unless ``--max-pixels`` says otherwise.
+MAX_PIXELS = 400_000_000
+
+
 class SettingError(ValueError):
     """A setting's value is wrong; the message says what was expected and what was given."""
 

@@ -1,4 +1,8 @@
-"""The ``riverbed`` click group. Subcommands live in their own modules and are registered here."""
+"""The ``riverbed`` click group. Subcommands live in their own modules, listed in :data:`COMMANDS` and imported
+only when they run (or their ``--help`` is asked for): ``riverbed --help`` loads no subcommand, as rasterio's
+``rio`` loads its commands from entry points."""
+
+import importlib
 
 import click
 
@@ -13,8 +17,36 @@ class UserError(click.ClickException):
         click.echo(f"riverbed: error: {self.format_message()}", err=True)
 
 
+#: name -> (module under riverbed_cli.cli, command object, one line for ``riverbed --help``)
+COMMANDS = {
+    "pair": ("pair", "pair_cmd", "Write a pair file (the geometry of a rectified pair) from a benchmark calibration."),
+    "project": ("project", "project_cmd", "Project a LiDAR cloud through a pair file into sparse disparities."),
+    "match": ("match", "match_cmd", "Match a rectified pair into a disparity map, optionally guided by LiDAR."),
+    "evaluate": ("evaluate", "evaluate_cmd", "Compare a disparity map (or a DSM) with ground truth."),
+    "dsm": ("dsm", "dsm_cmd", "Triangulate disparity maps of pairs into a point cloud and a DSM."),
+    "sample": ("sample", "sample_cmd", "Generate the synthetic aerial block (pair, LiDAR, ground truth)."),
+    "block": ("block", "block_cmd", "Run every pair of a block manifest and merge their DSMs (dask)."),
+    "rectify": ("rectify", "rectify_cmd", "Rectify raw frames with their orientations into a pair."),
+    "benchmark": ("benchmark", "benchmark_cmd", "Run the paper's protocol (matchers x guides x LiDAR shares)."),
+}
+
+
 class RiverbedGroup(click.Group):
-    """Turn library errors into one-line messages instead of tracebacks."""
+    """Subcommands loaded on demand; library errors turned into one-line messages instead of tracebacks."""
+
+    def list_commands(self, ctx):
+        return list(COMMANDS)
+
+    def get_command(self, ctx, name):
+        if name not in COMMANDS:
+            return None
+        module, attr, _ = COMMANDS[name]
+        return getattr(importlib.import_module(f"{__package__}.{module}"), attr)
+
+    def format_commands(self, ctx, formatter):
+        # the one-line help from the table: listing the commands imports none of them
+        with formatter.section("Commands"):
+            formatter.write_dl([(name, line) for name, (_, _, line) in COMMANDS.items()])
 
     def invoke(self, ctx):
         try:
@@ -38,32 +70,3 @@ def cli(verbose, quiet):
     Reference image is the left one; disparity d = x_left - x_right >= 0.
     """
     setup_logging(-1 if quiet else verbose)
-
-
-def _register():
-    from . import dsm, evaluate, match, pair, project
-
-    cli.add_command(pair.pair_cmd)
-    cli.add_command(project.project_cmd)
-    cli.add_command(match.match_cmd)
-    cli.add_command(evaluate.evaluate_cmd)
-    cli.add_command(dsm.dsm_cmd)
-
-    from . import sample
-
-    cli.add_command(sample.sample_cmd)
-
-    from . import block
-
-    cli.add_command(block.block_cmd)
-
-    from . import rectify
-
-    cli.add_command(rectify.rectify_cmd)
-
-    from . import benchmark
-
-    cli.add_command(benchmark.benchmark_cmd)
-
-
-_register()

@@ -6,6 +6,9 @@ import sys
 
 import click
 
+from ..errors import RiverbedError
+from ..settings import SettingError, parse_text
+
 output_opt = click.option(
     "-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="Output file."
 )
@@ -43,3 +46,50 @@ def progress_enabled():
 def setup_logging(verbosity):
     level = {-1: logging.ERROR, 0: logging.WARNING, 1: logging.INFO}.get(verbosity, logging.DEBUG)
     logging.basicConfig(level=level, format="riverbed: %(levelname)s: %(message)s", stream=sys.stderr, force=True)
+
+
+class SettingType(click.ParamType):
+    """A command-line value of a :class:`~riverbed_cli.settings.Setting`: read as a manifest would give it
+    (:func:`~riverbed_cli.settings.parse_text`) and checked by the same validator, so a bad value gets the same
+    one-line message here and in a block manifest (``riverbed: error: --window: expected ...``)."""
+
+    def __init__(self, setting):
+        self.setting = setting
+        self.name = setting.kind
+
+    def convert(self, value, param, ctx):
+        if value is None or (not isinstance(value, str) and value is self.setting.default):
+            return value
+        try:
+            return self.setting.validate(parse_text(self.setting, value))
+        except SettingError as e:
+            raise RiverbedError(f"{self.setting.option}: {e}") from None
+
+    def get_metavar(self, param, ctx=None):
+        choices = getattr(self.setting.check, "options", None)
+        if choices:
+            return "[" + "|".join(map(str, choices)) + "]"
+        return {"int": "INTEGER", "float": "NUMBER", "auto-int": "auto|INTEGER", "auto-float": "auto|NUMBER",
+                "choice-int": "INTEGER"}.get(self.setting.kind, "TEXT")
+
+
+def setting_options(settings, defaults=None):
+    """Click options for ``settings`` (rows of a settings table), in table order: ``--name VALUE``, or
+    ``--name/--no-name`` flags for booleans. ``defaults`` overrides a row's default on the command line (e.g. None
+    for a default that depends on other options). The parameter of ``--plus-hops`` is ``plus_hops``."""
+    defaults = defaults or {}
+
+    def decorate(f):
+        for s in reversed(settings):
+            default = defaults.get(s.name, s.default)
+            where = "" if s.applies == "all" else f" [{s.applies}]"
+            if s.kind == "bool":
+                flag = s.option[2:]
+                opt = click.option(f"--{flag}/--no-{flag}", s.name, default=default, show_default=True,
+                                   help=s.help + where)
+            else:
+                opt = click.option(s.option, s.name, type=SettingType(s), default=default,
+                                   show_default=default is not None, help=s.help + where)
+            f = opt(f)
+        return f
+    return decorate

@@ -10,8 +10,7 @@ from ..errors import RiverbedError
 from ..geometry import visibility as vis
 from ..geometry.projection import NOISE_CLASSES, OUTLIERS, SIDES, VISIBILITY, image_shape, project_cloud
 from ..io.atomic import check_output
-from ..io.disparity import _kind as disparity_format
-from ..io.disparity import write_disparity
+from ..io.disparity import disparity_format, write_disparity
 from ..io.pairfile import load_pairfile, load_registration
 from .options import input_path, json_opt, output_opt, overwrite_opt, print_json, progress_enabled
 

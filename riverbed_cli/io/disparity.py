@@ -24,7 +24,8 @@ _PNG_MAX = 65535 / 256  # largest disparity a KITTI 16-bit PNG holds
 _WHITESPACE = b" \t\r\n\v\f"
 
 
-def _kind(path):
+def disparity_format(path):
+    """``pfm``, ``png`` or ``tif`` by the file's extension; :class:`RiverbedError` for any other."""
     ext = Path(path).suffix.lower()
     if ext == ".pfm":
         return "pfm"
@@ -37,7 +38,7 @@ def _kind(path):
 
 
 def _check_input(path):
-    kind = _kind(Path(path))
+    kind = disparity_format(Path(path))
     path = require_file(path)
     return path, kind
 
@@ -245,7 +246,7 @@ def write_disparity(path, disp, overwrite=False, tags=None):
       are at least 256 px, no georeference. Exact.
     """
     path = Path(path)
-    kind = _kind(path)
+    kind = disparity_format(path)
     disp = np.asarray(disp)
     if disp.ndim != 2:
         raise RiverbedError(f"disparity must be a 2-D array (H x W), got shape {disp.shape}", path)

@@ -17,9 +17,7 @@ import cv2
 import numpy as np
 
 from ..errors import RiverbedError
-
-#: Default pixel limit (width x height) for images from untrusted sources; ``--max-pixels`` raises it.
-MAX_PIXELS = 400_000_000
+from ..settings import MAX_PIXELS  # noqa: F401  (the default pixel limit; --max-pixels raises it)
 
 _UNREADABLE = "cannot read image (not a format OpenCV or rasterio reads)"
 _TIFF_MAGIC = (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
@@ -62,7 +60,7 @@ def read_image(path, max_pixels=MAX_PIXELS):
     if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
         # Cheap size check before decoding.
         width, height = struct.unpack(">II", head[16:24])
-        _check_pixels(path, height, width, max_pixels)
+        check_pixels(path, height, width, max_pixels)
 
     img = None
     if head[:4] in _TIFF_MAGIC:
@@ -78,13 +76,13 @@ def read_image(path, max_pixels=MAX_PIXELS):
             img = _from_opencv(img)
     if img is None:
         img = _read_rasterio(path, max_pixels, required=True)
-    _check_pixels(path, img.shape[0], img.shape[1], max_pixels)
+    check_pixels(path, img.shape[0], img.shape[1], max_pixels)
     if img.dtype not in (np.uint8, np.uint16):
         raise RiverbedError(f"unsupported image sample type {img.dtype} (need 8- or 16-bit unsigned)", path)
     return np.ascontiguousarray(img)
 
 
-def _check_pixels(path, height, width, max_pixels):
+def check_pixels(path, height, width, max_pixels):
     if max_pixels is not None and height * width > max_pixels:
         raise RiverbedError(
             f"image is {height}x{width} = {height * width} pixels, more than the limit {max_pixels}; "
@@ -117,7 +115,7 @@ def _read_rasterio(path, max_pixels, required):
             with rasterio.open(path) as ds:
                 if not required and ds.colorinterp[0] == ColorInterp.palette:
                     return None  # OpenCV applies the colour table; rasterio would give the indices
-                _check_pixels(path, ds.height, ds.width, max_pixels)
+                check_pixels(path, ds.height, ds.width, max_pixels)
                 # 1 band: grey; 2: grey + alpha; 3: RGB; 4+: RGB + alpha/NIR/...
                 bands = [1] if ds.count < 3 else [1, 2, 3]
                 data = ds.read(bands)

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field, fields, replace
 
 from ..errors import RiverbedError
 from ..settings import (
+    MAX_PIXELS,
     Setting,
     SettingError,
     auto_or,
@@ -40,7 +41,6 @@ GUIDE_STAGES = ("aggregated", "initial")
 # Defaults of the run settings (tiling, range, input size), shared by match_tiled and the command line.
 TILE_DEFAULT = "auto"
 OVERLAP_DEFAULT = 128
-MAX_PIXELS = 200_000_000
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,163 @@
+"""``match_files``: ``riverbed match`` as a library call on files: read, match (whole or in tiles), write.
+
+Inputs are checked before any work, outputs written to a temporary name and renamed; TIFF inputs are read by
+windows, and a tiled match into a ``.tif`` streams its tiles into the file (the whole map is never in memory).
+"""
+
+import logging
+import os
+
+import numpy as np
+
+from ..errors import RiverbedError
+from ..io.atomic import atomic_output, check_output
+from ..io.disparity import disparity_format, read_disparity, write_disparity
+from ..io.images import check_pair, read_image
+from ..io.windowed import TiffSink, WindowedRaster, is_tiff, sparse_points_any
+from ..matching.pipeline import disparity_range_from_sparse, match_pair, warm_up
+from ..matching.registry import get_guide
+from ..products.visualize import colorize_disparity, write_png
+from .tiles import match_tiled, plan_tiles
+
+log = logging.getLogger(__name__)
+
+
+def check_tile_option(tile, overlap):
+    """``--tile`` as ``"auto"`` or an int (0: never tile; else >= 16 px) and ``--overlap`` >= 0, or RiverbedError."""
+    tile = str(tile)
+    if tile != "auto" and not (tile.isdigit() and (int(tile) == 0 or int(tile) >= 16)):
+        raise RiverbedError(f"--tile must be auto, 0 or a size of at least 16 px, not '{tile}'")
+    if overlap < 0:
+        raise RiverbedError(f"--overlap must be >= 0, got {overlap}")
+    return tile if tile == "auto" else int(tile)
+
+
+def open_inputs(left, right, sparse, sparse_scale, max_pixels):
+    """Images and sparse map: TIFFs as windowed rasters (read tile by tile), other formats read whole."""
+    srcs = []
+    for path in (left, right):
+        if os.path.isfile(path) and is_tiff(path):
+            src = WindowedRaster(path, "image")
+            if src.shape[0] * src.shape[1] > max_pixels:
+                raise RiverbedError(f"image has {src.shape[0] * src.shape[1]} pixels, more than --max-pixels "
+                                    f"{max_pixels}", path)
+        else:
+            src = read_image(path, max_pixels)
+        srcs.append(src)
+    if srcs[0].shape[:2] != srcs[1].shape[:2]:
+        if isinstance(srcs[0], np.ndarray) and isinstance(srcs[1], np.ndarray):
+            check_pair(srcs[0], srcs[1], left, right)
+        raise RiverbedError(f"left and right images differ in size: {srcs[0].shape[0]}x{srcs[0].shape[1]} vs "
+                            f"{srcs[1].shape[0]}x{srcs[1].shape[1]} (height x width; left image {left})", right)
+    sparse_src = None
+    if sparse:
+        if sparse_scale is None and os.path.isfile(sparse) and is_tiff(sparse):
+            sparse_src = WindowedRaster(sparse, "disparity")
+        else:
+            sparse_src = read_disparity(sparse, scale=sparse_scale)
+        H, W = srcs[0].shape[:2]
+        if sparse_src.shape[:2] != (H, W):
+            raise RiverbedError(f"sparse map is {sparse_src.shape[1]}x{sparse_src.shape[0]} but the images are "
+                                f"{W}x{H} (WxH)", sparse)
+    return srcs[0], srcs[1], sparse_src
+
+
+def _range_for_plan(sparse_src, min_disp, max_disp):
+    """The global range the tiling is planned for (the matcher resolves it again the same way)."""
+    if min_disp is not None and max_disp is not None:
+        return min_disp, max_disp
+    _, _, vals = sparse_points_any(sparse_src)
+    if vals.size == 0:
+        return None  # match_pair reports the empty map
+    lo, hi = disparity_range_from_sparse(vals)
+    return (lo if min_disp is None else min_disp), (hi if max_disp is None else max_disp)
+
+
+def match_files(left, right, output, config, sparse=None, sparse_scale=None, min_disp=None, max_disp=None,
+                max_pixels=None, tile="auto", overlap=128, lidar_range=True, color_png=None, overwrite=False,
+                progress=None):
+    """Match the files ``left`` (reference) and ``right`` into the disparity file ``output``.
+
+    ``config`` is a :class:`~riverbed_cli.matching.config.MatchConfig`; ``tile`` ``"auto"``, 0 (never) or a side
+    in px (:func:`~riverbed_cli.scale.tiles.plan_tiles`); ``progress(n_total)`` is called once with the number of
+    steps and returns a callable advanced after each (or None). Returns the ``--json`` summary (a dict).
+    """
+    disparity_format(output)  # refuse what cannot be written, or would clobber, before any work
+    check_output(output, overwrite)
+    if color_png:
+        if not color_png.lower().endswith(".png"):
+            raise RiverbedError("colour preview must be a .png file", color_png)
+        check_output(color_png, overwrite)
+    guide = get_guide(config.guide)
+    if guide.needs_sparse and not sparse:
+        raise RiverbedError(f"--guide {config.guide} needs --sparse")
+    if (min_disp is None or max_disp is None) and not sparse:
+        if max_disp is None:
+            raise RiverbedError("give --max-disp (and --min-disp) or --sparse to derive the disparity range from")
+        min_disp = 0
+    tile = check_tile_option(tile, overlap)
+    left_src, right_src, sparse_src = open_inputs(left, right, sparse, sparse_scale, max_pixels)
+    H, W = left_src.shape[:2]
+    rng = _range_for_plan(sparse_src, min_disp, max_disp) if tile != 0 else None
+    # the same tiling rule as blocks: untiled when the whole range fits, else tiles sized for the widest LiDAR range
+    plan = plan_tiles(H, W, sparse_src, rng[0], rng[1], tile, overlap, lidar_range) if rng is not None else None
+    warm_up(config.matcher, (config.guide,))  # load the compiled kernels now: start-up, not matching time
+    if plan is not None and plan.tiled:
+        return _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, plan.size, overlap,
+                            lidar_range, output, color_png, overwrite, progress)
+
+    step = progress(3) if progress else None
+    left_img, right_img = (np.asarray(s[:, :]) if isinstance(s, WindowedRaster) else s for s in (left_src, right_src))
+    sparse_map = sparse_src[:, :] if isinstance(sparse_src, WindowedRaster) else sparse_src
+    if step:
+        step()
+    try:
+        result = match_pair(left_img, right_img, sparse_map, min_disp, max_disp, config)
+    except RiverbedError as e:
+        # Name the file the problem comes from when it is the sparse map.
+        if sparse and "sparse" in str(e) and e.path is None:
+            raise RiverbedError(str(e), sparse) from None
+        raise
+    if step:
+        step()
+    info = result.info
+    tags = {"riverbed_matcher": config.matcher, "riverbed_guide": config.guide, "riverbed_window": info["window"],
+            "riverbed_d_min": info["d_min"], "riverbed_d_max": info["d_max"],
+            "riverbed_lidar_share": f"{info['lidar_share']:.6f}"}
+    write_disparity(output, result.disparity, overwrite=overwrite, tags=tags)
+    if color_png:
+        write_png(color_png, colorize_disparity(result.disparity), overwrite=overwrite)
+    if step:
+        step()
+    log.info("%s: %dx%d, d in [%d, %d], guide %s, %.3f s", output, *info["size"], info["d_min"], info["d_max"],
+             config.guide, info["seconds"])
+    return {"output": str(output), **info.to_dict()}
+
+
+def _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, size, overlap, lidar_range, output,
+                 color_png, overwrite, progress):
+    H, W = left_src.shape[:2]
+    n_tiles = -(-H // size) * -(-W // size)
+    step = progress(n_tiles) if progress else None
+    advance = (lambda n: step()) if step else None
+    if output.lower().endswith((".tif", ".tiff")):
+        # Stream tiles into the GeoTIFF: the whole disparity map is never in memory.
+        with atomic_output(output, overwrite) as tmp, TiffSink(tmp, H, W) as sink:
+            result = match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, size, overlap,
+                                 lidar_range, progress=advance, out=sink)
+            sink.update_tags(riverbed_guide=config.guide, riverbed_window=result.info["window"],
+                             riverbed_tiles=result.info["tiles"])
+        disp = None
+    else:
+        result = match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, size, overlap,
+                             lidar_range, progress=advance)
+        disp = result.disparity
+        write_disparity(output, disp, overwrite=overwrite, tags={"riverbed_guide": config.guide})
+    if color_png:
+        if disp is None:
+            step_px = max(1, max(H, W) // 4096)  # a preview: read the written map back decimated
+            disp = read_disparity(output)[::step_px, ::step_px]
+        write_png(color_png, colorize_disparity(disp), overwrite=overwrite)
+    info = result.info.to_dict()
+    log.info("%s: %dx%d in %d tiles of %d px, %.1f s", output, W, H, info["tiles"], size, info["seconds"])
+    return {"output": str(output), **info}
