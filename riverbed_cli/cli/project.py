@@ -11,7 +11,10 @@ from ..geometry import visibility as vis
 from ..geometry.projection import NOISE_CLASSES, OUTLIERS, SIDES, VISIBILITY, image_shape, project_cloud
 from ..io.atomic import check_output
 from ..io.disparity import disparity_format, write_disparity
+from ..io.lidar import lidar_info
 from ..io.pairfile import load_pairfile, load_registration
+from ..matching.config import MatchConfig
+from ..matching.guides.riverbed import riverbed_window
 from .options import input_path, json_opt, output_opt, overwrite_opt, print_json, progress_enabled
 
 log = logging.getLogger(__name__)
@@ -86,9 +89,6 @@ def project_cmd(cloud, pair, output, registration, classes, drop_classes, outlie
     except RiverbedError as e:
         raise RiverbedError(str(e), pair if e.path is None else None) from None
     reg = load_registration(registration) if registration else None
-
-    from ..io.lidar import lidar_info
-
     total = lidar_info(cloud).point_count
     with tqdm(total=total, desc="project", unit="pt", unit_scale=True, disable=not progress_enabled(),
               leave=False) as bar:
@@ -96,6 +96,7 @@ def project_cmd(cloud, pair, output, registration, classes, drop_classes, outlie
                                       drop_classes=drop_classes or (), outliers=outliers, side=side,
                                       visibility=visibility, footprint=footprint, crs=crs, shape=shape,
                                       chunk_size=chunk_size, progress=bar.update)
+    stats.window = riverbed_window(stats.lidar_share, MatchConfig())  # the window riverbed match would use
     keys = ("points_read", "filtered", "behind_camera", "outside", "row_offset", "occluded", "kept")
     counts = {k: stats[k] for k in keys}
     tags = {"riverbed_lidar_share": f"{stats['lidar_share']:.6f}", "riverbed_window": stats["window"],
@@ -105,7 +106,7 @@ def project_cmd(cloud, pair, output, registration, classes, drop_classes, outlie
         tags["riverbed_crs"] = stats["crs"]
     write_disparity(output, sparse, overwrite=overwrite, tags=tags)
 
-    summary = {"output": str(output), **stats}
+    summary = {"output": str(output), **stats.to_dict()}
     if as_json:
         print_json(summary)
     else:

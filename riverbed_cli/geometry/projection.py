@@ -26,15 +26,16 @@ in the right view, or kept.
 import logging
 import math
 import time
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
 
 from ..errors import RiverbedError
-from ..matching.guidance import auto_window, lidar_share
-from ..matching.pipeline import MatchParams
+from ..records import RecordMapping
 from . import visibility as vis
 from .cameras import as_matrix, check_registration
+from .coverage import lidar_share
 from .outliers import SOR_K, SOR_SIGMA, sor_inliers_image
 
 log = logging.getLogger(__name__)
@@ -50,6 +51,37 @@ MAX_ROW_OFFSET = 1.0
 #: ``np.empty`` does not touch the pages, so an allocation larger than what is used costs no memory.
 _INITIAL_SLOTS = 1 << 26
 
+
+@dataclass
+class ProjectionStats(RecordMapping):
+    """What :func:`project_cloud` did with the points (counts add up to ``points_read``).
+
+    ``filtered``: dropped by class and as outliers; ``behind_camera``, ``outside`` (of either image),
+    ``row_offset`` (right-image row too far from the left one's); ``occluded``: a nearer point on the same pixel,
+    hidden in the left or right image; ``kept``: pixels with a disparity. ``lidar_share``: their share of the
+    image (:func:`~riverbed_cli.geometry.coverage.lidar_share`); ``window``: the riverbed window that share gives,
+    set by callers that match (None here); ``d_range``: [min, max] disparity (px); ``size``: [width, height];
+    ``row_offset_px``: median and max row offset at the kept points, for pairs not exactly rectified; ``crs``;
+    ``seconds`` and ``stage_seconds``.
+    """
+
+    points_read: int
+    filtered: dict
+    behind_camera: int
+    outside: int
+    row_offset: int
+    occluded: dict
+    kept: int
+    lidar_share: float
+    window: int = None
+    d_range: list = None
+    size: list = None
+    row_offset_px: dict = None
+    crs: str = None
+    seconds: float = 0.0
+    stage_seconds: dict = field(default_factory=dict)
+
+    _optional = ("row_offset_px",)
 
 
 @njit(cache=True)
@@ -336,25 +368,22 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
     sparse[rows[visible], cols[visible]] = d[visible].astype(np.float32)
     kept = int(visible.sum())
     share = lidar_share(sparse)
-    window = auto_window(share, MatchParams.window_target)
     dv = d[visible]
-    stats = {
-        "points_read": n_read, "filtered": {"class": n_class, "outliers": n_outliers},
-        "behind_camera": n_behind, "outside": n_outside, "row_offset": n_row,
-        "occluded": {"same_pixel": same_pixel, "left": n_occ_left, "right": n_occ_right},
-        "kept": kept, "lidar_share": share, "window": window,
-        "d_range": [float(dv.min()), float(dv.max())] if kept else None, "size": [W, H],
-    }
+    stats = ProjectionStats(
+        points_read=n_read, filtered={"class": n_class, "outliers": n_outliers}, behind_camera=n_behind,
+        outside=n_outside, row_offset=n_row,
+        occluded={"same_pixel": same_pixel, "left": n_occ_left, "right": n_occ_right}, kept=kept,
+        lidar_share=share, d_range=[float(dv.min()), float(dv.max())] if kept else None, size=[W, H])
     if not pair.exactly_rectified and kept:
         dy = np.abs(yr - yl)[visible]
-        stats["row_offset_px"] = {"median": float(np.median(dy)), "max": float(dy.max())}
+        stats.row_offset_px = {"median": float(np.median(dy)), "max": float(dy.max())}
         log.warning("the pair's right camera is off the baseline: right-image rows differ by %.3f px "
                     "(median, max %.3f) at the kept points; %d points off by more than %.1f px dropped",
                     float(np.median(dy)), float(dy.max()), n_row, MAX_ROW_OFFSET)
-    stats["crs"] = cloud_crs.to_string() if cloud_crs is not None else pair.crs
+    stats.crs = cloud_crs.to_string() if cloud_crs is not None else pair.crs
     t_end = time.perf_counter()
-    stats["seconds"] = t_end - t0
-    stats["stage_seconds"] = {"stream": t_stream - t0, "outliers": t_sor - t_stream,
+    stats.seconds = t_end - t0
+    stats.stage_seconds = {"stream": t_stream - t0, "outliers": t_sor - t_stream,
                               "visibility": t_vis - t_sor, "share": t_end - t_vis}
     total = n_class + n_outliers + n_behind + n_outside + n_row + same_pixel + n_occ_left + n_occ_right + kept
     assert total == n_read, (total, n_read)

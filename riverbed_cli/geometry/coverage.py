@@ -1,0 +1,34 @@
+"""Where a sparse disparity map has LiDAR: its points and their share of the image (the LiDAR density ``p``)."""
+
+import cv2
+import numpy as np
+
+
+def lidar_points(sparse):
+    """Rows, columns and disparities (float64) of the valid (finite) pixels of a sparse disparity map."""
+    rows, cols = np.nonzero(np.isfinite(sparse))
+    return rows.astype(np.int64), cols.astype(np.int64), sparse[rows, cols].astype(np.float64)
+
+
+def lidar_share(sparse):
+    """Share ``p`` of pixels carrying LiDAR inside the area the LiDAR covers (its convex hull), in [0, 1]."""
+    rows, cols, _ = lidar_points(sparse)
+    return lidar_share_of_points(rows, cols, sparse.shape)
+
+
+def lidar_share_of_points(rows, cols, shape):
+    """:func:`lidar_share` from the pixel coordinates of the LiDAR points of an image of ``shape``."""
+    n = len(rows)
+    if n == 0:
+        return 0.0
+    area = float(shape[0] * shape[1])
+    if n >= 3:
+        hull = cv2.convexHull(np.stack([cols, rows], axis=1).astype(np.int64).astype(np.int32))[:, 0, :]
+        # Pixels in the closed hull by Pick's theorem (A + B/2 + 1, B the lattice points on the boundary): exact,
+        # and no image-sized mask.
+        edges = np.abs(np.diff(np.vstack([hull, hull[:1]]), axis=0))
+        boundary = float(np.gcd(edges[:, 0], edges[:, 1]).sum())
+        x, y = hull[:, 0].astype(np.float64), hull[:, 1].astype(np.float64)
+        twice = abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+        area = max(twice / 2.0 + boundary / 2.0 + 1.0, float(n))
+    return n / area
