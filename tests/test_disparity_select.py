@@ -55,9 +55,9 @@ def test_median_equals_opencv_without_nan():
     disp = rng.random((20, 30)).astype(np.float32) * 50
     np.testing.assert_array_equal(median_filter(disp, 3), cv2.medianBlur(disp, 3))
     # the NaN-aware kernel agrees with OpenCV where there is nothing to ignore
-    from riverbed_cli.matching.disparity import _median_kernel
-    np.testing.assert_array_equal(_median_kernel(disp, 1), cv2.medianBlur(disp, 3))
-    np.testing.assert_array_equal(_median_kernel(disp, 2), cv2.medianBlur(disp, 5))
+    from riverbed_cli.matching.disparity import median_kernel
+    np.testing.assert_array_equal(median_kernel(disp, 1), cv2.medianBlur(disp, 3))
+    np.testing.assert_array_equal(median_kernel(disp, 2), cv2.medianBlur(disp, 5))
 
 
 def test_median_ignores_nan_neighbours():

@@ -7,7 +7,7 @@ import click
 from tqdm import tqdm
 
 from ..errors import RiverbedError
-from ..matching.pipeline import GUIDES, MATCHERS
+from ..matching.config import GUIDE_NAMES as GUIDES, MATCHER_NAMES as MATCHERS
 from ..products import benchmark as bm
 from .options import json_opt, print_json, progress_enabled
 

@@ -82,7 +82,8 @@ def select_disparity(aggregated, d_min, subpixel=True, lr_check=False, lr_thresh
 
 
 @njit(cache=True, parallel=True)
-def _median_kernel(disp, r):
+def median_kernel(disp, r):
+    """NaN-aware median of ``disp`` over ``(2 r + 1)^2`` windows, border replicated (:func:`median_filter`)."""
     H, W = disp.shape
     out = np.empty_like(disp)
     for y in prange(H):
@@ -128,4 +129,4 @@ def median_filter(disp, size=3):
     disp = np.ascontiguousarray(disp, dtype=np.float32)
     if size in (3, 5) and not np.isnan(disp).any():
         return cv2.medianBlur(disp, size)
-    return _median_kernel(disp, size // 2)
+    return median_kernel(disp, size // 2)

@@ -1,0 +1,59 @@
+"""The package's architecture, held by tests: layering, public names across modules, imports at module top, a
+``riverbed --help`` that loads no Numba kernel, and registries that agree with the settings table."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+from layout_check import summary
+
+from riverbed_cli.matching import pipeline  # noqa: F401  (fills the registries)
+from riverbed_cli.matching.config import GUIDE_NAMES, MATCH_SETTINGS, MATCHER_NAMES, MatchConfig
+from riverbed_cli.matching.registry import GUIDES, MATCHERS
+
+PACKAGE = Path(__file__).resolve().parents[1] / "riverbed_cli"
+
+#: Function-level imports that are there on purpose (not to dodge a cycle), with the reason.
+ALLOWED_LOCAL_IMPORTS = {
+    "riverbed_cli.cli.match": "the matching stack loads when the command runs, so `riverbed match --help` stays fast",
+    "riverbed_cli.scale.block.runner": "dask.distributed is an optional dependency (the dask extra)",
+}
+
+
+def test_no_module_imports_from_a_higher_layer():
+    assert summary(PACKAGE)["higher_layer_imports"] == []
+
+
+def test_no_private_name_is_imported_from_another_module():
+    assert summary(PACKAGE)["private_imports"] == []
+
+
+def test_imports_sit_at_module_top():
+    local = [loc for loc in summary(PACKAGE)["function_level_imports"] if loc.split(":")[0] not in
+             ALLOWED_LOCAL_IMPORTS]
+    assert local == []
+
+
+def test_no_module_over_600_lines():
+    assert summary(PACKAGE)["over_600_lines"] == []
+
+
+def _imported_by(code):
+    out = subprocess.run([sys.executable, "-c", code + "\nimport sys\nprint('\\n'.join(sorted(sys.modules)))"],
+                         capture_output=True, text=True, check=True).stdout.split()
+    return [m for m in out if m.startswith(("numba", "riverbed_cli.matching.census", "riverbed_cli.matching.sgm"))]
+
+
+def test_help_loads_no_numba_kernel():
+    run = "from riverbed_cli.cli.main import cli\ntry:\n    cli([{args}])\nexcept SystemExit:\n    pass"
+    assert _imported_by(run.format(args="'--help'")) == []
+    assert _imported_by(run.format(args="'match', '--help'")) == []
+    assert _imported_by("import riverbed_cli") == []
+
+
+def test_registries_agree_with_the_settings_table():
+    assert set(MATCHERS) == set(MATCHER_NAMES)
+    assert set(GUIDES) == set(GUIDE_NAMES)
+    assert {s.name for s in MATCH_SETTINGS if s.group is not None} == set(MatchConfig().to_settings())
+    names = [s.name for s in MATCH_SETTINGS]
+    assert len(names) == len(set(names))
