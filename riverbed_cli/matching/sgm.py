@@ -48,7 +48,7 @@ def _path_step(prev, cur, c, acc, P1, jump, mp):
 
 
 @njit(cache=True, boundscheck=False)
-def _path_start(cur, c, acc):
+def path_start(cur, c, acc):
     m = np.int16(_SENTINEL)
     for d in range(c.shape[0]):
         v = np.int16(c[d])
@@ -79,7 +79,7 @@ def _sgm_pass(cost, out, dxs, dys, P1, P2, flip):
                 px = xx - dxs[k]
                 py = yy - dys[k]
                 if px < 0 or px >= W or py < 0:
-                    m = _path_start(L[k, slot, xx], c, acc)
+                    m = path_start(L[k, slot, xx], c, acc)
                 else:
                     mp = Lmin[k, py % 3, px]
                     m = _path_step(L[k, py % 3, px], L[k, slot, xx], c, acc, P1, np.int16(mp + P2), mp)

@@ -1,0 +1,179 @@
+"""AD-Census stage 5, scanline optimisation (:func:`scanline_optimize`).
+
+4 paths (left/right/up/down) of the SGM recursion with penalties from colour differences along the path,
+``D1 = D_c(p, p - r)`` in the left image and ``D2 = D_c(p - d, p - d - r)`` in the right: ``(P1, P2) = (Pi1, Pi2)`` if
+both are below ``tau_so``, divided by 4 if one is, by 10 if neither (paper: ``Pi1 = 1.0, Pi2 = 3.0, tau_so = 15``;
+``D2 = D1`` where the right pixels leave the image). The result is the *sum* of the four paths (the paper's mean
+times 4: same minimum, same sub-pixel vertex).
+"""
+
+import numpy as np
+from numba import njit, prange
+
+from ...errors import RiverbedError
+from ..sgm import path_start
+from .cost import u8_image
+
+_SENTINEL = 16384
+
+
+@njit(cache=True, inline="always")
+def _colour_dist(img, y0, x0, y1, x1):
+    m = 0
+    for ch in range(img.shape[2]):
+        v = abs(np.int32(img[y0, x0, ch]) - np.int32(img[y1, x1, ch]))
+        if v > m:
+            m = v
+    return m
+
+
+@njit(cache=True, inline="always")
+def _so_step(prev, cur, c, acc, p1, p2, mp):
+    m = np.int16(_SENTINEL)
+    for d in range(c.shape[0]):
+        v = min(prev[d + 1], min(prev[d], prev[d + 2]) + p1[d])
+        v = min(v, mp + p2[d])
+        v = np.int16(c[d] + v - mp)
+        cur[d + 1] = v
+        acc[d] += v
+        m = min(m, v)
+    return m
+
+
+_so_start = path_start  # a path starts with its own cost, as in SGM
+
+
+@njit(cache=True, inline="always")
+def _row_penalties(flags, bad_l, p1tab, p2tab, P1, P2, pad):
+    # P1/P2 along a reversed, padded row of right-image flags (0: colour difference < tau_so, 1: >= tau_so,
+    # 2: unknown, the right pixel or its predecessor leaves the image, then D2 = D1), for a left flag bad_l.
+    # Reversed, so that the D disparities of a pixel read a contiguous slice (disparity d at x reads x - d).
+    W = flags.shape[0]
+    for j in range(P1.shape[0]):
+        xr = W - 1 - (j - pad)
+        f = flags[xr] if (xr >= 0 and xr < W) else np.int8(2)
+        cat = bad_l + (bad_l if f == 2 else f)
+        P1[j] = p1tab[cat]
+        P2[j] = p2tab[cat]
+
+
+@njit(cache=True)
+def _so_pass(cost, out, left, right, d_min, p1tab, p2tab, tau, flip):
+    # Two of the four paths in one raster pass: forward (flip False) runs left->right and top->bottom, the reverse
+    # pass right->left and bottom->top.
+    H, W, D = cost.shape
+    step = -1 if flip else 1
+    Lh = np.full((2, D + 2), np.int16(_SENTINEL), dtype=np.int16)
+    Lv = np.full((2, W, D + 2), np.int16(_SENTINEL), dtype=np.int16)
+    mv = np.zeros((2, W), dtype=np.int16)
+    acc = np.empty(D, dtype=np.int16)
+    pad = D + abs(d_min) + 1
+    n = W + 2 * pad
+    # [path (0 horizontal, 1 vertical), left flag (0/1)] -> reversed padded penalty rows
+    P1 = np.empty((2, 2, n), dtype=np.int16)
+    P2 = np.empty((2, 2, n), dtype=np.int16)
+    fh = np.empty(W, dtype=np.int8)
+    fv = np.empty(W, dtype=np.int8)
+    bh = np.empty(W, dtype=np.int8)
+    bv = np.empty(W, dtype=np.int8)
+    for yy in range(H):
+        y = H - 1 - yy if flip else yy
+        py = y - step
+        vs = yy % 2
+        vp = 1 - vs
+        for x in range(W):
+            qx = x - step
+            if qx < 0 or qx >= W:
+                fh[x] = 2
+                bh[x] = 0
+            else:
+                fh[x] = 1 if _colour_dist(right, y, x, y, qx) >= tau else 0
+                bh[x] = 1 if _colour_dist(left, y, x, y, qx) >= tau else 0
+            if yy == 0:
+                fv[x] = 2
+                bv[x] = 0
+            else:
+                fv[x] = 1 if _colour_dist(right, y, x, py, x) >= tau else 0
+                bv[x] = 1 if _colour_dist(left, y, x, py, x) >= tau else 0
+        for b in range(2):
+            _row_penalties(fh, b, p1tab, p2tab, P1[0, b], P2[0, b], pad)
+            _row_penalties(fv, b, p1tab, p2tab, P1[1, b], P2[1, b], pad)
+        hs = 0
+        mh = np.int16(0)
+        for xx in range(W):
+            x = W - 1 - xx if flip else xx
+            c = cost[y, x]
+            j0 = W - 1 - (x - d_min) + pad  # reversed index of x_r = x - d_min (disparity index 0)
+            acc[:] = 0
+            if xx == 0:
+                mh = _so_start(Lh[hs], c, acc)
+            else:
+                b = bh[x]
+                mh = _so_step(Lh[1 - hs], Lh[hs], c, acc, P1[0, b, j0:j0 + D], P2[0, b, j0:j0 + D], mh)
+            hs = 1 - hs
+            if yy == 0:
+                mv[vs, x] = _so_start(Lv[vs, x], c, acc)
+            else:
+                b = bv[x]
+                mv[vs, x] = _so_step(Lv[vp, x], Lv[vs, x], c, acc, P1[1, b, j0:j0 + D], P2[1, b, j0:j0 + D],
+                                     mv[vp, x])
+            o = out[y, x]
+            for d in range(D):
+                o[d] = np.uint16(acc[d])
+
+
+@njit(cache=True, parallel=True)
+def _so_two_passes(cost, fwd, bwd, left, right, d_min, p1tab, p2tab, tau):
+    for t in prange(2):
+        if t == 0:
+            _so_pass(cost, fwd, left, right, d_min, p1tab, p2tab, tau, False)
+        else:
+            _so_pass(cost, bwd, left, right, d_min, p1tab, p2tab, tau, True)
+
+
+def so_penalties(pi1, pi2, scale):
+    """``(P1, P2)`` tables (int16) indexed by the number of colour differences ``>= tau_so`` (0, 1 or 2)."""
+    p1 = np.array([round(scale * pi1), round(scale * pi1 / 4), round(scale * pi1 / 10)], dtype=np.int16)
+    p2 = np.array([round(scale * pi2), round(scale * pi2 / 4), round(scale * pi2 / 10)], dtype=np.int16)
+    return p1, p2
+
+
+def scanline_optimize(cost, left, right, d_min, pi1=1.0, pi2=3.0, tau_so=15, scale=256, max_cost=None, out=None):
+    """Scanline optimisation over 4 paths (module docstring).
+
+    Parameters
+    ----------
+    cost : (H, W, D) uint16
+        Aggregated (possibly guided) cost in units of ``1 / scale``.
+    left, right : (H, W, C) uint8
+        The images (colour differences along the paths).
+    pi1, pi2 : float
+        Penalties in the paper's cost units (``P = round(scale * pi / {1, 4, 10})``).
+    out : (fwd, bwd), optional
+        Two uint16 volumes of the shape of ``cost`` to write into (e.g. the aggregation's scratch volumes).
+
+    Returns
+    -------
+    (fwd, bwd) : two (H, W, D) uint16
+        Sums of the left->right + top->bottom paths and of the right->left + bottom->top paths; their sum is the
+        optimised cost.
+    """
+    left = u8_image(left, "left")
+    right = u8_image(right, "right")
+    if cost.ndim != 3 or cost.dtype not in (np.uint8, np.uint16) or cost.shape[:2] != left.shape[:2]:
+        raise RiverbedError(f"cost volume must be uint8/uint16 (H, W, D) of the image size, got {cost.shape}")
+    p1, p2 = so_penalties(pi1, pi2, scale)
+    if not 0 <= p1[0] <= p2[0]:
+        raise RiverbedError(f"scanline penalties need 0 <= Pi1 <= Pi2 (got {pi1}, {pi2})")
+    if max_cost is None:
+        max_cost = int(cost.max(initial=0))
+    if int(max_cost) + int(p2[0]) >= _SENTINEL:
+        raise RiverbedError(f"scanline optimisation: max cost {max_cost} + P2 {p2[0]} does not fit int16 paths")
+    cost = np.ascontiguousarray(cost)
+    if out is not None and all(o.shape == cost.shape and o.dtype == np.uint16 and o is not cost for o in out):
+        fwd, bwd = out
+    else:
+        fwd = np.empty(cost.shape, dtype=np.uint16)
+        bwd = np.empty(cost.shape, dtype=np.uint16)
+    _so_two_passes(cost, fwd, bwd, left, right, int(d_min), p1, p2, int(tau_so))
+    return fwd, bwd
