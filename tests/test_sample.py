@@ -205,7 +205,7 @@ def test_laz_reads_back_with_crs_classes_and_scan_pattern(written, block):
 
 def test_lidar_gaps_on_water_and_dark_roofs(block):
     lid = block.lidar
-    mats = S._materials_at(block.scene, lid["xyz"])
+    mats = S.materials_at(block.scene, lid["xyz"])
     first = (lid["return_number"] == 1) & (lid["kind"] == 0)
     area = np.bincount(block.scene.material.ravel(), minlength=11) * block.scene.cell**2
     density = np.bincount(mats[first], minlength=11) / np.maximum(area, 1e-9)
