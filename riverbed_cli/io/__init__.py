@@ -1,1 +1,2 @@
-"""Reading and writing files: images, disparity maps, and the atomic-output helper."""
+"""Reading and writing files: images, disparity maps, LiDAR (LAS/LAZ/COPC, KITTI .bin), pair files, GeoTIFFs,
+point clouds, rasters read and written window by window (windowed.py), and the atomic-output helper."""

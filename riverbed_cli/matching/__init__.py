@@ -1,8 +1,20 @@
-"""Stereo matching, split by stage as in CNES Pandora.
+"""Stereo matching, split by stage as in CNES Pandora; matchers and guides chosen by name from registries.
 
-census.py   matching cost (census transform, Hamming cost volume)
-guidance.py LiDAR guidance of the cost volume (Gauss enhancement, riverbed enhancement)
-sgm.py      Semi-Global Matching aggregation (4, 8 or 16 paths)
-disparity.py disparity selection and refinement (winner-takes-all, sub-pixel, median, left-right check)
-pipeline.py match_pair: the stages in order, with timings
+Stages (plain functions on numpy arrays; volumes ``H x W x D``, ``d = d_min + i``):
+
+census.py        matching cost: census transform, Hamming cost volume
+guidance.py      LiDAR guidance kernels: Gauss enhancement, riverbed enhancement (eqs. 2, 3, 5, 6)
+diffusion.py     diffusion guidance (Shivakumar et al. 2019)
+riverbed_plus.py riverbed+ guidance (riverbed through cross-based support regions)
+sgm.py           aggregation: Semi-Global Matching (4, 8 or 16 paths)
+disparity.py     selection and refinement: winner-takes-all, sub-pixel, left-right check, median
+adcensus/        the AD-Census matcher's stages: cost, cross aggregation, scanline optimisation, refinement
+
+Assembly:
+
+config.py        the settings table (MATCH_SETTINGS) and the frozen, nested MatchConfig
+registry.py      MATCHERS and GUIDES, filled by register_matcher / register_guide
+matchers/        sgm, adcensus: each runs its stages on a CostVolume (volume.py) with a guide
+guides/          none, gauss, riverbed, diffusion, riverbed+: what each needs and how it modulates the volume
+pipeline.py      match_pair: checks the inputs, runs the guide's preparation and the matcher; results.py
 """

@@ -1,1 +1,2 @@
-"""Products made from disparity maps: evaluation against ground truth and visualisations (later: DSMs)."""
+"""Products made from disparity maps: DSMs and point clouds, evaluation against ground truth (disparity and DSM),
+the benchmark protocol, simulated LiDAR, visualisations."""
