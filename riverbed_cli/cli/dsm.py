@@ -10,6 +10,7 @@ from ..errors import RiverbedError
 from ..io.atomic import check_output
 from ..io.disparity import read_disparity
 from ..io.images import read_image
+from ..io.lidar import lidar_info, resolve_crs
 from ..io.pairfile import load_pairfile, load_registration
 from ..io.pointcloud import check_pointcloud_path, write_points
 from ..io.raster import parse_creation_options, write_geotiff
@@ -84,8 +85,6 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
     if crs is None:
         crs = next((p.crs for _, p, _ in sources if p.crs), None)
         if crs is None and clouds:
-            from ..io.lidar import lidar_info, resolve_crs
-
             found = resolve_crs(lidar_info(clouds[0]))
             crs = found.to_wkt() if found is not None else None
 

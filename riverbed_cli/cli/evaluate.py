@@ -7,6 +7,7 @@ import click
 from ..errors import RiverbedError
 from ..io.atomic import check_output
 from ..io.disparity import read_disparity
+from ..products.dsm_compare import compare_dsm, difference_map, read_dsm_on_grid
 from ..products.evaluate import evaluate_disparity, evaluation_mask
 from ..products.visualize import error_map, write_png
 from .options import input_path, json_opt, overwrite_opt, print_json
@@ -104,8 +105,6 @@ def evaluate_cmd(disp, gt, dsm_mode, thresholds, exclude, max_disp, gt_scale, di
 
 
 def _evaluate_dsm(dsm_path, ref_path, thresholds, as_json, error_png, overwrite):
-    from ..products.dsm_compare import compare_dsm, difference_map, read_dsm_on_grid
-
     try:
         ts = tuple(float(t) for t in thresholds.split(",") if t.strip())
     except ValueError:

@@ -5,8 +5,10 @@ from pathlib import Path
 
 import click
 
+from ..errors import RiverbedError
 from ..geometry.cameras import kitti_pair, middlebury_pair
 from ..io.atomic import check_output
+from ..io.images import read_image
 from ..io.pairfile import pair_to_dict, write_pairfile
 from .options import input_path, json_opt, output_opt, overwrite_opt, print_json
 
@@ -15,8 +17,6 @@ log = logging.getLogger(__name__)
 
 def _check_pair_output(output, overwrite):
     if Path(output).suffix.lower() not in (".yaml", ".yml", ".json"):
-        from ..errors import RiverbedError
-
         raise RiverbedError("pair file must end in .yaml, .yml or .json", output)
     check_output(output, overwrite)
 
@@ -78,8 +78,6 @@ def kitti_cmd(calib, output, left, right, as_json, overwrite):
     _check_pair_output(output, overwrite)
     size = {}
     if left:
-        from ..io.images import read_image
-
         h, w = read_image(left).shape[:2]
         size = {"width": w, "height": h}
     pair = kitti_pair(calib, left=Path(left).absolute() if left else None,

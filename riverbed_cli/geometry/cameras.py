@@ -59,7 +59,7 @@ def as_matrix(value, rows, cols, key):
             where = f"row {i + 1} has" if rows > 1 else "got"
             raise RiverbedError(f"{key}: expected {what}, {where} {got}")
         for j, v in enumerate(row):
-            x = _number(v)
+            x = parse_number(v)
             if x is None:
                 raise RiverbedError(f"{key}: entry {_where(i, j, rows)} is not a number: {v!r}")
             if not math.isfinite(x):
@@ -75,7 +75,8 @@ def _where(i, j, rows):
 _NUMBER = re.compile(r"\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\s*|\s*[-+]?(inf|nan)\s*", re.IGNORECASE)
 
 
-def _number(v):
+def parse_number(v):
+    """``v`` as a float when it is a number or a numeric string (``inf``, ``nan`` too); None otherwise, bools too."""
     if isinstance(v, bool):
         return None
     if isinstance(v, (int, float, np.integer, np.floating)):
@@ -336,7 +337,7 @@ def middlebury_pair(calib_path, scale=1.0, left=None, right=None):
     numbers = {}
     for key in ("baseline", "doffs", "width", "height"):
         if key in values:
-            x = _number(values[key])
+            x = parse_number(values[key])
             if x is None or not math.isfinite(x):
                 raise RiverbedError(f"{key}: not a number: {values[key]!r}", path)
             numbers[key] = x

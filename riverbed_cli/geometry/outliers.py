@@ -19,6 +19,9 @@ import math
 
 import numpy as np
 from numba import njit, prange
+from scipy.spatial import cKDTree
+
+from .visibility import disc_offsets
 
 SOR_K = 8
 SOR_SIGMA = 5.0
@@ -40,8 +43,6 @@ def sor_inliers(xyz, depth, k=SOR_K, n_sigma=SOR_SIGMA):
     n_sigma : float
         Threshold in robust standard deviations above the median.
     """
-    from scipy.spatial import cKDTree
-
     xyz = np.asarray(xyz, np.float64)
     n = xyz.shape[0]
     if n <= k + 1:
@@ -129,12 +130,10 @@ def sor_inliers_image(slots, pix, idx0, idx1, shape, xyz, depth, focal, k=SOR_K,
     xyz, depth : (M, 3) and (M,) float64
         Coordinates and depths of all candidate ids.
     """
-    from .visibility import _disc_offsets
-
     n = len(slots)
     if n <= k + 1:
         return np.ones(n, bool)
-    ody, odx, odist = _disc_offsets(SOR_SEARCH_RADIUS)
+    ody, odx, odist = disc_offsets(SOR_SEARCH_RADIUS)
     spacing = _sor_spacing_kernel(np.ascontiguousarray(slots, np.int64), np.ascontiguousarray(pix, np.int64),
                                   idx0, idx1, int(shape[1]), int(shape[0]), xyz, depth, ody, odx, odist,
                                   float(focal), int(k))

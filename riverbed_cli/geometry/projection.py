@@ -30,8 +30,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
+from pyproj import CRS
+from pyproj.exceptions import CRSError
 
 from ..errors import RiverbedError
+from ..io.images import read_image
+from ..io.lidar import iter_lidar, lidar_info, resolve_crs
 from ..records import RecordMapping
 from . import visibility as vis
 from .cameras import as_matrix, check_registration
@@ -183,9 +187,6 @@ def _check_crs(pair, cloud_crs, cloud_path):
     """Refuse a cloud whose CRS differs from the pair's (no reprojection here)."""
     if pair.crs is None or cloud_crs is None:
         return
-    from pyproj import CRS
-    from pyproj.exceptions import CRSError
-
     try:
         pair_crs = CRS.from_user_input(pair.crs)
     except CRSError:
@@ -202,8 +203,6 @@ def image_shape(pair):
         return pair.image_size
     if pair.left is None:
         raise RiverbedError("the pair file gives neither width/height nor a left image to take the size from")
-    from ..io.images import read_image
-
     img = read_image(pair.left)
     return img.shape[:2]
 
@@ -253,8 +252,6 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
         ``match --window auto`` would use), ``d_range``, ``row_offset_px`` (pairs off the baseline), ``crs``,
         ``seconds`` and ``stage_seconds`` (stream: read + project + z-buffer; outliers; visibility; share).
     """
-    from ..io.lidar import iter_lidar, lidar_info, resolve_crs
-
     t0 = time.perf_counter()
     if outliers not in OUTLIERS:
         raise RiverbedError(f"outliers must be one of {', '.join(OUTLIERS)}, got '{outliers}'")

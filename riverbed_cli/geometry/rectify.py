@@ -55,10 +55,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 import yaml
+from pyproj import CRS
+from pyproj.exceptions import CRSError
 
 from ..errors import RiverbedError
+from ..io.atomic import atomic_output, check_output, check_output_folder
+from ..io.images import MAX_PIXELS, read_image, write_png_file
+from ..io.pairfile import write_pairfile
 from ..io.textfiles import parse_yaml, read_text
-from .cameras import PairGeometry, _number, as_matrix
+from .cameras import PairGeometry, as_matrix, parse_number
 
 log = logging.getLogger(__name__)
 
@@ -181,7 +186,7 @@ def _mapping(data, key, allowed, path):
 
 
 def _scalar(value, key, path, positive=False):
-    x = _number(value)
+    x = parse_number(value)
     if x is None:
         raise RiverbedError(f"{key}: expected a number, got {value!r}", path)
     if not math.isfinite(x):
@@ -217,9 +222,6 @@ def _one_of(data, keys, section, path, required=True):
 
 
 def _check_crs(crs, key, path):
-    from pyproj import CRS
-    from pyproj.exceptions import CRSError
-
     if isinstance(crs, int) and not isinstance(crs, bool):
         crs = f"EPSG:{crs}"
     if not isinstance(crs, str) or not crs.strip():
@@ -359,8 +361,6 @@ def orientation_dict(K, R, centre, width, height, dist=None, crs=None, origin=No
 
 def write_orientation(path, data, comment=None, overwrite=False):
     """Write an orientation file (a dict from :func:`orientation_dict`) as YAML, atomically."""
-    from ..io.atomic import atomic_output
-
     head = "".join(f"# {line}\n" for line in (comment or "").splitlines())
     text = head + yaml.safe_dump(data, default_flow_style=None, sort_keys=False, width=200)
     with atomic_output(path, overwrite) as tmp:
@@ -376,8 +376,6 @@ def _pair_frame(left, right):
         if crs is None:
             crs = right.crs
         elif right.crs != crs:
-            from pyproj import CRS
-
             if CRS.from_user_input(right.crs) != CRS.from_user_input(crs):
                 raise RiverbedError(f"crs: {right.crs} differs from the left orientation's {crs}", right.path)
     origin = left.origin
@@ -616,11 +614,6 @@ def rectify_files(left_image, left_orientation, right_image, right_orientation, 
     names and renamed into place only once all are complete; existing outputs are replaced only with
     ``overwrite``. Returns a summary dict (files and sizes, focal length, baseline, rotation, valid shares).
     """
-    from ..io.atomic import atomic_output, check_output, check_output_folder
-    from ..io.images import write_png_file
-    from ..io.images import MAX_PIXELS, read_image
-    from ..io.pairfile import write_pairfile
-
     t0 = time.perf_counter()
     outdir = Path(outdir)
     check_output_folder(outdir)

@@ -21,6 +21,7 @@ import math
 
 import numpy as np
 from numba import njit
+from scipy.spatial import ConvexHull, QhullError
 
 log = logging.getLogger(__name__)
 
@@ -33,7 +34,7 @@ ZBUFFER_MAX_RADIUS = 8
 HPR_GAMMA = 3.5
 
 
-def _disc_offsets(radius):
+def disc_offsets(radius):
     """Pixel offsets ``(dy, dx)`` with ``dy^2 + dx^2 <= radius^2``, sorted by distance; and the distances."""
     r = int(radius)
     dy, dx = np.mgrid[-r:r + 1, -r:r + 1]
@@ -130,7 +131,7 @@ def footprint_radii(rows, cols, disp, shape, k=ZBUFFER_K, tolerance=ZBUFFER_TOLE
     cols = np.ascontiguousarray(cols, np.int64)
     disp = np.ascontiguousarray(disp, np.float64)
     img = _index_image(rows, cols, disp, int(shape[0]), int(shape[1]))
-    ody, odx, odist = _disc_offsets(largest)
+    ody, odx, odist = disc_offsets(largest)
     return _radii_kernel(img, rows, cols, disp, ody, odx, odist, int(k), float(tolerance), int(largest))
 
 
@@ -177,8 +178,6 @@ def hpr_visible(xyz, viewpoint, gamma=HPR_GAMMA):
 
     ``gamma`` sets the flipping radius ``R = max|p - viewpoint| * 10**gamma`` (larger: more points visible).
     """
-    from scipy.spatial import ConvexHull, QhullError
-
     p = np.asarray(xyz, np.float64) - np.asarray(viewpoint, np.float64)
     n = p.shape[0]
     visible = np.ones(n, bool)

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import rasterio
 
 from ..errors import RiverbedError
 from .atomic import atomic_output
@@ -171,8 +172,6 @@ def _read_png(path, scale):
 
 
 def _open_tif(path):
-    import rasterio
-
     try:
         return rasterio.open(path)
     except MemoryError:
@@ -182,8 +181,6 @@ def _open_tif(path):
 
 
 def _read_tif(path):
-    import rasterio
-
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
         with _open_tif(path) as ds:
@@ -214,8 +211,6 @@ def read_disparity_tags(path):
     path, kind = _check_input(path)
     if kind != "tif":
         return {}
-    import rasterio
-
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
         with _open_tif(path) as ds:
@@ -288,8 +283,6 @@ def _encode_png(path, disp, valid):
 
 
 def _write_tif(path, disp, overwrite, tags):
-    import rasterio
-
     height, width = disp.shape
     profile = {
         "driver": "GTiff",

@@ -15,6 +15,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import rasterio
+from rasterio.enums import ColorInterp
 
 from ..errors import RiverbedError
 from ..settings import MAX_PIXELS  # noqa: F401  (the default pixel limit; --max-pixels raises it)
@@ -106,9 +108,6 @@ def _from_opencv(img):
 
 def _read_rasterio(path, max_pixels, required):
     """Bands as channels; None (if not ``required``) when rasterio cannot read it or it is a palette image."""
-    import rasterio
-    from rasterio.enums import ColorInterp
-
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)

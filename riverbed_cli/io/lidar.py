@@ -41,7 +41,11 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+import laspy
+import lazrs
 import numpy as np
+from pyproj import CRS
+from pyproj.exceptions import CRSError
 
 from ..errors import RiverbedError
 from .paths import require_file
@@ -246,9 +250,6 @@ def _check_input(path):
 
 
 def _parse_crs(value):
-    from pyproj import CRS
-    from pyproj.exceptions import CRSError
-
     if isinstance(value, CRS):
         return value
     try:
@@ -409,8 +410,6 @@ def _check_evlrs(f, path, size, offset, start, count):
 
 def _check_laz(f, path, header, vlr):
     """Check the LASzip VLR and the chunk table, so that lazrs is only ever asked bounded work."""
-    import lazrs
-
     if vlr is None:
         raise RiverbedError("malformed LAZ: compressed point format but no LASzip VLR", path)
     if len(vlr) < 34:
@@ -547,8 +546,6 @@ def _native_errors(path, what):
 
 
 def _open_laspy(path):
-    import laspy
-
     with _native_errors(path, "LAS header"):
         return laspy.open(str(path))
 

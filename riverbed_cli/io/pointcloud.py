@@ -2,7 +2,10 @@
 
 from pathlib import Path
 
+import laspy
 import numpy as np
+import pyproj
+from plyfile import PlyData, PlyElement
 
 from ..errors import RiverbedError
 from .atomic import atomic_output
@@ -66,13 +69,9 @@ def write_points(path, xyz, rgb=None, crs=None, classification=None, overwrite=F
 
 
 def _write_las(path, xyz, rgb, crs, classification, scale, compress):
-    import laspy
-
     header = laspy.LasHeader(point_format=7 if rgb is not None else 6, version="1.4")
     header.offsets, header.scales = las_scales_offsets(xyz, scale)
     if crs is not None:
-        import pyproj
-
         try:
             header.add_crs(pyproj.CRS.from_user_input(crs))
         except pyproj.exceptions.CRSError:
@@ -96,8 +95,6 @@ def _write_las(path, xyz, rgb, crs, classification, scale, compress):
 
 
 def _write_ply(path, xyz, rgb, crs):
-    from plyfile import PlyData, PlyElement
-
     fields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
     if rgb is not None:
         fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]

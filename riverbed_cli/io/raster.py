@@ -3,6 +3,9 @@
 import warnings
 
 import numpy as np
+import rasterio
+import rasterio.shutil
+from rasterio.io import MemoryFile
 
 from ..errors import RiverbedError
 from .atomic import atomic_output
@@ -42,10 +45,6 @@ def write_geotiff(path, bands, transform, crs=None, nodata=None, creation_option
         GDAL COG creation options, overriding :data:`DEFAULT_CREATION_OPTIONS` (``PREDICTOR=FLOATING_POINT`` is added
         for float rasters unless given).
     """
-    import rasterio
-    import rasterio.shutil
-    from rasterio.io import MemoryFile
-
     data = np.asarray(bands)
     if data.ndim == 2:
         data = data[None]

@@ -11,15 +11,21 @@ import hashlib
 import json
 import math
 from dataclasses import dataclass
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
+import matplotlib
 import numpy as np
 
 from ..errors import RiverbedError
 from ..io.disparity import read_disparity
 from ..io.images import read_image
+from ..matching.pipeline import match_pair
 from .evaluate import evaluate_disparity
 from .simulate import simulate_lidar
+
+matplotlib.use("Agg")  # headless: figures are only written to files
+import matplotlib.pyplot as plt  # noqa: E402  (pyplot after the backend is chosen)
 
 METRICS = ("bad1", "bad2", "bad3", "avg", "rmse", "density", "d1", "n")
 # Middlebury file name patterns: (left, right, ground truth, default GT scale for 8-bit PNG)
@@ -88,8 +94,6 @@ def case_key(scene, matcher, guide, share, window, seed):
 
 def _cache_name(key):
     # The riverbed version is part of the cache name: results of another version are not reused.
-    from importlib.metadata import PackageNotFoundError, version
-
     try:
         v = version("riverbed")
     except PackageNotFoundError:
@@ -104,8 +108,6 @@ def run_benchmark(scenes, matchers=("sgm",), guides=("none", "gauss", "riverbed"
     ``seeds``: one LiDAR sampling per seed (an int is one seed); every case runs once per sampling, so results can
     be reported as a mean and spread over samplings rather than one lucky or unlucky draw.
     """
-    from ..matching.pipeline import match_pair
-
     cache = Path(cache_dir) if cache_dir else None
     if cache:
         cache.mkdir(parents=True, exist_ok=True)
@@ -202,11 +204,6 @@ def write_tables(rows, outdir):
 
 def figure5(rows, path, scene=None, matcher="sgm"):
     """The paper's Figure 5: mean error against riverbed window size, one line per LiDAR share (matplotlib PNG)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     sel = [r for r in rows if r["guide"] == "riverbed" and r["window_set"] is not None and r["matcher"] == matcher
            and (scene is None or r["scene"] == scene)]
     if not sel:

@@ -13,8 +13,10 @@ import cv2
 import numpy as np
 from affine import Affine
 from numba import njit
+from rasterio.fill import fillnodata
 
 from ..errors import RiverbedError
+from ..io.lidar import iter_lidar, lidar_info
 
 AGGREGATIONS = ("max", "mean", "median", "idw")
 
@@ -193,8 +195,6 @@ def fill_holes(dsm, max_size):
     mask : (H, W) uint8
         1 where a cell was filled, 0 elsewhere.
     """
-    from rasterio.fill import fillnodata
-
     dsm = np.asarray(dsm, np.float32)
     empty = np.isnan(dsm)
     mask = np.zeros(dsm.shape, np.uint8)
@@ -320,8 +320,6 @@ def build_dsm(sources=(), lidar=(), resolution=None, agg="max", bounds=None, fil
     Merging rule: where a cell has LiDAR points its height comes from the LiDAR only ("LiDAR wins": it measures
     heights directly, to a few cm); the image points fill the cells LiDAR does not reach.
     """
-    from ..io.lidar import iter_lidar, lidar_info
-
     sources = list(sources)
     lidar = list(lidar)
     if not sources and not lidar:

@@ -1,6 +1,8 @@
 """Compare two DSMs on a common grid: height-difference statistics and a difference map."""
 
 import numpy as np
+import rasterio
+from rasterio.warp import Resampling, reproject
 
 from ..errors import RiverbedError
 
@@ -15,9 +17,6 @@ def read_dsm_on_grid(path, ref_path):
     (CRS, transform or size) the DSM is reprojected with
     rasterio (bilinear; nodata honoured, so no height is averaged with a nodata value).
     """
-    import rasterio
-    from rasterio.warp import Resampling, reproject
-
     def _open(p):
         try:
             return rasterio.open(p)
