@@ -1,0 +1,61 @@
+"""The merged DSM of a block: the finished pairs' points rasterised onto one grid."""
+
+import statistics
+import time
+
+import numpy as np
+from pyproj import CRS
+
+from ...errors import RiverbedError
+from ...io.lidar import iter_lidar, lidar_info
+from ...io.raster import write_geotiff
+from ...products.dsm import Accumulator, Grid
+
+
+def merge_dsm(laz_paths, output, resolution, agg="max", crs=None, chunk_size=1_000_000):
+    """Rasterise the points of several LAS/LAZ files onto one grid (snapped to multiples of ``resolution``).
+
+    Chunks stream into one :class:`~riverbed_cli.products.dsm.Accumulator`, so the result is the aggregation over
+    the union of the points, exact for every aggregation. Writes a COG GeoTIFF (NaN nodata) and returns stats.
+    """
+    t0 = time.perf_counter()
+    infos = [lidar_info(p) for p in laz_paths]
+    infos = [i for i in infos if i.point_count]
+    if not infos:
+        raise RiverbedError("no points to merge")
+    lo = np.min([i.mins for i in infos], axis=0)
+    hi = np.max([i.maxs for i in infos], axis=0)
+    grid = Grid.from_bounds(lo[0], lo[1], hi[0], hi[1], resolution)
+    acc = Accumulator(grid, agg)
+    n = 0
+    for info in infos:
+        for ch in iter_lidar(info.path, chunk_size=chunk_size):
+            xyz = ch["xyz"]
+            acc.add(xyz[:, 0], xyz[:, 1], xyz[:, 2])
+            n += len(xyz)
+    dsm = acc.result()
+    write_geotiff(output, dsm, grid.transform, crs, float("nan"), None, overwrite=True, band_descriptions=["height"],
+                  tags={"riverbed_aggregation": agg, "riverbed_pairs": len(laz_paths)})
+    return {"points": n, "resolution": grid.resolution, "width": grid.width, "height": grid.height,
+            "bounds": list(grid.bounds), "cells_with_data": float(100.0 * np.isfinite(dsm).mean()),
+            "seconds": round(time.perf_counter() - t0, 4)}
+
+
+def merge_settings(plan, records):
+    """Resolution and CRS of the merged DSM from the block's defaults and the finished pairs' records."""
+    d = plan.manifest.defaults
+    resolution = d["resolution"]
+    if resolution is None:
+        resolution = float(f"{statistics.median(r['stats']['resolution'] for r in records.values()):.3g}")
+    crs = d["crs"]
+    if crs is None:
+        found = {n: r["stats"].get("crs") for n, r in records.items() if r["stats"].get("crs")}
+        if found:
+            first_name, first = next(iter(found.items()))
+            ref = CRS.from_user_input(first)
+            for n, c in found.items():
+                if c != first and not CRS.from_user_input(c).equals(ref, ignore_axis_order=True):
+                    raise RiverbedError(f"pairs '{first_name}' and '{n}' have different CRSs ({first} vs {c}); "
+                                        "give crs under defaults")
+            crs = first
+    return resolution, crs

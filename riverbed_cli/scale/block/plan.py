@@ -1,0 +1,228 @@
+"""Planning a block: the output folder, the raw pairs rectified, and per pair run, skip (a verified ``done.json``) or
+failed; the block's file names and the JSON records and hashes of its outputs."""
+
+import hashlib
+import json
+import os
+import time
+import warnings
+from dataclasses import asdict, dataclass, field
+from importlib import metadata
+from pathlib import Path
+
+import rasterio
+
+from ...errors import RiverbedError
+from ...geometry.rectify import rectify_files
+from ...io.atomic import atomic_output
+from ...io.images import read_image
+from ...io.pairfile import load_pairfile
+from .manifest import RAW_KEYS, Manifest, load_manifest
+
+OUTPUTS = ("sparse.tif", "disparity.tif", "points.laz", "dsm.tif")
+DONE = "done.json"
+MARKER = "block.json"
+WORK = ".work"
+
+
+def rectify_raw(spec, outdir):
+    """Rectify a raw entry into ``outdir/pairs/NAME/rectified/`` (unless done for the same inputs); its pair file."""
+    folder = Path(outdir) / "pairs" / spec.name / "rectified"
+    stamp = folder / "inputs.json"
+    r = spec.raw
+    # the stamp holds the inputs and the settings: changing alpha or size re-rectifies
+    inputs = [_stat(r[k], r[k].parent) for k in RAW_KEYS] + [
+        {"alpha": r["alpha"], "size": list(r["size"]) if r["size"] else None}]
+    if (folder / "pair.yaml").is_file() and stamp.is_file() and json.loads(stamp.read_text()) == inputs:
+        return folder / "pair.yaml"
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    rectify_files(r["left"], r["left_orientation"], r["right"], r["right_orientation"], folder, overwrite=True,
+                  alpha=r["alpha"], size=r["size"])
+    write_json(stamp, inputs)
+    return folder / "pair.yaml"
+
+
+@dataclass
+class PairJob:
+    """Everything a worker needs to run one pair (picklable; absolute paths as strings)."""
+
+    name: str
+    index: int
+    pair: str
+    clouds: list
+    settings: dict
+    folder: str
+    shape: tuple = None  # (H, W)
+    settings_hash: str = ""
+    inputs: list = field(default_factory=list)
+    status: str = "run"  # run | skip | failed (at planning)
+    error: str = None
+    record: dict = None  # done.json of a skipped pair
+
+
+@dataclass
+class BlockPlan:
+    manifest: Manifest
+    outdir: Path
+    jobs: list
+    seconds: float = 0.0  # validating, stat-ing inputs, verifying finished pairs (sha256 of their outputs)
+
+    @property
+    def to_run(self):
+        return [j for j in self.jobs if j.status == "run"]
+
+
+def riverbed_version():
+    """The installed riverbed's version (part of every pair's settings hash), or ``"unknown"``."""
+    try:
+        return metadata.version("riverbed")
+    except Exception:  # noqa: BLE001 - not installed (a source checkout): the hash just leaves it out
+        return "unknown"
+
+
+def _image_size(path):
+    """``(H, W)`` from an image header (GDAL), without decoding the pixels when it can."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+            with rasterio.open(path) as ds:
+                return ds.height, ds.width
+    except Exception:  # noqa: BLE001 - GDAL cannot read it: decode it the usual way (one-line errors)
+        return read_image(path).shape[:2]
+
+
+def _stat(path, base):
+    """Path (relative to the manifest's folder when inside it, so a block folder can move), size and mtime."""
+    path = Path(os.path.normpath(Path(path).absolute()))
+    st = path.stat()
+    shown = path.relative_to(base) if path.is_relative_to(base) else path
+    return {"path": shown.as_posix(), "size": st.st_size, "mtime_ns": st.st_mtime_ns}
+
+
+def _hash_json(obj):
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def sha256_file(path, chunk=1 << 20):
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(chunk), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def verify_done(folder, settings_hash):
+    """The pair's ``done.json`` if it verifies (outputs present, sizes and sha256 as recorded, same settings hash),
+    else None."""
+    folder = Path(folder)
+    try:
+        record = json.loads((folder / DONE).read_text(encoding="utf-8"))
+        if record.get("settings_hash") != settings_hash:
+            return None
+        outputs = record["outputs"]
+        for name in OUTPUTS:
+            p = folder / name
+            if not p.is_file() or p.stat().st_size != outputs[name]["size"]:
+                return None
+        for name in OUTPUTS:
+            if sha256_file(folder / name) != outputs[name]["sha256"]:
+                return None
+        return record
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def prepare_outdir(outdir, manifest_path, overwrite=False):
+    """Check (and create) the output folder by the rule in the package notes; write its ``block.json`` marker."""
+    out = Path(outdir)
+    marker = out / MARKER
+    record = {}
+    if out.exists():
+        if not out.is_dir():
+            raise RiverbedError("output exists and is not a folder", out)
+        if marker.is_file():
+            try:
+                record = json.loads(marker.read_text(encoding="utf-8"))
+            except (OSError, ValueError):
+                record = {}
+            owner = record.get("manifest") if isinstance(record, dict) else None
+            if owner != str(manifest_path) and not overwrite:
+                raise RiverbedError(f"holds the block of another manifest ({owner}); pass --overwrite to reuse "
+                                    "it", out)
+        elif any(out.iterdir()) and not overwrite:
+            raise RiverbedError("output folder is not empty and holds no block; pass --overwrite to write into "
+                                "it", out)
+    else:
+        parent = out.parent if str(out.parent) else Path(".")
+        if not parent.is_dir():
+            raise RiverbedError(f"output folder {parent} does not exist", out)
+        out.mkdir()
+    if not isinstance(record, dict) or record.get("manifest") != str(manifest_path):
+        record = {}
+    record.update({"riverbed": "block", "manifest": str(manifest_path)})
+    write_json(marker, record)
+    return record
+
+
+def write_json(path, obj):
+    with atomic_output(path, overwrite=True) as tmp:
+        tmp.write_text(json.dumps(obj, indent=2, default=_plain) + "\n", encoding="utf-8")
+
+
+def _plain(o):
+    if hasattr(o, "item") and getattr(o, "ndim", 1) == 0:
+        return o.item()
+    if hasattr(o, "tolist"):
+        return o.tolist()
+    return str(o)
+
+
+def plan_block(manifest, outdir, overwrite=False):
+    """Validate the manifest, prepare ``outdir`` and decide per pair: run, skip (verified ``done.json``) or failed
+    (its pair file or images cannot be read)."""
+    t0 = time.perf_counter()
+    if not isinstance(manifest, Manifest):
+        manifest = load_manifest(manifest)
+    outdir = Path(outdir).absolute()
+    prepare_outdir(outdir, manifest.path, overwrite)
+    base = manifest.path.parent
+    version = riverbed_version()
+    jobs = []
+    for spec in manifest.pairs:
+        s = spec.settings
+        job = PairJob(spec.name, spec.index, str(spec.pair), [str(c) for c in spec.clouds], s,
+                      str(outdir / "pairs" / spec.name))
+        jobs.append(job)
+        try:
+            if spec.raw is not None:
+                # raw frames: rectify first (cheap, here in the planner), then the pair runs like any other
+                spec.pair = rectify_raw(spec, outdir)
+                job.pair = str(spec.pair)
+            pair = load_pairfile(spec.pair)
+            for side in ("left", "right"):
+                if getattr(pair, side) is None:
+                    raise RiverbedError(f"{side}: missing (a block needs the rectified images)", spec.pair)
+            shape = pair.image_size or _image_size(pair.left)
+            job.shape = tuple(int(v) for v in shape)
+            raw_files = [spec.raw[k] for k in RAW_KEYS] if spec.raw else []
+            files = [spec.pair, pair.left, pair.right, *spec.clouds, *raw_files]
+            if s["registration"]:
+                files.append(Path(s["registration"]))
+            job.inputs = [_stat(p, base) for p in files]
+        except RiverbedError as e:
+            job.status, job.error = "failed", str(e)
+            continue
+        except OSError as e:
+            job.status, job.error = "failed", f"{e.filename or ''}: {e.strerror or e}"
+            continue
+        job.settings_hash = _hash_json({"name": spec.name, "settings": s, "inputs": job.inputs,
+                                        "riverbed": version})
+        record = verify_done(job.folder, job.settings_hash)
+        if record is not None:
+            job.status, job.record = "skip", record
+    return BlockPlan(manifest, outdir, jobs, time.perf_counter() - t0)
+
+
+def job_dict(job):
+    """A plain dict of a job (for logs and debugging)."""
+    return asdict(job)

@@ -1,0 +1,270 @@
+"""The stages of one pair (plain functions; tasks on dask): project the LiDAR, match (whole or one tile), finish
+(stitch, triangulate, DSM, ``done.json``)."""
+
+import contextlib
+import glob
+import json
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ...errors import RiverbedError
+from ...geometry.projection import project_cloud
+from ...io.atomic import atomic_output
+from ...io.disparity import read_disparity, write_disparity
+from ...io.images import check_pair, check_pixels, read_image
+from ...io.lidar import lidar_info
+from ...io.pairfile import load_pairfile, load_registration
+from ...io.pointcloud import write_points
+from ...io.raster import write_geotiff
+from ...matching.guidance import auto_window, lidar_share_of_points
+from ...matching.pipeline import MatchParams, match_pair, resolve_disparity_range
+from ...products.dsm import build_dsm
+from ..tiles import Tile, WindowedRaster, image_bits, match_tile, open_windowed, plan_tiles, sparse_points_any
+from .plan import DONE, OUTPUTS, WORK, riverbed_version, sha256_file, write_json
+from .settings import match_params
+
+
+class PairFailure:
+    """Bad input found by a stage: returned (not raised) so dask does not retry it; later stages pass it on."""
+
+    def __init__(self, stage, message):
+        self.stage, self.message = stage, message
+
+    def __repr__(self):
+        return f"PairFailure({self.stage!r}, {self.message!r})"
+
+
+def _cloud_may_land(path, pair, reg, shape):
+    """False when the cloud's header box cannot project into the left image (all corners in front of the camera
+    and their image hull outside it): such a cloud is not read at all."""
+    info = lidar_info(path)  # validates the header: a corrupt file fails here
+    if info.point_count == 0:
+        return False
+    corners = np.array(np.meshgrid(*zip(info.mins, info.maxs))).T.reshape(-1, 3)
+    local = pair.lidar_to_local(corners, reg)
+    x, y, _, depth = pair.project(local)
+    if not (depth > 0).all():
+        return True
+    H, W = shape
+    return not (x.max() < -0.5 or x.min() >= W - 0.5 or y.max() < -0.5 or y.min() >= H - 0.5)
+
+
+_EMPTY_CLOUD = ("no point lands in both images", "no point is left after")
+
+
+def _clean_temps(folder, names):
+    """Remove temporary files a killed task left behind (``.STEM.XXXXXXXX.tmp.SUFFIX``, see io.atomic)."""
+    for name in names:
+        p = Path(name)
+        for tmp in Path(folder).glob(f".{glob.escape(p.stem)}.*.tmp{p.suffix}"):
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+
+
+def _image_source(path, shape, max_pixels):
+    """The image as a windowed TIFF or an in-memory array, checked against the pair's size and the pixel limit."""
+    H, W = shape
+    check_pixels(path, H, W, max_pixels)
+    src = open_windowed(path, "image")
+    if tuple(src.shape[:2]) != (H, W):
+        raise RiverbedError(f"image is {src.shape[1]}x{src.shape[0]} but the pair file says {W}x{H} (WxH)", path)
+    return src
+
+
+def _save_npy(src, path, rows=512):
+    """Write an image (array or windowed raster) as ``.npy`` block by block, atomically."""
+    with atomic_output(path, overwrite=True) as tmp:
+        out = np.lib.format.open_memmap(tmp, mode="w+", dtype=src.dtype, shape=tuple(src.shape))
+        for y in range(0, src.shape[0], rows):
+            out[y:y + rows] = src[y:y + rows, 0:src.shape[1]]
+        out.flush()
+        del out
+
+
+def project_stage(job):
+    """Project the pair's clouds into sparse disparities (``sparse.tif``) and plan the matching.
+
+    Several clouds: each is projected alone and, per pixel, the larger disparity (the nearer point) is kept;
+    clouds whose box misses the left image are not read, and a cloud with no point in the pair is ignored as
+    long as another one has points. A pair larger than the tile is planned as :func:`match_tiled` plans it (tile
+    size, LiDAR tile ranges, one riverbed window and one 16-bit scale for all tiles) and its images are copied
+    to ``.work/*.npy`` for the tile tasks to read crops from. Returns a small dict: ``tiles`` (``[y0, y1, x0, x1,
+    d_min, d_max, source]``, empty when not tiled), ``window``, ``bits``, ``d_min``, ``d_max``, ``stats``.
+    """
+    t0 = time.perf_counter()
+    s = job.settings
+    folder = Path(job.folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    with contextlib.suppress(FileNotFoundError):
+        (folder / DONE).unlink()  # from now on the folder is not a finished pair
+    _clean_temps(folder, ("sparse.tif",))
+    _clean_temps(folder / WORK, ("left.npy", "right.npy"))
+    pair = load_pairfile(job.pair)
+    reg = load_registration(s["registration"]) if s["registration"] else None
+    H, W = job.shape
+    sparse, counts, used, empty = None, {}, [], []
+    for cloud in job.clouds:
+        if not _cloud_may_land(cloud, pair, pair.registration if reg is None else reg, (H, W)):
+            empty.append(cloud)
+            continue
+        try:
+            sp, st = project_cloud(cloud, pair, registration=reg, classes=s["classes"],
+                                   drop_classes=s["drop_classes"], outliers=s["outliers"], side=s["side"],
+                                   visibility=s["visibility"], footprint=s["footprint"], crs=s["lidar_crs"],
+                                   shape=(H, W))
+        except RiverbedError as e:
+            if len(job.clouds) > 1 and any(m in str(e) for m in _EMPTY_CLOUD):
+                empty.append(cloud)
+                continue
+            raise
+        used.append(cloud)
+        for k in ("points_read", "kept"):
+            counts[k] = counts.get(k, 0) + st[k]
+        counts.setdefault("crs", st.get("crs"))
+        sparse = sp if sparse is None else np.fmax(sparse, sp)  # the nearer point has the larger disparity
+    if sparse is None:
+        raise RiverbedError(f"no cloud has points in the pair's images ({len(job.clouds)} checked)", job.pair)
+    tags = {"riverbed_pair": job.pair, "riverbed_clouds": json.dumps(used), "riverbed_block_pair": job.name}
+    write_disparity(folder / "sparse.tif", sparse, overwrite=True, tags=tags)
+
+    # The matching plan, as match_tiled makes it.
+    p = match_params(s)
+    tile, overlap = s["tile"], s["overlap"]
+    pr, pc, pv = sparse_points_any(sparse)
+    share = lidar_share_of_points(pr, pc, (H, W))
+    d_min, d_max = resolve_disparity_range(s["min_disp"], s["max_disp"], pv)
+
+    planned, tile = plan_tiles(H, W, sparse, d_min, d_max, tile, overlap, s["lidar_range"])
+    tiles, window, bits = [], p.window, None
+    if max(H, W) > tile:
+        srcs = [_image_source(getattr(pair, side), (H, W), s["max_pixels"]) for side in ("left", "right")]
+        bits = image_bits(*srcs)
+        if p.guide != "none" and p.window == "auto":
+            window = auto_window(share, p.window_target)  # one window for every tile
+        tiles = [[t.y0, t.y1, t.x0, t.x1, t.d_min, t.d_max, t.source] for t in planned]
+        work = folder / WORK
+        work.mkdir(exist_ok=True)
+        for side, src in zip(("left", "right"), srcs):
+            _save_npy(src, work / f"{side}.npy")
+    stats = {"clouds": len(used), "clouds_without_points": len(empty), "lidar_points_read": counts["points_read"],
+             "lidar_points_kept": counts["kept"], "lidar_share": share, "lidar_crs": counts["crs"],
+             "tile": int(tile) if tiles else None}
+    return {"tiles": tiles, "window": window, "bits": bits, "d_min": d_min, "d_max": d_max, "stats": stats,
+            "seconds": round(time.perf_counter() - t0, 4)}
+
+
+def tile_stage(job, proj, index):
+    """Match tile ``index`` of a tiled pair (crops read from disk), or the whole pair when it is not tiled.
+
+    Tiled: :func:`~riverbed_cli.scale.tiles.match_tile`, the body of ``match_tiled``'s loop
+    (``test_tile_tasks_are_match_tiled`` pins the two together). Not tiled: :func:`match_pair` on the whole
+    images. Returns ``{"index", "disparity" (the tile's own pixels), "evaluations", "stages", "seconds"}``.
+    """
+    t0 = time.perf_counter()
+    s = job.settings
+    p = match_params(s)
+    folder = Path(job.folder)
+    H, W = job.shape
+    if not proj["tiles"]:
+        pair = load_pairfile(job.pair)
+        left = read_image(pair.left, s["max_pixels"])
+        right = read_image(pair.right, s["max_pixels"])
+        check_pair(left, right, pair.left, pair.right)
+        if left.shape[:2] != (H, W):
+            raise RiverbedError(f"image is {left.shape[1]}x{left.shape[0]} but the pair file says {W}x{H} (WxH)",
+                                pair.left)
+        sparse = read_disparity(folder / "sparse.tif")
+        res = match_pair(left, right, sparse, s["min_disp"], s["max_disp"], p)
+        n_d = res.info["d_max"] - res.info["d_min"] + 1
+        return {"index": 0, "disparity": res.disparity, "evaluations": H * W * n_d, "stages": res.info["stages"],
+                "seconds": round(time.perf_counter() - t0, 4)}
+    p = MatchParams(**{**p.__dict__, "window": proj["window"]})
+    tile = Tile(*proj["tiles"][index])
+    left = np.load(folder / WORK / "left.npy", mmap_mode="r")
+    right = np.load(folder / WORK / "right.npy", mmap_mode="r")
+    sparse = WindowedRaster(folder / "sparse.tif", "disparity")
+    disp, n, stages = match_tile(left, right, sparse, tile, s["overlap"], p, proj["bits"])
+    return {"index": index, "disparity": disp, "evaluations": n, "stages": stages,
+            "seconds": round(time.perf_counter() - t0, 4)}
+
+
+def n_tasks(proj):
+    """Number of matching tasks a projected pair needs (its tiles, or one)."""
+    return len(proj["tiles"]) or 1
+
+
+def finish_stage(job, proj, tiles):
+    """Stitch the tiles, triangulate, write ``disparity.tif``, ``points.laz``, ``dsm.tif`` and, last, ``done.json``.
+
+    Returns the pair's summary (``points``, ``resolution``, ``crs``, per-stage ``seconds``).
+    """
+    t0 = time.perf_counter()
+    s = job.settings
+    folder = Path(job.folder)
+    _clean_temps(folder, (*OUTPUTS, DONE))
+    H, W = job.shape
+    tiled = bool(proj["tiles"])
+    if tiled:
+        disp = np.full((H, W), np.nan, np.float32)
+        for t in tiles:
+            y0, y1, x0, x1 = proj["tiles"][t["index"]][:4]
+            disp[y0:y1, x0:x1] = t["disparity"]
+    else:
+        disp = tiles[0]["disparity"]
+    stages = {}
+    for t in tiles:
+        for k, v in t["stages"].items():
+            stages[k] = round(stages.get(k, 0.0) + v, 4)
+    info = {"tiles": len(tiles) if tiled else 0,
+            "disparity_evaluations": int(sum(t["evaluations"] for t in tiles)), "stages": stages}
+    write_disparity(folder / "disparity.tif", disp, overwrite=True,
+                    tags={"riverbed_guide": s["guide"], "riverbed_block_pair": job.name,
+                          "riverbed_tiles": info["tiles"]})
+    pair = load_pairfile(job.pair)
+    work = folder / WORK
+    if tiled:
+        image = np.load(work / "left.npy", mmap_mode="r")
+    else:
+        image = read_image(pair.left, s["max_pixels"])
+    crs = s["crs"] or pair.crs or proj["stats"]["lidar_crs"]
+    blocks = []
+    res = build_dsm([(disp, pair, image)], (), s["resolution"], s["agg"],
+                    point_sink=lambda xyz, rgb: blocks.append((xyz, rgb)))
+    xyz = np.concatenate([b[0] for b in blocks]) if blocks else np.zeros((0, 3))
+    rgb = np.concatenate([b[1] for b in blocks]) if blocks and all(b[1] is not None for b in blocks) else None
+    blocks.clear()
+    del image
+    write_points(folder / "points.laz", xyz, rgb, crs, overwrite=True)
+    write_geotiff(folder / "dsm.tif", res.dsm, res.grid.transform, crs, float("nan"), None, overwrite=True,
+                  band_descriptions=["height"],
+                  tags={"riverbed_aggregation": s["agg"], "riverbed_block_pair": job.name})
+    t_match = sum(t["seconds"] for t in tiles)
+    seconds = {"project": proj["seconds"], "match": round(t_match, 4), "dsm": round(time.perf_counter() - t0, 4)}
+    summary = {"points": len(xyz), "resolution": res.grid.resolution, "crs": crs,
+               "bounds": list(res.grid.bounds), **proj["stats"], **info, "d_min": proj["d_min"],
+               "d_max": proj["d_max"], "seconds": seconds}
+    outputs = {name: {"size": (folder / name).stat().st_size, "sha256": sha256_file(folder / name)}
+               for name in OUTPUTS}
+    record = {"name": job.name, "pair": job.pair, "clouds": job.clouds, "settings_hash": job.settings_hash,
+              "settings": s, "inputs": job.inputs, "outputs": outputs, "stats": summary,
+              "riverbed": riverbed_version(), "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+    write_json(folder / DONE, record)
+    shutil.rmtree(work, ignore_errors=True)
+    return summary
+
+
+def run_pair(job, progress=None):
+    """The whole pair in this process, stage after stage (what the dask tasks do); returns the summary dict.
+
+    Raises :class:`RiverbedError` on bad input.
+    """
+    proj = project_stage(job)
+    tiles = []
+    for i in range(n_tasks(proj)):
+        tiles.append(tile_stage(job, proj, i))
+        if progress:
+            progress("tile", job.name)
+    return finish_stage(job, proj, tiles)
