@@ -9,7 +9,8 @@ from pathlib import Path
 from ...errors import RiverbedError
 from ...geometry.rectify import check_alpha, parse_size
 from ...io.textfiles import parse_yaml, read_text
-from .settings import SettingError, default_settings, settings_spec, show_value
+from ...settings import SettingError, show
+from .settings import default_settings, settings_spec
 
 #: Manifests larger than this are refused before parsing.
 MANIFEST_MAX_BYTES = 10_000_000
@@ -67,7 +68,7 @@ def _settings(raw, where, spec, path, base, block_wide):
 def _clouds(value, where, path, base):
     items = value if isinstance(value, list) else [value]
     if not items or not all(isinstance(v, str) and v for v in items):
-        raise RiverbedError(f"{where}.cloud: expected a file name, a glob or a list of them, got {show_value(value)}",
+        raise RiverbedError(f"{where}.cloud: expected a file name, a glob or a list of them, got {show(value)}",
                             path)
     found = []
     for item in items:
@@ -92,8 +93,7 @@ def _clouds(value, where, path, base):
 def _raw_frames(value, where, path, base):
     """The ``raw:`` entry of a pair: two frame images and their orientation files (riverbed rectify's inputs)."""
     if not isinstance(value, dict):
-        raise RiverbedError(f"{where}.raw: expected a mapping with {', '.join(RAW_KEYS)}, got {show_value(value)}",
-                            path)
+        raise RiverbedError(f"{where}.raw: expected a mapping with {', '.join(RAW_KEYS)}, got {show(value)}", path)
     unknown = [str(k) for k in value if k not in RAW_KEYS + RAW_OPTIONS]
     if unknown:
         raise RiverbedError(f"{where}.raw: unknown key '{unknown[0]}' (raw keys: {', '.join(RAW_KEYS + RAW_OPTIONS)})",
@@ -156,7 +156,7 @@ def load_manifest(path):
     for i, entry in enumerate(pairs):
         where = f"pairs[{i}]"
         if not isinstance(entry, dict):
-            raise RiverbedError(f"{where}: expected a mapping with pair and cloud, got {show_value(entry)}", path)
+            raise RiverbedError(f"{where}: expected a mapping with pair and cloud, got {show(entry)}", path)
         unknown = [str(k) for k in entry if k not in PAIR_KEYS and k not in spec]
         if unknown:
             raise RiverbedError(f"{where}: unknown key '{unknown[0]}' (pair keys: {', '.join(PAIR_KEYS)}, and "
@@ -173,7 +173,7 @@ def load_manifest(path):
         else:
             value = entry["pair"]
             if not isinstance(value, str) or not value:
-                raise RiverbedError(f"{where}.pair: expected a file name, got {show_value(value)}", path)
+                raise RiverbedError(f"{where}.pair: expected a file name, got {show(value)}", path)
             pair_path = Path(os.path.normpath(base / value))
             if not pair_path.is_file():
                 raise RiverbedError(f"{where}.pair: file not found: {value}", path)
@@ -183,7 +183,7 @@ def load_manifest(path):
             name = default_name(pair_path if raw is None else raw["left_orientation"], base)
         elif not isinstance(name, str) or not _NAME.fullmatch(name):
             raise RiverbedError(f"{where}.name: expected letters, digits, '.', '_' or '-' (at most 100, not "
-                                f"starting with '.', '_' or '-'), got {show_value(name)}", path)
+                                f"starting with '.', '_' or '-'), got {show(name)}", path)
         if name in names:
             raise RiverbedError(f"{where}.name: '{name}' is already the name of pairs[{names[name]}]; give each "
                                 "pair a unique name", path)

@@ -19,10 +19,12 @@ from ...io.lidar import lidar_info
 from ...io.pairfile import load_pairfile, load_registration
 from ...io.pointcloud import write_points
 from ...io.raster import write_geotiff
-from ...matching.guidance import auto_window, lidar_share_of_points
-from ...matching.pipeline import MatchParams, match_pair, resolve_disparity_range
+from ...io.windowed import WindowedRaster, image_bits, open_windowed, sparse_points_any
+from ...matching.guidance import lidar_share_of_points
+from ...matching.pipeline import match_pair, resolve_disparity_range
+from ...matching.registry import get_guide
 from ...products.dsm import build_dsm
-from ..tiles import Tile, WindowedRaster, image_bits, match_tile, open_windowed, plan_tiles, sparse_points_any
+from ..tiles import Tile, match_tile, plan_tiles
 from .plan import DONE, OUTPUTS, WORK, riverbed_version, sha256_file, write_json
 from .settings import match_params
 
@@ -132,26 +134,26 @@ def project_stage(job):
 
     # The matching plan, as match_tiled makes it.
     p = match_params(s)
-    tile, overlap = s["tile"], s["overlap"]
+    guide = get_guide(p.guide)
     pr, pc, pv = sparse_points_any(sparse)
     share = lidar_share_of_points(pr, pc, (H, W))
     d_min, d_max = resolve_disparity_range(s["min_disp"], s["max_disp"], pv)
 
-    planned, tile = plan_tiles(H, W, sparse, d_min, d_max, tile, overlap, s["lidar_range"])
-    tiles, window, bits = [], p.window, None
-    if max(H, W) > tile:
+    plan = plan_tiles(H, W, sparse, d_min, d_max, s["tile"], s["overlap"], s["lidar_range"])
+    tiles, window, bits = [], p.guidance.window, None
+    if plan.tiled:
         srcs = [_image_source(getattr(pair, side), (H, W), s["max_pixels"]) for side in ("left", "right")]
         bits = image_bits(*srcs)
-        if p.guide != "none" and p.window == "auto":
-            window = auto_window(share, p.window_target)  # one window for every tile
-        tiles = [[t.y0, t.y1, t.x0, t.x1, t.d_min, t.d_max, t.source] for t in planned]
+        if guide.uses_window and p.guidance.window == "auto":
+            window = guide.window(share, p)  # one window for every tile
+        tiles = [[t.y0, t.y1, t.x0, t.x1, t.d_min, t.d_max, t.source] for t in plan.tiles]
         work = folder / WORK
         work.mkdir(exist_ok=True)
         for side, src in zip(("left", "right"), srcs):
             _save_npy(src, work / f"{side}.npy")
     stats = {"clouds": len(used), "clouds_without_points": len(empty), "lidar_points_read": counts["points_read"],
              "lidar_points_kept": counts["kept"], "lidar_share": share, "lidar_crs": counts["crs"],
-             "tile": int(tile) if tiles else None}
+             "tile": int(plan.size) if tiles else None}
     return {"tiles": tiles, "window": window, "bits": bits, "d_min": d_min, "d_max": d_max, "stats": stats,
             "seconds": round(time.perf_counter() - t0, 4)}
 
@@ -181,7 +183,7 @@ def tile_stage(job, proj, index):
         n_d = res.info["d_max"] - res.info["d_min"] + 1
         return {"index": 0, "disparity": res.disparity, "evaluations": H * W * n_d, "stages": res.info["stages"],
                 "seconds": round(time.perf_counter() - t0, 4)}
-    p = MatchParams(**{**p.__dict__, "window": proj["window"]})
+    p = p.replace(window=proj["window"])
     tile = Tile(*proj["tiles"][index])
     left = np.load(folder / WORK / "left.npy", mmap_mode="r")
     right = np.load(folder / WORK / "right.npy", mmap_mode="r")
