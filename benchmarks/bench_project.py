@@ -155,7 +155,7 @@ def visibility_table(kitti_dir=None):
 
     from riverbed_cli.geometry.projection import project_cloud
     from riverbed_cli.io.disparity import read_disparity
-    from riverbed_cli.io.pairfile import load_pairfile
+    from riverbed_cli.geometry.pairfile import load_pairfile
 
     gt = read_disparity(ROOT / "tests/data/cones/disp2.png", scale=4)
     confs = [("none (nearest point per pixel only)", {"visibility": "none"})]

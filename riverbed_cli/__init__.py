@@ -27,7 +27,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "matching.sgm": ["sgm_aggregate"],
         "geometry.cameras": ["PairGeometry"],
         "geometry.projection": ["project_cloud"],
-        "io.pairfile": ["load_pairfile", "write_pairfile"],
+        "geometry.pairfile": ["load_pairfile", "write_pairfile"],
         "products.dsm": ["build_dsm", "rasterize"],
         "products.dsm_compare": ["compare_dsm"],
         "products.evaluate": ["evaluate_disparity"],

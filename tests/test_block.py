@@ -18,7 +18,7 @@ from riverbed_cli.geometry.cameras import PairGeometry
 from riverbed_cli.io.disparity import read_disparity
 from riverbed_cli.io.images import read_image
 from riverbed_cli.io.lidar import read_lidar
-from riverbed_cli.io.pairfile import load_pairfile, write_pairfile
+from riverbed_cli.geometry.pairfile import load_pairfile, write_pairfile
 from riverbed_cli.io.pointcloud import write_points
 from riverbed_cli.products.dsm import Grid, rasterize
 from riverbed_cli.products.visualize import write_png

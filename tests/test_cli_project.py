@@ -26,7 +26,7 @@ from click.testing import CliRunner
 
 from riverbed_cli.cli.main import cli
 from riverbed_cli.io.disparity import read_disparity, read_disparity_tags
-from riverbed_cli.io.pairfile import load_pairfile, write_pairfile
+from riverbed_cli.geometry.pairfile import load_pairfile, write_pairfile
 
 CALIB = """cam0=[3740 0 899.5; 0 3740 749.5; 0 0 1]
 cam1=[3740 0 999.5; 0 3740 749.5; 0 0 1]

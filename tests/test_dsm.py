@@ -155,7 +155,7 @@ def test_triangulated_points_and_dsm_are_exact():
 def test_dsm_cli_with_lidar_merge(tmp_path, monkeypatch):
     pair = nadir_pair()
     from riverbed_cli.io.disparity import write_disparity
-    from riverbed_cli.io.pairfile import write_pairfile
+    from riverbed_cli.geometry.pairfile import write_pairfile
 
     write_pairfile(tmp_path / "pair.yaml", pair)
     disp = np.full((100, 120), 125.0, np.float32)

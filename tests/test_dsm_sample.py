@@ -10,7 +10,7 @@ import rasterio
 from riverbed_cli.geometry.projection import project_cloud
 from riverbed_cli.io.disparity import read_disparity
 from riverbed_cli.io.images import read_image
-from riverbed_cli.io.pairfile import load_pairfile
+from riverbed_cli.geometry.pairfile import load_pairfile
 from riverbed_cli.matching.pipeline import match_pair
 from riverbed_cli.products.dsm import build_dsm
 from riverbed_cli.products.dsm_compare import compare_dsm

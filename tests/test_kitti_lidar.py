@@ -14,7 +14,7 @@ from click.testing import CliRunner
 
 from riverbed_cli.cli.main import cli
 from riverbed_cli.io.disparity import read_disparity, write_disparity
-from riverbed_cli.io.pairfile import load_pairfile
+from riverbed_cli.geometry.pairfile import load_pairfile
 from riverbed_cli.products.evaluate import evaluate_disparity
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))

@@ -7,7 +7,7 @@ import pytest
 
 from riverbed_cli.errors import RiverbedError
 from riverbed_cli.geometry.cameras import PairGeometry, kitti_pair, middlebury_pair
-from riverbed_cli.io.pairfile import load_pairfile, load_registration, write_pairfile
+from riverbed_cli.geometry.pairfile import load_pairfile, load_registration, write_pairfile
 
 PL = [[935.0, 0.0, 224.5, 0.0], [0.0, 935.0, 187.0, 0.0], [0.0, 0.0, 1.0, 0.0]]
 PR = [[935.0, 0.0, 249.5, -149.6], [0.0, 935.0, 187.0, 0.0], [0.0, 0.0, 1.0, 0.0]]

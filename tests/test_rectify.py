@@ -24,7 +24,7 @@ from riverbed_cli.errors import RiverbedError
 from riverbed_cli.geometry import rectify as RC
 from riverbed_cli.io.disparity import read_disparity
 from riverbed_cli.io.images import read_image
-from riverbed_cli.io.pairfile import load_pairfile
+from riverbed_cli.geometry.pairfile import load_pairfile
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "block"
 RAW = SAMPLE / "raw"

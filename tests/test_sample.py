@@ -16,7 +16,7 @@ import rasterio
 from riverbed_cli import sample as S
 from riverbed_cli.io.disparity import read_disparity
 from riverbed_cli.io.images import read_image
-from riverbed_cli.io.pairfile import load_pairfile
+from riverbed_cli.geometry.pairfile import load_pairfile
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "block"
 COMMAND = "riverbed sample sample_data/block --size small --seed 0"

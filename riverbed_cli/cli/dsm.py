@@ -11,7 +11,7 @@ from ..io.atomic import check_output
 from ..io.disparity import read_disparity
 from ..io.images import read_image
 from ..io.lidar import lidar_info, resolve_crs
-from ..io.pairfile import load_pairfile, load_registration
+from ..geometry.pairfile import load_pairfile, load_registration
 from ..io.pointcloud import check_pointcloud_path, write_points
 from ..io.raster import parse_creation_options, write_geotiff
 from ..products.dsm import AGGREGATIONS, build_dsm, hillshade

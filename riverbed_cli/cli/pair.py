@@ -9,7 +9,7 @@ from ..errors import RiverbedError
 from ..geometry.cameras import kitti_pair, middlebury_pair
 from ..io.atomic import check_output
 from ..io.images import read_image
-from ..io.pairfile import pair_to_dict, write_pairfile
+from ..geometry.pairfile import pair_to_dict, write_pairfile
 from .options import input_path, json_opt, output_opt, overwrite_opt, print_json
 
 log = logging.getLogger(__name__)

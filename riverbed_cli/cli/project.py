@@ -12,7 +12,7 @@ from ..geometry.projection import NOISE_CLASSES, OUTLIERS, SIDES, VISIBILITY, im
 from ..io.atomic import check_output
 from ..io.disparity import disparity_format, write_disparity
 from ..io.lidar import lidar_info
-from ..io.pairfile import load_pairfile, load_registration
+from ..geometry.pairfile import load_pairfile, load_registration
 from ..matching.config import MatchConfig
 from ..matching.guides.riverbed import riverbed_window
 from .options import input_path, json_opt, output_opt, overwrite_opt, print_json, progress_enabled

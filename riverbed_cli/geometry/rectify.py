@@ -30,7 +30,7 @@ from pyproj import CRS
 from ..errors import RiverbedError
 from ..io.atomic import atomic_output, check_output, check_output_folder
 from ..io.images import MAX_PIXELS, read_image, write_png_file
-from ..io.pairfile import write_pairfile
+from .pairfile import write_pairfile
 from .cameras import PairGeometry
 from .orientation import (
     FrameOrientation,

@@ -23,7 +23,6 @@ The paper writes ``d_m = x_R - x_L``; here ``d = x_left - x_right >= 0`` through
 
 import math
 
-import cv2
 import numpy as np
 from numba import njit, prange
 

@@ -12,7 +12,8 @@ import time
 import numpy as np
 
 from ..errors import RiverbedError
-from . import guides, matchers  # noqa: F401  (importing them fills the registries)
+from . import guides as _guides  # noqa: F401  (importing them fills the registries)
+from . import matchers as _matchers  # noqa: F401
 from .config import GUIDE_NAMES, MATCHER_NAMES, MatchConfig
 from .guidance import lidar_share
 from .registry import get_guide, get_matcher

@@ -20,7 +20,7 @@ from ..errors import RiverbedError
 from ..geometry.rectify import orientation_dict, write_orientation
 from ..io.atomic import check_output_folder
 from ..io.disparity import write_disparity
-from ..io.pairfile import write_pairfile
+from ..geometry.pairfile import write_pairfile
 from ..io.raster import write_geotiff
 from ..products.visualize import write_png
 from .block import make_block

@@ -16,7 +16,7 @@ from ...errors import RiverbedError
 from ...geometry.rectify import rectify_files
 from ...io.atomic import atomic_output
 from ...io.images import read_image
-from ...io.pairfile import load_pairfile
+from ...geometry.pairfile import load_pairfile
 from .manifest import RAW_KEYS, Manifest, load_manifest
 
 OUTPUTS = ("sparse.tif", "disparity.tif", "points.laz", "dsm.tif")

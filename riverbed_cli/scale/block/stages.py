@@ -16,7 +16,7 @@ from ...io.atomic import atomic_output
 from ...io.disparity import read_disparity, write_disparity
 from ...io.images import check_pair, check_pixels, read_image
 from ...io.lidar import lidar_info
-from ...io.pairfile import load_pairfile, load_registration
+from ...geometry.pairfile import load_pairfile, load_registration
 from ...io.pointcloud import write_points
 from ...io.raster import write_geotiff
 from ...io.windowed import WindowedRaster, image_bits, open_windowed, sparse_points_any

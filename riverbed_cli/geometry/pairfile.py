@@ -23,11 +23,13 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from pyproj import CRS
+from pyproj.exceptions import CRSError
 
 from ..errors import RiverbedError
-from .textfiles import parse_yaml, read_text
-from ..geometry.cameras import PairGeometry, as_matrix, check_registration
-from .atomic import atomic_output
+from ..io.atomic import atomic_output
+from ..io.textfiles import parse_yaml, read_text
+from .cameras import PairGeometry, as_matrix, check_registration
 
 #: Pair files and registration files larger than this are refused before parsing.
 MAX_BYTES = 1_000_000
@@ -46,9 +48,6 @@ def _parse(path, what):
 
 
 def _check_crs(crs, path):
-    from pyproj import CRS
-    from pyproj.exceptions import CRSError
-
     try:
         CRS.from_user_input(crs)
     except CRSError:
