@@ -20,6 +20,7 @@ from riverbed_cli.io.images import read_image
 from riverbed_cli.io.lidar import read_lidar
 from riverbed_cli.geometry.pairfile import load_pairfile, write_pairfile
 from riverbed_cli.io.pointcloud import write_points
+from riverbed_cli.matching.pipeline import match_pair
 from riverbed_cli.products.dsm import Grid, rasterize
 from riverbed_cli.products.visualize import write_png
 from riverbed_cli.scale.block import load_manifest, plan_block, project_stage, run_block
@@ -392,3 +393,51 @@ def test_raw_frames_in_the_manifest_are_rectified_then_matched(tmp_path):
     assert res.exit_code == 1
     assert res.stderr == (f"riverbed: error: {tmp_path / 'bad.yaml'}: pairs[0]: give either pair (a rectified pair "
                           "file) or raw (frames and orientations)\n")
+
+
+def test_manifest_reaches_adcensus_diffusion_and_riverbed_plus_settings(block, tmp_path):
+    """Every riverbed match setting is a manifest key: a pair's AD-Census / riverbed+ / diffusion settings reach the
+    matcher (its disparity is match_pair's with that configuration, and differs from the defaults')."""
+    base = block[0]
+    pairs = [{"pair": str(base / "d/pair.yaml"), "cloud": str(base / "lidar/east.laz"), "name": "plus",
+              "matcher": "adcensus", "guide": "riverbed+", "adcensus_pi2": 4.5, "plus_hops": 2, "plus_margin": 1.0},
+             {"pair": str(base / "d/pair.yaml"), "cloud": str(base / "lidar/east.laz"), "name": "diff",
+              "guide": "diffusion", "diffusion_radius": 2, "diffusion_sigma_s": 4.0}]
+    manifest = tmp_path / "settings.yaml"
+    manifest.write_text(yaml.safe_dump({"defaults": {"resolution": 1.0, "tile": 0, "min_disp": 0, "max_disp": 63},
+                                        "pairs": pairs}))
+    r = run(["block", str(manifest), "-o", str(tmp_path / "out"), "--workers", "0", "--json"])
+    assert r.exit_code == 0, r.output
+    pair = load_pairfile(base / "d/pair.yaml")
+    left, right = read_image(pair.left), read_image(pair.right)
+    for entry in pairs:
+        folder = tmp_path / "out" / "pairs" / entry["name"]
+        sparse = read_disparity(folder / "sparse.tif")
+        settings = {k: v for k, v in entry.items() if k not in ("pair", "cloud", "name")}
+        want = match_pair(left, right, sparse, 0, 63, **settings).disparity
+        got = read_disparity(folder / "disparity.tif")
+        np.testing.assert_array_equal(got, want)
+        plain = match_pair(left, right, sparse, 0, 63, guide=entry["guide"],
+                           matcher=entry.get("matcher", "sgm")).disparity
+        assert not np.array_equal(got, plain, equal_nan=True)  # the settings changed the result
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("plus_hops", -1, "expected 'auto' or an integer >= 0, got -1"),
+    ("adcensus_guide_stage", "later", "expected one of aggregated, initial, got 'later'"),
+    ("diffusion_sigma_s", 0, "expected a positive number, got 0"),
+    ("paths", 5, "expected one of 4, 8, 16, got 5"),
+])
+def test_bad_setting_same_message_in_manifest_and_on_the_command_line(block, tmp_path, key, value, message):
+    base = block[0]
+    manifest = tmp_path / "bad.yaml"
+    manifest.write_text(yaml.safe_dump({"defaults": {key: value},
+                                        "pairs": [{"pair": str(base / "d/pair.yaml"),
+                                                   "cloud": str(base / "lidar/west.laz")}]}))
+    r = CliRunner().invoke(cli, ["block", str(manifest), "-o", str(tmp_path / "never")])
+    assert r.exit_code == 1 and r.stderr == f"riverbed: error: {manifest}: defaults.{key}: {message}\n"
+    option = "--" + key.replace("_", "-")
+    r = CliRunner().invoke(cli, ["match", str(DATA / "im2.png"), str(DATA / "im6.png"), "--max-disp", "59",
+                                 option, str(value), "-o", str(tmp_path / "never.tif")])
+    assert r.exit_code == 1 and r.stderr == f"riverbed: error: {option}: {message}\n"
+    assert not (tmp_path / "never").exists() and not (tmp_path / "never.tif").exists()

@@ -6,9 +6,11 @@ The manifest (YAML, read with ``yaml.safe_load`` only; paths relative to the man
       resolution: 0.5          # block-wide (defaults only): DSM cell size in CRS units
       crs: EPSG:32632          # block-wide: CRS of the DSMs and point clouds (default: the pairs')
       agg: max                 # block-wide: per-cell aggregation, max | mean | median | idw
-      guide: riverbed          # matcher: guide window census paths p1 p2 subpixel median lr_check
-      min_disp: 0              #          min_disp max_disp max_pixels
-      tile: auto               # tiling: tile (px, or auto as match_tiled) overlap lidar_range
+      guide: riverbed          # matching: every setting of `riverbed match` under its name, e.g. matcher
+      plus_hops: 2             #   guide window census paths p1 p2 ... adcensus_pi2 diffusion_radius plus_hops
+      min_disp: 0              #   min_disp max_disp max_pixels (the table riverbed_cli.matching.config.MATCH_SETTINGS)
+      tile: auto               # tiling: tile (px; auto: riverbed match's rule, scale.tiles.plan_tiles; 0: never)
+                               #   overlap lidar_range
       drop_classes: [7, 18]    # projection: outliers visibility side footprint classes drop_classes
                                #             registration (a 4x4 file) lidar_crs
     pairs:
