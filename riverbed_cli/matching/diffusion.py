@@ -25,8 +25,7 @@ Parameters (the paper states a small neighbourhood and a bilateral weight but, a
 window ``radius = 5`` (11 x 11), ``sigma_s = 10`` px, ``sigma_i = 20`` grey levels (colour differences are the mean
 over channels of squared differences, as in the riverbed similarity). These are the best of a grid measured with SGM
 on the Middlebury dev scenes at 5 % LiDAR (radius 1..7, sigma_s 1..10, sigma_i 10..20; docs/riverbed_plus.md): the
-baseline is tuned, not handicapped. Larger windows kept helping a little at 5 % (radius 7: mean error 0.42 vs 0.41
-px), but stop being a "small neighbourhood".
+baseline is tuned, not handicapped (larger windows help a little more but stop being a "small neighbourhood").
 
 Contrast with riverbed: Diffusion lowers one (or two) disparities of a neighbour and raises nothing, so a neighbour
 whose true disparity differs from ``d_p`` keeps its other costs intact; riverbed also builds walls that push costs up

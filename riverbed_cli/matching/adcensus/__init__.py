@@ -16,8 +16,8 @@ One module per stage, each a function on numpy arrays; :func:`adcensus_disparity
 
 Where this differs from the paper: the right disparity map comes from the left volume (``min_d S(x_r + d, d)``), not
 from a second matching pass; the crosses are the left image's only (Zhang et al.'s per-disparity intersection with the
-right image's crosses measured slightly better on Cones, 3.8 % vs 4.4 % non-occluded bad1, at about twice the
-aggregation cost); costs are fixed point (1/256 of the paper's unit).
+right image's crosses measured slightly better, at about twice the aggregation cost: docs/riverbed_plus.md); costs
+are fixed point (1/256 of the paper's unit).
 
 Conventions: the left image is the reference; ``d = x_left - x_right``; volumes are ``H x W x D`` with
 ``d = d_min + i`` at index ``i``; images ``H x W x C`` ``uint8`` (0..255).
