@@ -26,7 +26,8 @@ import numpy as np
 CHILD = r"""
 import json, resource, sys, time
 import numpy as np
-from riverbed_cli.scale.tiles import TiffSink, match_tiled, open_windowed
+from riverbed_cli.io.windowed import TiffSink, open_windowed
+from riverbed_cli.scale.tiles import match_tiled
 from riverbed_cli.matching.pipeline import warm_up
 d, lidar_range = sys.argv[1], sys.argv[2] == "1"
 warm_up()

@@ -58,7 +58,7 @@ def test_windowed_sources_give_the_same_result(cones, tmp_path):
     import rasterio
 
     from riverbed_cli.io.disparity import write_disparity
-    from riverbed_cli.scale.tiles import WindowedRaster, open_windowed
+    from riverbed_cli.io.windowed import WindowedRaster, open_windowed
 
     left, right, gt = cones
     sparse = simulate_lidar(gt, 0.05, seed=0)

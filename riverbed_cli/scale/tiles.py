@@ -20,7 +20,7 @@ import psutil
 
 from ..errors import RiverbedError
 from ..io.images import to_guide
-from ..io.windowed import TiffSink, WindowedRaster, image_bits, open_windowed, sparse_points_any  # noqa: F401
+from ..io.windowed import image_bits, sparse_points_any
 from ..matching.config import OVERLAP_DEFAULT, TILE_DEFAULT
 from ..matching.guidance import lidar_share_of_points
 from ..matching.pipeline import make_config, match_pair, resolve_disparity_range
