@@ -14,15 +14,12 @@ import numpy as np
 from ..errors import RiverbedError
 from . import guides as _guides  # noqa: F401  (importing them fills the registries)
 from . import matchers as _matchers  # noqa: F401
-from .config import GUIDE_NAMES, MATCHER_NAMES, MatchConfig
+from .config import MatchConfig
 from .guidance import lidar_share
 from .registry import get_guide, get_matcher
 from .results import MatchInfo, MatchResult
 
 log = logging.getLogger(__name__)
-
-GUIDES = GUIDE_NAMES
-MATCHERS = MATCHER_NAMES
 
 def disparity_range_from_sparse(sparse, margin=None):
     """Inclusive integer range ``(d_min, d_max)`` covering the sparse disparities plus a margin.
