@@ -29,8 +29,9 @@ def test_tiling_is_invisible(cones, guide):
 def test_lidar_ranges_are_tight_and_hold_the_truth(cones):
     left, right, gt = cones
     sparse = simulate_lidar(gt, 0.05, seed=0)
-    full = match_tiled(left, right, sparse, 0, 63, tile=128, overlap=64, lidar_range=False)
-    narrow = match_tiled(left, right, sparse, 0, 63, tile=128, overlap=64, lidar_range=True)
+    # one range per tile (range "tile"): LiDAR tile ranges against the global one
+    full = match_tiled(left, right, sparse, 0, 63, tile=128, overlap=64, lidar_range=False, range="tile")
+    narrow = match_tiled(left, right, sparse, 0, 63, tile=128, overlap=64, lidar_range=True, range="tile")
     assert narrow.info["tile_ranges"]["lidar"] == 12
     assert narrow.info["disparity_evaluations"] < 0.8 * full.info["disparity_evaluations"]
     m_full = evaluate_disparity(full.disparity, gt, exclude=sparse)

@@ -88,7 +88,23 @@ def _census_cost_kernel(cl, cr, d_min, cost, outside, scale):
                     cost[y, x, i] = popcount64(a ^ cr[y, xr]) * scale
 
 
-def census_cost(census_left, census_right, d_min, d_max, outside_cost, scale=1):
+@njit(cache=True, parallel=True)
+def _census_tube_kernel(cl, cr, d_min, flat, start, width, offset, outside, scale):
+    H, W = cl.shape
+    for y in prange(H):
+        for x in range(W):
+            a = cl[y, x]
+            b = start[y, x]
+            d0 = d_min + np.int64(offset[y, x])
+            for i in range(width[y, x]):
+                xr = x - (d0 + i)
+                if xr < 0 or xr >= W:
+                    flat[b + i] = outside
+                else:
+                    flat[b + i] = popcount64(a ^ cr[y, xr]) * scale
+
+
+def census_cost(census_left, census_right, d_min, d_max, outside_cost, scale=1, tubes=None):
     """Hamming-distance cost volume between two census images.
 
     Parameters
@@ -103,21 +119,32 @@ def census_cost(census_left, census_right, d_min, d_max, outside_cost, scale=1):
     scale : int
         1 gives a ``uint8`` volume of Hamming distances; a larger scale gives ``uint16`` costs multiplied by it (the
         fixed-point units the guidance stage works in).
+    tubes : TubeLayout, optional
+        Per-pixel tubes (:class:`~riverbed_cli.matching.volume.TubeLayout`): only each pixel's own disparities are
+        computed, into a flat volume (``d_max`` is then unused).
 
     Returns
     -------
-    (H, W, D) uint8 (scale 1) or uint16
+    (H, W, D) uint8 (scale 1) or uint16, or with ``tubes`` the flat (tubes.size,) volume
         ``cost[y, x, i] = scale * popcount(census_left[y, x] ^ census_right[y, x - (d_min + i)])``.
     """
     if census_left.shape != census_right.shape:
         raise RiverbedError(f"census images differ in shape: {census_left.shape} vs {census_right.shape}")
-    if d_max < d_min:
+    if tubes is None and d_max < d_min:
         raise RiverbedError(f"empty disparity range [{d_min}, {d_max}]")
-    D = int(d_max) - int(d_min) + 1
+    D = int(d_max) - int(d_min) + 1 if tubes is None else 0
     H, W = census_left.shape
     dtype = np.uint8 if scale == 1 else np.uint16
     if scale < 1 or 64 * scale > np.iinfo(dtype).max or not 0 <= outside_cost <= 64:
         raise RiverbedError(f"census cost scale {scale} / outside cost {outside_cost} out of range")
+    if tubes is not None:
+        if tubes.shape != (H, W):
+            raise RiverbedError(f"tube layout {tubes.shape} and census images {(H, W)} differ in size")
+        flat = np.empty(tubes.size, dtype=dtype)
+        _census_tube_kernel(census_left, census_right, int(d_min), flat, tubes.start, tubes.width, tubes.offset,
+                            dtype(outside_cost * scale), dtype(scale))
+        return flat
     cost = np.empty((H, W, D), dtype=dtype)
     _census_cost_kernel(census_left, census_right, int(d_min), cost, dtype(outside_cost * scale), dtype(scale))
     return cost
+

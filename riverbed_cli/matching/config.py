@@ -37,6 +37,7 @@ GUIDE_NAMES = ("none", "gauss", "riverbed", "diffusion", "riverbed+")
 FORMS = ("additive", "product")
 CONFIDENCES = ("lr", "none")
 GUIDE_STAGES = ("aggregated", "initial")
+RANGES = ("auto", "tube", "tile", "full")
 
 # Defaults of the run settings (tiling, range, input size), shared by match_tiled and the command line.
 TILE_DEFAULT = "auto"
@@ -122,8 +123,19 @@ class ADCensusConfig:
     guide_stage: str = "aggregated"  # where guidance modulates the volume: "aggregated" (before SO) or "initial"
 
 
+@dataclass(frozen=True)
+class TubeConfig:
+    """LiDAR tubes: each pixel's search range from the LiDAR around it (:mod:`..tubes`, docs/tubes.md)."""
+
+    reach: float = 2.0  # radius of the first level, in mean LiDAR spacings (1 / sqrt(share) px)
+    margin: float = 2.0  # disparity margin (px) around the LiDAR extrema at the first level
+    levels: int = 3  # levels (radius doubling each) before a pixel falls back to the nominal range
+    level_margin: float = 4.0  # margin added per level (px): farther LiDAR, wider tube
+    cell: int = 4  # cell side (px) in which LiDAR extrema are gathered
+
+
 _GROUPS = {"sgm": SGMConfig, "guidance": GuidanceConfig, "diffusion": DiffusionConfig, "plus": PlusConfig,
-           "adcensus": ADCensusConfig}
+           "adcensus": ADCensusConfig, "tube": TubeConfig}
 
 
 @dataclass(frozen=True)
@@ -135,11 +147,13 @@ class MatchConfig:
     census: str = "9x7"  # census window WIDTHxHEIGHT (both matchers)
     subpixel: bool = True
     median: int = 3
+    range: str = "auto"  # disparity search range: auto (tube with LiDAR guidance, else full), tube, tile, full
     sgm: SGMConfig = field(default_factory=SGMConfig)
     guidance: GuidanceConfig = field(default_factory=GuidanceConfig)
     diffusion: DiffusionConfig = field(default_factory=DiffusionConfig)
     plus: PlusConfig = field(default_factory=PlusConfig)
     adcensus: ADCensusConfig = field(default_factory=ADCensusConfig)
+    tube: TubeConfig = field(default_factory=TubeConfig)
 
     def replace(self, **changes):
         """A copy with flat settings (``p2=150``, names of :data:`MATCH_SETTINGS`) or whole groups replaced.
@@ -262,6 +276,14 @@ _PLUS_CHECKS = {"hops": auto_or(integer(0), "an integer >= 0"), "margin": number
                 "lr_threshold": _NN, "arm_l1": integer(1, 255), "arm_l2": integer(1, 255),
                 "arm_tau1": _NN, "arm_tau2": _NN}
 
+_TUBE_HELP = {"reach": "Tube: radius of the first level, in mean LiDAR spacings.",
+              "margin": "Tube: disparity margin around the LiDAR extrema at the first level (px).",
+              "levels": "Tube: levels (radius doubling) before a pixel falls back to the nominal range.",
+              "level_margin": "Tube: margin added per level (px).",
+              "cell": "Tube: cell side (px) in which LiDAR extrema are gathered."}
+_TUBE_CHECKS = {"reach": _POS, "margin": number(0), "levels": integer(1, 12), "level_margin": number(0),
+                "cell": integer(1, 64)}
+
 _ADC_HELP = {
     "lambda_ad": "AD cost scale lambda_AD.", "lambda_census": "Census cost scale lambda_census.",
     "scale": "Fixed-point cost units per 1.0 of the paper's cost.",
@@ -307,6 +329,10 @@ MATCH_SETTINGS = (
     Setting("census", "9x7", census_window, "Census window WIDTHxHEIGHT.", "match", "census"),
     Setting("subpixel", True, boolean, "Parabola sub-pixel fit.", "match", "subpixel", kind="bool"),
     Setting("median", 3, integer(0, 15), "Median filter size (1 or 0: off).", "match", "median", kind="int"),
+    Setting("range", "auto", choice(RANGES),
+            "Disparity search range per pixel: tube (from the LiDAR around each pixel, docs/tubes.md), tile (one "
+            "range per tile, from its LiDAR), full (the nominal range everywhere); auto: tube for LiDAR-guided "
+            "sgm, else full.", "match", "range"),
     # census + SGM
     *[Setting(s.name, s.default, s.check, s.help, s.group, s.field, "sgm",
               "choice-int" if s.name == "paths" else ("auto-int" if s.name == "outside_cost" else s.kind))
@@ -319,6 +345,7 @@ MATCH_SETTINGS = (
     *_group_rows("diffusion", DiffusionConfig, "diffusion_", "diffusion", _DIFFUSION_HELP, {}, _DIFFUSION_CHECKS),
     *_group_rows("plus", PlusConfig, "plus_", "riverbed+", _PLUS_HELP, {"hops": "auto-int"}, _PLUS_CHECKS),
     *_group_rows("adcensus", ADCensusConfig, "adcensus_", "adcensus", _ADC_HELP, {}, _ADC_CHECKS),
+    *_group_rows("tube", TubeConfig, "tube_", "range tube", _TUBE_HELP, {}, _TUBE_CHECKS),
     # the run: disparity range, input size, tiling (not part of MatchConfig)
     Setting("min_disp", None, integer(-100_000, 100_000, none=True),
             "Smallest disparity searched (px, inclusive; default: from the sparse LiDAR, else 0).", kind="int"),

@@ -41,6 +41,7 @@ from numba import njit, prange
 
 from ..errors import RiverbedError
 from .guidance import check_volume, guide_image, scaled_volume
+from .volume import volume_layout
 
 
 def _row_points(sparse):
@@ -52,18 +53,24 @@ def _row_points(sparse):
 
 
 @njit(cache=True, parallel=True)
-def _diffusion_kernel(cost, sparse, ptr, cols, guide, d_min, radius, a, b, dref, min_weight):
+def _diffusion_kernel(flat, D0, sparse, ptr, cols, guide, d_min0, radius, a, b, dref, min_weight, tstart, twidth,
+                      toffset):
     # Pixel-centric: every pixel visits the LiDAR pixels of its (2 radius + 1)^2 window (rows as CSR lists, so only
     # LiDAR pixels are touched), so rows are independent. With ``dref`` (H x W, or 0 x 0 for none) it also records
     # the disparity of the strongest weight >= min_weight (diffusion_support), in the same pass.
-    H, W, D = cost.shape
+    H, W = sparse.shape
     C = guide.shape[2]
     n = (2 * radius + 1) * (2 * radius + 1) * 2
     want_ref = dref.shape[0] == H
+    tube = tstart.shape[0] == H
     for y in prange(H):
         idx = np.empty(n, dtype=np.int64)
         fac = np.empty(n, dtype=np.float64)
         for x in range(W):
+            if tube:
+                base, D, d_min = tstart[y, x], np.int64(twidth[y, x]), d_min0 + np.int64(toffset[y, x])
+            else:
+                base, D, d_min = (y * W + x) * D0, D0, d_min0  # index 0 of this pixel is disparity d_min
             m = 0
             own = not math.isnan(sparse[y, x])
             best_w = -1.0
@@ -103,14 +110,14 @@ def _diffusion_kernel(cost, sparse, ptr, cols, guide, d_min, radius, a, b, dref,
                             idx[m] = i
                             fac[m] = f
                             m += 1
-            cy = cost[y, x]
+            cy = flat[base:base + D]
             for t in range(m):
                 i = idx[t]
                 cy[i] = np.uint16(math.floor(fac[t] * cy[i] + 0.5))
 
 
 def diffusion_modulate(cost, sparse, guide, d_min, radius=5, sigma_s=10.0, sigma_i=20.0, cost_scale=4,
-                       inplace=False, support_weight=None):
+                       inplace=False, support_weight=None, tubes=None):
     """Diffusion-based guidance (Shivakumar et al. 2019, as read in the module docstring).
 
     Parameters
@@ -130,6 +137,8 @@ def diffusion_modulate(cost, sparse, guide, d_min, radius=5, sigma_s=10.0, sigma
         Fixed-point scale of the output (a ``uint8`` input is multiplied by it).
     inplace : bool
         Modulate a scaled ``uint16`` input in place.
+    tubes : TubeLayout, optional
+        Per-pixel tubes (:class:`~riverbed_cli.matching.volume.TubeLayout`): ``cost`` is the flat tube volume.
     support_weight : float, optional
         Also return :func:`diffusion_support` with ``min_weight = support_weight``, computed in the same pass.
 
@@ -139,7 +148,7 @@ def diffusion_modulate(cost, sparse, guide, d_min, radius=5, sigma_s=10.0, sigma
         Scaled costs; only costs at the spread disparities of pixels within ``radius`` of a LiDAR pixel change, and
         they only decrease. With ``support_weight``: ``(costs, support)``.
     """
-    check_volume(cost, sparse)
+    check_volume(cost, sparse, tubes)
     radius = int(radius)
     if radius < 0 or sigma_s <= 0 or sigma_i <= 0:
         raise RiverbedError(f"diffusion needs radius >= 0 and positive sigmas (got {radius}, {sigma_s}, {sigma_i})")
@@ -150,9 +159,10 @@ def diffusion_modulate(cost, sparse, guide, d_min, radius=5, sigma_s=10.0, sigma
     ptr, cols = _row_points(sparse)
     shape = sparse.shape if support_weight is not None else (0, 0)
     dref = np.full(shape, np.nan, dtype=np.float32)
-    _diffusion_kernel(out, sparse, ptr, cols, guide, int(d_min), radius,
+    flat, _, D0, ts, tw, to = volume_layout(out, sparse.shape, tubes)
+    _diffusion_kernel(flat, D0, sparse, ptr, cols, guide, int(d_min), radius,
                       1.0 / (2.0 * sigma_s * sigma_s), 1.0 / (2.0 * sigma_i * sigma_i * C), dref,
-                      float(support_weight or 0.0))
+                      float(support_weight or 0.0), ts, tw, to)
     if support_weight is None:
         return out
     dref[~np.isnan(sparse)] = sparse[~np.isnan(sparse)]  # a LiDAR pixel vouches for its own measurement

@@ -53,7 +53,57 @@ def _select_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold):
     return disp
 
 
-def select_disparity(aggregated, d_min, subpixel=True, lr_check=False, lr_threshold=1, aggregated2=None):
+@njit(cache=True, parallel=True)
+def _select_tube_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold, start, width, offset):
+    # _select_kernel on a tube volume: pixel (y, x) holds width[y, x] disparities from d_min + offset[y, x]
+    H, W = start.shape
+    dmax = 0
+    for y in range(H):
+        for x in range(W):
+            dmax = max(dmax, np.int64(width[y, x]))
+    disp = np.empty((H, W), dtype=np.float32)
+    for y in prange(H):
+        s = np.empty(dmax, dtype=np.int32)
+        best_left = np.empty(W, dtype=np.int64)  # winner as d - d_min
+        right_cost = np.full(W, 2147483647, dtype=np.int64)
+        right_best = np.zeros(W, dtype=np.int64)
+        for x in range(W):
+            b = start[y, x]
+            D = np.int64(width[y, x])
+            o = np.int64(offset[y, x])
+            for i in range(D):
+                s[i] = np.int32(fwd[b + i]) + np.int32(bwd[b + i])
+            bi = 0
+            bv = s[0]
+            for i in range(1, D):
+                if s[i] < bv:
+                    bv = s[i]
+                    bi = i
+            best_left[x] = o + bi
+            val = np.float32(d_min + o + bi)
+            if subpixel and bi > 0 and bi < D - 1:
+                a = s[bi - 1]
+                c = s[bi + 1]
+                den = a - 2 * bv + c
+                if den > 0:
+                    val += np.float32(0.5 * (a - c) / den)
+            disp[y, x] = val
+            if lr_check:
+                for i in range(D):
+                    xr = x - (d_min + o + i)
+                    if xr >= 0 and xr < W and s[i] < right_cost[xr]:
+                        right_cost[xr] = s[i]
+                        right_best[xr] = o + i
+        if lr_check:
+            for x in range(W):
+                xr = x - (d_min + best_left[x])
+                if xr < 0 or xr >= W or abs(best_left[x] - right_best[xr]) > lr_threshold:
+                    disp[y, x] = np.nan
+    return disp
+
+
+def select_disparity(aggregated, d_min, subpixel=True, lr_check=False, lr_threshold=1, aggregated2=None,
+                     tubes=None):
     """Winner-takes-all disparity with optional sub-pixel fit and left-right consistency check.
 
     Parameters
@@ -68,6 +118,9 @@ def select_disparity(aggregated, d_min, subpixel=True, lr_check=False, lr_thresh
     lr_check : bool
         Mark pixels NaN whose integer disparity differs by more than ``lr_threshold`` px from the disparity the right
         image selects at ``x - d`` (right disparities taken from the same cost volume: min over d of S(x_r + d, d)).
+    tubes : TubeLayout, optional
+        Per-pixel tubes (:class:`~riverbed_cli.matching.volume.TubeLayout`; the volumes are flat): a right pixel's
+        winner is taken over the left pixels whose tube holds the disparity.
 
     Returns
     -------
@@ -78,6 +131,11 @@ def select_disparity(aggregated, d_min, subpixel=True, lr_check=False, lr_thresh
         aggregated2 = np.zeros_like(aggregated)
     if aggregated.shape != aggregated2.shape:
         raise RiverbedError(f"cost volumes differ in shape: {aggregated.shape} vs {aggregated2.shape}")
+    if tubes is not None:
+        if aggregated.size != tubes.size:
+            raise RiverbedError(f"tube volume of {aggregated.size} costs does not match its layout ({tubes.size})")
+        return _select_tube_kernel(aggregated, aggregated2, int(d_min), bool(subpixel), bool(lr_check),
+                                   int(lr_threshold), tubes.start, tubes.width, tubes.offset)
     return _select_kernel(aggregated, aggregated2, int(d_min), bool(subpixel), bool(lr_check), int(lr_threshold))
 
 

@@ -27,6 +27,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
+from .volume import volume_layout
 from ..geometry.coverage import lidar_points, lidar_share, lidar_share_of_points  # noqa: F401  (re-exported)
 
 FORMS = {"additive": 0, "product": 1}
@@ -150,16 +151,22 @@ def homogeneous_owners(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0
 
 
 @njit(cache=True, parallel=True)
-def _modulate_kernel(cost, grows, gcols, owner, dissim, values, d_min, k, c, band, form, scale, fbar, cap):
-    # In place, only at the guided pixels (grows, gcols). cost holds q = scale * F; every form is
+def _modulate_kernel(flat, W, D0, grows, gcols, owner, dissim, values, d_min0, k, c, band, form, scale, fbar, cap,
+                     tstart, twidth, toffset):
+    # In place, only at the guided pixels (grows, gcols). flat holds q = scale * F (a dense H x W x D0 volume
+    # flattened, or with tstart/twidth/toffset, 0 x 0 for none, per-pixel tubes); every form is
     # out = (alpha + beta * g) * q + gamma * g with the wall height g in [0, 1] (module docstring).
-    D = cost.shape[2]
     inv2c2 = 1.0 / (2.0 * c * c)
     tfar = 6.5 * c  # past this, 1 - exp(-t^2 / 2c^2) == 1 to 1e-9: the wall is flat and needs no exp
     fcap = np.float32(cap)
+    tube = tstart.shape[0] > 0
     for j in prange(grows.shape[0]):
         y = grows[j]
         x = gcols[j]
+        if tube:
+            base, D, d_min = tstart[y, x], np.int64(twidth[y, x]), d_min0 + np.int64(toffset[y, x])
+        else:
+            base, D, d_min = (y * W + x) * D0, D0, d_min0  # index 0 of this pixel is disparity d_min
         dm = values[owner[y, x]]
         w = np.float64(dissim[y, x])
         lidar_pixel = w == 0.0
@@ -171,7 +178,7 @@ def _modulate_kernel(cost, grows, gcols, owner, dissim, values, d_min, k, c, ban
         # indices whose wall is not yet flat: |d - dm| < half + tfar
         lo = min(D, max(0, int(math.floor(dm - half - tfar)) - d_min))
         hi = max(lo, min(D, int(math.ceil(dm + half + tfar)) - d_min + 1))
-        cy = cost[y, x]
+        cy = flat[base:base + D]
         a1 = np.float32(alpha + beta)
         g1 = np.float32(gamma + 0.5)  # + 0.5: truncating a positive value then rounds
         for i in range(lo):
@@ -203,8 +210,12 @@ def _modulate_kernel(cost, grows, gcols, owner, dissim, values, d_min, k, c, ban
             cy[i] = np.uint16(min(a1 * np.float32(cy[i]) + g1, fcap))
 
 
-def check_volume(cost, sparse):
-    """A cost volume (H, W, D) and a sparse map (H, W) of the same image, or :class:`RiverbedError`."""
+def check_volume(cost, sparse, tubes=None):
+    """A cost volume (H, W, D), or a flat tube volume with its layout, and a sparse map (H, W) of the same image;
+    :class:`RiverbedError` otherwise."""
+    if tubes is not None:
+        volume_layout(cost, sparse.shape, tubes)
+        return
     if cost.ndim != 3:
         raise RiverbedError(f"cost volume must be (H, W, D), got shape {cost.shape}")
     if sparse.shape != cost.shape[:2]:
@@ -225,19 +236,22 @@ def wall_scale(cost, rows, cols, cost_scale):
     return float(cost[rows, cols].mean()) / cost_scale if rows.size else 0.0
 
 
-def _apply(cost, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, cap, fbar=None):
+def _apply(cost, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, cap, fbar=None, tubes=None):
     if form not in FORMS:
         raise RiverbedError(f"unknown guidance form '{form}' (use additive or product)")
     grows, gcols = np.nonzero(owner >= 0)
     if fbar is None:
+        if tubes is not None:
+            raise RiverbedError("give the wall scale fbar for a tube volume")
         fbar = wall_scale(cost, rows, cols, cost_scale)
-    _modulate_kernel(cost, grows.astype(np.int64), gcols.astype(np.int64), owner, dissim, values, int(d_min),
-                     float(k), float(c), float(band), FORMS[form], float(cost_scale), fbar, int(cap))
+    flat, W, D, ts, tw, to = volume_layout(cost, owner.shape, tubes)
+    _modulate_kernel(flat, W, D, grows.astype(np.int64), gcols.astype(np.int64), owner, dissim, values, int(d_min),
+                     float(k), float(c), float(band), FORMS[form], float(cost_scale), fbar, int(cap), ts, tw, to)
     return cost
 
 
 def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_scale=4, cap=65535, inplace=False,
-                   fbar=None):
+                   fbar=None, tubes=None):
     """Gauss enhancement (paper eq. 5, Poggi et al. 2019) at the LiDAR pixels.
 
     Parameters
@@ -255,6 +269,8 @@ def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_sca
         Upper bound of guided costs (keeps SGM sums within uint16).
     inplace : bool
         Modulate a scaled ``uint16`` input in place instead of copying it.
+    tubes : TubeLayout, optional
+        Per-pixel tubes (:class:`~riverbed_cli.matching.volume.TubeLayout`): ``cost`` is then the flat tube volume.
     fbar : float, optional
         ``F_bar`` of the additive walls, in plain cost units. Default: the mean cost at the LiDAR pixels
         (:func:`wall_scale`). A fixed value (the matcher passes half the census bits) makes the result independent
@@ -265,18 +281,18 @@ def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_sca
     (H, W, D) uint16
         Scaled costs, modulated at the LiDAR pixels and unchanged (times ``cost_scale``) elsewhere.
     """
-    check_volume(cost, sparse)
+    check_volume(cost, sparse, tubes)
     rows, cols, values = lidar_points(sparse)
     owner = np.full(sparse.shape, -1, dtype=np.int32)
     owner[rows, cols] = np.arange(rows.size, dtype=np.int32)
     dissim = np.zeros(sparse.shape, dtype=np.float32)
     out = scaled_volume(cost, cost_scale, inplace)
-    return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, 0.0, form, cost_scale, cap, fbar)
+    return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, 0.0, form, cost_scale, cap, fbar, tubes)
 
 
 def riverbed_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, sigma_xy=8.0, sigma_i=8.0, gamma=0.3,
                       band=3.0, form="additive", cost_scale=4, cap=65535, owners=None, inplace=False,
-                      literal_eq3=False, fbar=None):
+                      literal_eq3=False, fbar=None, tubes=None):
     """Riverbed enhancement (paper eqs. 2, 3, 6): Gauss at LiDAR pixels, band-and-walls at homogeneous pixels.
 
     Parameters are those of :func:`gauss_modulate` plus: ``guide`` the left image (0..255 scale) for the colour
@@ -288,10 +304,10 @@ def riverbed_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, sigma_x
     -------
     (H, W, D) uint16
     """
-    check_volume(cost, sparse)
+    check_volume(cost, sparse, tubes)
     rows, cols, values = lidar_points(sparse)
     if owners is None:
         owners = homogeneous_owners(sparse, guide, window, sigma_xy, sigma_i, gamma, literal_eq3)
     owner, dissim = owners
     out = scaled_volume(cost, cost_scale, inplace)
-    return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, cap, fbar)
+    return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, cap, fbar, tubes)

@@ -8,6 +8,7 @@ Matchers live in ``matching/matchers/``, guides in ``matching/guides/``, their s
 import logging
 import math
 import time
+from dataclasses import asdict
 
 import numpy as np
 
@@ -18,6 +19,8 @@ from .config import MatchConfig
 from .guidance import lidar_share
 from .registry import get_guide, get_matcher
 from .results import MatchInfo, MatchResult
+from .tubes import lidar_tubes, tube_stats
+from .volume import TubeLayout
 
 log = logging.getLogger(__name__)
 
@@ -86,7 +89,42 @@ def make_config(params=None, **overrides):
     return config.replace(**overrides) if overrides else config
 
 
-def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, **overrides):
+def resolve_range(config, guide, matcher, have_lidar, have_map):
+    """The search-range mode a match uses: ``tube`` or ``full`` (``tile`` is :func:`match_tiled`'s; a single
+    match searches its whole range)."""
+    mode = config.range
+    if mode == "auto":
+        return "tube" if (have_map or (guide.needs_sparse and have_lidar)) and matcher.supports_tubes else "full"
+    if mode == "tube":
+        if not matcher.supports_tubes:
+            raise RiverbedError(f"--range tube is not available with --matcher {matcher.name} (use tile or full)")
+        if not (have_lidar or have_map):
+            raise RiverbedError("--range tube needs --sparse or --range-map")
+        return "tube"
+    return "full"
+
+
+def check_range_map(range_map, shape, d_min, d_max):
+    """A per-pixel range ``(lo, hi)`` (float arrays, NaN: the nominal range) as inclusive int32 tube ends."""
+    lo, hi = (np.asarray(a, dtype=np.float64) for a in range_map)
+    if lo.shape != tuple(shape) or hi.shape != tuple(shape):
+        raise RiverbedError(f"range map is {lo.shape[1] if lo.ndim > 1 else '?'}x{lo.shape[0]} (WxH) but the images "
+                            f"are {shape[1]}x{shape[0]}")
+    known = np.isfinite(lo) & np.isfinite(hi)
+    if not known.any():
+        raise RiverbedError("range map has no valid pixel (all NaN)")
+    if (lo[known] > hi[known]).any():
+        n = int((lo[known] > hi[known]).sum())
+        raise RiverbedError(f"range map has min > max at {n} pixels")
+    if lo[known].min() < d_min or hi[known].max() > d_max:
+        raise RiverbedError(f"range map spans [{lo[known].min():.2f}, {hi[known].max():.2f}], outside the nominal "
+                            f"range [{d_min}, {d_max}]")
+    out_lo = np.where(known, np.floor(lo), d_min).astype(np.int32)
+    out_hi = np.where(known, np.ceil(hi), d_max).astype(np.int32)
+    return out_lo, out_hi
+
+
+def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, range_map=None, **overrides):
     """Dense disparity of a rectified pair, optionally guided by sparse LiDAR disparities.
 
     Parameters
@@ -101,6 +139,11 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, **
     params : MatchConfig, optional
         Settings; keyword ``overrides`` replace single settings by their flat names (``guide="gauss"``,
         ``p2=150``, ``plus_hops=3``) or whole groups (``plus=PlusConfig(hops=3)``), :meth:`MatchConfig.replace`.
+        ``range`` chooses the search range per pixel: ``tube`` (from the LiDAR around each pixel,
+        :mod:`.tubes`), ``full``, or ``auto`` (tube for a LiDAR-guided matcher that supports it).
+    range_map : (lo, hi) of (H, W) float, optional
+        Per-pixel disparity ranges from elsewhere (a coarse DSM, a previous run; NaN: the nominal range), used as
+        the tubes instead of the LiDAR's.
 
     Returns
     -------
@@ -128,15 +171,29 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, **
     shape = left.shape[:2]
     if sparse is not None:
         sparse = prepare_sparse(sparse, shape, d_min, d_max)
+    share = lidar_share(sparse) if sparse is not None else 0.0
+    mode = resolve_range(config, guide, matcher, sparse is not None, range_map is not None)
+    tubes, stats = None, None
+    if mode == "tube":
+        t0 = time.perf_counter()
+        if range_map is not None:
+            lo, hi = check_range_map(range_map, shape, d_min, d_max)
+        else:
+            lo, hi = lidar_tubes(sparse, d_min, d_max, share=share, **asdict(config.tube))
+        layout = TubeLayout.from_bounds(lo, hi, d_min)
+        stats = tube_stats(layout, d_min, d_max)
+        if stats.full_share < 1.0:  # tubes as wide as the range everywhere: the full-range volume, exactly
+            tubes = layout
+        stages["range"] = round(time.perf_counter() - t0, 4)
     t0 = time.perf_counter()
-    first_pass = guide.prepare(left, right, sparse, d_min, d_max, config, matcher)
+    first_pass = guide.prepare(left, right, sparse, d_min, d_max, config, matcher, tubes)
     if guide.has_first_pass:
         stages["first_pass"] = round(time.perf_counter() - t0, 4)
-    share = lidar_share(sparse) if sparse is not None else 0.0
-    out = matcher.match(left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages)
+    out = matcher.match(left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages, tubes)
     info = MatchInfo(round(time.perf_counter() - t_all, 4), stages, config.guide, config.matcher, share,
                      int(np.isfinite(sparse).sum()) if sparse is not None else 0, out.window, d_min, d_max,
-                     [int(shape[1]), int(shape[0])], out.refinement)
+                     [int(shape[1]), int(shape[0])], out.refinement, mode,
+                     stats.to_dict() if stats is not None else None)
     return MatchResult(out.disparity, info)
 
 

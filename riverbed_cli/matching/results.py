@@ -17,7 +17,10 @@ class MatchInfo(RecordMapping):
 
     ``stages`` holds seconds per stage (``cost``, ``guidance``, ``aggregation``, ``selection``, ``refinement``;
     ``first_pass`` for riverbed+; AD-Census's ``optimisation``); ``window`` the riverbed window used (None for
-    guides without one); ``size`` ``[width, height]``; ``refinement`` AD-Census's outlier counts and timings.
+    guides without one); ``size`` ``[width, height]``; ``refinement`` AD-Census's outlier counts and timings;
+    ``range`` the search-range mode (``tube`` or ``full``); ``tubes`` with tubes: ``mean_width``, ``max_width``,
+    ``nominal`` (disparities of ``[d_min, d_max]``) and ``full_share`` (share of pixels searching the nominal
+    range).
     """
 
     seconds: float
@@ -31,8 +34,10 @@ class MatchInfo(RecordMapping):
     d_max: int = 0
     size: list = field(default_factory=list)
     refinement: dict = None
+    range: str = "full"
+    tubes: dict = None
 
-    _optional = ("refinement",)
+    _optional = ("refinement", "tubes")
 
 
 @dataclass

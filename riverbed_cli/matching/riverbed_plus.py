@@ -46,6 +46,7 @@ from ..errors import RiverbedError
 from . import guidance
 from .config import CONFIDENCES, PlusConfig  # noqa: F401  (CONFIDENCES: the valid confidence rules)
 from .adcensus import cross_arms, to_u8
+from .volume import volume_layout
 from .guidance import check_volume, lidar_points, scaled_volume
 
 #: riverbed+ settings (frozen; defaults and meaning in :class:`~.config.PlusConfig`).
@@ -112,18 +113,23 @@ def support_ranges(sparse, arms, hops):
 
 
 @njit(cache=True, parallel=True)
-def _band_kernel(cost, lo, hi, extend, d_min, margin, wall, c, cap):
+def _band_kernel(flat, D0, lo, hi, extend, d_min0, margin, wall, c, cap, tstart, twidth, toffset):
     # cost holds scaled costs; at extended pixels: unchanged inside [lo - margin, hi + margin], plus
     # wall * (1 - exp(-t^2 / 2c^2)) at distance t outside it.
-    H, W, D = cost.shape
+    H, W = lo.shape
     inv2c2 = 1.0 / (2.0 * c * c)
+    tube = tstart.shape[0] == H
     for y in prange(H):
         for x in range(W):
             if not extend[y, x]:
                 continue
+            if tube:
+                base, D, d_min = tstart[y, x], np.int64(twidth[y, x]), d_min0 + np.int64(toffset[y, x])
+            else:
+                base, D, d_min = (y * W + x) * D0, D0, d_min0
             a = lo[y, x] - margin
             b = hi[y, x] + margin
-            cy = cost[y, x]
+            cy = flat[base:base + D]
             for i in range(D):
                 d = d_min + i
                 t = max(a - d, d - b, 0.0)
@@ -133,24 +139,26 @@ def _band_kernel(cost, lo, hi, extend, d_min, margin, wall, c, cap):
 
 
 def band_modulate(cost, lo, hi, extend, d_min, margin=2.0, k=10.0, c=1.0, fbar=1.0, cost_scale=4, cap=65535,
-                  inplace=False):
+                  inplace=False, tubes=None):
     """Band-and-walls guidance at the pixels ``extend``: costs unchanged inside ``[lo - margin, hi + margin]``, raised
     by ``k * fbar * cost_scale * (1 - exp(-t^2 / 2c^2))`` at distance ``t`` outside, clipped at ``cap``.
 
     ``cost`` is uint8 (plain) or uint16 (already scaled by ``cost_scale``); returns the scaled uint16 volume.
     """
-    if cost.ndim != 3 or lo.shape != cost.shape[:2] or hi.shape != lo.shape or extend.shape != lo.shape:
+    if (tubes is None and (cost.ndim != 3 or lo.shape != cost.shape[:2])) or hi.shape != lo.shape \
+            or extend.shape != lo.shape:
         raise RiverbedError(f"band inputs do not match the cost volume {cost.shape}")
     out = scaled_volume(cost, cost_scale, inplace)
     ext = np.ascontiguousarray(extend, dtype=np.bool_) & np.isfinite(lo) & np.isfinite(hi)
-    _band_kernel(out, np.ascontiguousarray(lo, np.float32), np.ascontiguousarray(hi, np.float32), ext, int(d_min),
-                 float(margin), float(k * fbar * cost_scale), float(c), float(cap))
+    flat, _, D0, ts, tw, to = volume_layout(out, lo.shape, tubes)
+    _band_kernel(flat, D0, np.ascontiguousarray(lo, np.float32), np.ascontiguousarray(hi, np.float32), ext,
+                 int(d_min), float(margin), float(k * fbar * cost_scale), float(c), float(cap), ts, tw, to)
     return out
 
 
 def riverbed_plus_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, sigma_xy=8.0, sigma_i=8.0, gamma=0.3,
                            band=3.0, form="additive", cost_scale=4, cap=65535, fbar=None, plus=None, unreliable=None,
-                           share=None, inplace=False, return_support=False):
+                           share=None, inplace=False, return_support=False, tubes=None):
     """riverbed+ guidance (module docstring).
 
     Parameters
@@ -171,7 +179,7 @@ def riverbed_plus_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, si
         disparity interval guidance vouches for per pixel (riverbed's band at its pixels, the extended band at the
         extended ones, NaN elsewhere).
     """
-    check_volume(cost, sparse)
+    check_volume(cost, sparse, tubes)
     q = plus or PlusParams()
     rows, cols, _ = lidar_points(sparse)
     out = scaled_volume(cost, cost_scale, inplace)
@@ -180,7 +188,7 @@ def riverbed_plus_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, si
     g = np.asarray(guide, dtype=np.float32)
     owners = guidance.homogeneous_owners(sparse, g, window, sigma_xy, sigma_i, gamma)
     out = guidance.riverbed_modulate(out, sparse, g, d_min, window, k, c, sigma_xy, sigma_i, gamma, band, form,
-                                     cost_scale, cap, owners=owners, inplace=True, fbar=fbar)
+                                     cost_scale, cap, owners=owners, inplace=True, fbar=fbar, tubes=tubes)
     if share is None:
         share = guidance.lidar_share(sparse)
     hops = auto_hops(share) if q.hops == "auto" else int(q.hops)
@@ -191,7 +199,8 @@ def riverbed_plus_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, si
         if unreliable.shape != sparse.shape:
             raise RiverbedError(f"unreliable mask {unreliable.shape} and sparse map {sparse.shape} differ in size")
         extend &= unreliable
-    out = band_modulate(out, lo, hi, extend, d_min, q.margin, k, c, fbar, cost_scale, cap, inplace=True)
+    out = band_modulate(out, lo, hi, extend, d_min, q.margin, k, c, fbar, cost_scale, cap, inplace=True,
+                        tubes=tubes)
     extended = extend & np.isfinite(lo)
     info = {"hops": hops, "extended": round(float(extended.mean()), 4)}
     if return_support:

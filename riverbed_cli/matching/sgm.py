@@ -89,6 +89,102 @@ def _sgm_pass(cost, out, dxs, dys, P1, P2, flip):
                 o[d] = np.uint16(acc[d])
 
 
+@njit(cache=True, boundscheck=False, inline="always")
+def _tube_value(prev, wq, j, P1):
+    # min(L(j), L(j -+ 1) + P1) of the previous pixel's tube (wq wide) at its index j; outside it: the sentinel
+    sent = np.int16(_SENTINEL)
+    a = prev[j + 1] if 0 <= j < wq else sent
+    b = prev[j] if 1 <= j <= wq else sent
+    e = prev[j + 2] if -1 <= j < wq - 1 else sent
+    return min(a, min(b, e) + P1)
+
+
+@njit(cache=True, boundscheck=False)
+def _tube_step(prev, wq, cur, c, acc, P1, jump, mp, s):
+    # One step between tubes: disparity index d here is index d + s of the previous pixel's tube (wq wide); a
+    # disparity outside that tube is unreachable there (the sentinel), not zero. prev is padded (prev[0] and
+    # prev[wq + 1] hold the sentinel), so where d + s and its neighbours lie in [-1, wq] no check is needed.
+    w = c.shape[0]
+    m = np.int16(_SENTINEL)
+    lo = min(w, max(0, -s))
+    hi = max(lo, min(w, wq - s))
+    for d in range(lo):
+        v = np.int16(c[d] + min(_tube_value(prev, wq, d + s, P1), jump) - mp)
+        cur[d + 1] = v
+        acc[d] += v
+        m = min(m, v)
+    for d in range(lo, hi):  # the overlap: as _path_step, shifted
+        v = min(prev[d + s + 1], min(prev[d + s], prev[d + s + 2]) + P1)
+        v = np.int16(c[d] + min(v, jump) - mp)
+        cur[d + 1] = v
+        acc[d] += v
+        m = min(m, v)
+    for d in range(hi, w):
+        v = np.int16(c[d] + min(_tube_value(prev, wq, d + s, P1), jump) - mp)
+        cur[d + 1] = v
+        acc[d] += v
+        m = min(m, v)
+    cur[w + 1] = np.int16(_SENTINEL)
+    return m
+
+
+@njit(cache=True)
+def _sgm_pass_tube(flat, out, start, width, offset, dmax, dxs, dys, P1, P2, flip):
+    # _sgm_pass on a tube volume: pixel (y, x) holds width[y, x] disparities from d_min + offset[y, x] at
+    # flat[start[y, x]:]; ring-buffer rows are dmax + 2 wide, a pixel uses its first width + 2.
+    H, W = start.shape
+    nd = dxs.shape[0]
+    P1 = np.int16(P1)
+    P2 = np.int16(P2)
+    sent = np.int16(_SENTINEL)
+    L = np.full((nd, 3, W, dmax + 2), sent, dtype=np.int16)
+    Lmin = np.zeros((nd, 3, W), dtype=np.int16)
+    acc_all = np.empty(dmax, dtype=np.int16)
+    for yy in range(H):
+        y = H - 1 - yy if flip else yy
+        slot = yy % 3
+        for xx in range(W):
+            x = W - 1 - xx if flip else xx
+            b = start[y, x]
+            w = np.int64(width[y, x])
+            op = np.int64(offset[y, x])
+            c = flat[b:b + w]
+            acc = acc_all[:w]
+            acc[:] = 0
+            for k in range(nd):
+                px = xx - dxs[k]
+                py = yy - dys[k]
+                cur = L[k, slot, xx]
+                if px < 0 or px >= W or py < 0:
+                    m = path_start(cur, c, acc)
+                    cur[w + 1] = sent
+                else:
+                    qy = H - 1 - py if flip else py
+                    qx = W - 1 - px if flip else px
+                    wq = np.int64(width[qy, qx])
+                    sh = op - np.int64(offset[qy, qx])
+                    mp = Lmin[k, py % 3, px]
+                    prev = L[k, py % 3, px]
+                    if sh == 0 and wq >= w:
+                        m = _path_step(prev, cur, c, acc, P1, np.int16(mp + P2), mp)
+                        cur[w + 1] = sent
+                    else:
+                        m = _tube_step(prev, wq, cur, c, acc, P1, np.int16(mp + P2), mp, sh)
+                Lmin[k, slot, xx] = m
+            o = out[b:b + w]
+            for d in range(w):
+                o[d] = np.uint16(acc[d])
+
+
+@njit(cache=True, parallel=True)
+def _sgm_two_passes_tube(flat, fwd, bwd, start, width, offset, dmax, dxs, dys, P1, P2):
+    for t in prange(2):
+        if t == 0:
+            _sgm_pass_tube(flat, fwd, start, width, offset, dmax, dxs, dys, P1, P2, False)
+        else:
+            _sgm_pass_tube(flat, bwd, start, width, offset, dmax, dxs, dys, P1, P2, True)
+
+
 @njit(cache=True, parallel=True)
 def _sgm_two_passes(cost, fwd, bwd, dxs, dys, P1, P2):
     for t in prange(2):
@@ -119,13 +215,16 @@ def check_sgm_bounds(max_cost, p2, paths):
         )
 
 
-def sgm_aggregate_passes(cost, p1, p2, paths=8, max_cost=None):
+def sgm_aggregate_passes(cost, p1, p2, paths=8, max_cost=None, tubes=None):
     """Forward and reverse half-sums of the path costs, ``(S_forward, S_reverse)``, both ``uint16 (H, W, D)``.
 
     Their sum is the aggregated cost; keeping them apart lets disparity selection fuse the addition.
-    ``max_cost`` is a known upper bound of ``cost`` (spares a pass over the volume to find it).
+    ``max_cost`` is a known upper bound of ``cost`` (spares a pass over the volume to find it). With ``tubes`` (a
+    :class:`~riverbed_cli.matching.volume.TubeLayout`; ``cost`` and the results are flat tube volumes) the
+    recurrence compares equal disparities of neighbours, and a disparity outside a neighbour's tube is unreachable
+    there.
     """
-    if cost.ndim != 3 or cost.dtype not in (np.uint8, np.uint16):
+    if (cost.ndim != (1 if tubes is not None else 3)) or cost.dtype not in (np.uint8, np.uint16):
         raise RiverbedError(f"cost volume must be uint8 or uint16 (H, W, D), got {cost.dtype} {cost.shape}")
     p1, p2 = int(p1), int(p2)
     if p1 < 0 or p2 < p1:
@@ -139,7 +238,13 @@ def sgm_aggregate_passes(cost, p1, p2, paths=8, max_cost=None):
     dys = np.array([d[1] for d in fwd_dirs], dtype=np.int64)
     fwd = np.empty(cost.shape, dtype=np.uint16)
     bwd = np.empty(cost.shape, dtype=np.uint16)
-    _sgm_two_passes(cost, fwd, bwd, dxs, dys, np.int32(p1), np.int32(p2))
+    if tubes is None:
+        _sgm_two_passes(cost, fwd, bwd, dxs, dys, np.int32(p1), np.int32(p2))
+    else:
+        if cost.size != tubes.size:
+            raise RiverbedError(f"tube volume of {cost.size} costs does not match its layout ({tubes.size})")
+        _sgm_two_passes_tube(cost, fwd, bwd, tubes.start, tubes.width, tubes.offset, int(tubes.max_width), dxs, dys,
+                             np.int32(p1), np.int32(p2))
     return fwd, bwd
 
 

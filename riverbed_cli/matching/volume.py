@@ -1,8 +1,15 @@
-"""``CostVolume``: the matching cost and what it takes to read it, as it travels from stage to stage."""
+"""``CostVolume``: the matching cost and what it takes to read it, as it travels from stage to stage.
+
+A volume is dense, ``(H, W, D)`` with disparity ``d_min + i`` at index ``i``, or a *tube volume*: per pixel only its
+own disparity interval (its tube, :mod:`.tubes`), the pixels' intervals one after another in a flat array
+described by a :class:`TubeLayout`.
+"""
 
 from dataclasses import dataclass
 
 import numpy as np
+
+from ..errors import RiverbedError
 
 
 @dataclass
@@ -15,26 +22,85 @@ class CostVolume:
         Costs of the left image's pixels; index ``i`` holds disparity ``d = d_min + i`` (``d = x_left - x_right``,
         px). Lower is better.
     d_min : int
-        Disparity of index 0. (Per-pixel search ranges will add an ``(H, W)`` offset to it: index ``i`` of pixel
-        ``(y, x)`` then holds ``d_min + offset[y, x] + i``.)
+        Disparity of index 0 (with ``offset``: of index 0 at offset 0).
     scale : int
         Stored units per plain cost unit (census: Hamming units; AD-Census: 1.0 of the paper's cost). Penalties of
         the aggregation must be multiplied by it.
     max_cost : int
         The largest value ``data`` may hold (stored units): bounds the aggregation's sums.
+    tubes : TubeLayout, optional
+        For a tube volume: ``data`` is flat and pixel ``(y, x)``'s disparities ``d_min + offset[y, x] + i``, ``i <
+        width[y, x]``, sit at ``data[start[y, x] + i]``.
     """
 
     data: np.ndarray
     d_min: int
     scale: int
     max_cost: int
+    tubes: object = None
 
     @property
     def n_disp(self):
-        """Number of disparities ``D``."""
-        return int(self.data.shape[2])
+        """Number of disparities ``D`` (of a tube volume: its widest tube)."""
+        return int(self.tubes.max_width if self.tubes is not None else self.data.shape[2])
 
     @property
     def d_max(self):
-        """Largest disparity held (inclusive)."""
+        """Largest disparity held at offset 0 (inclusive)."""
         return self.d_min + self.n_disp - 1
+
+    def like(self, data, max_cost):
+        """A volume with the same disparities (and tubes) holding ``data``."""
+        return CostVolume(data, self.d_min, self.scale, max_cost, self.tubes)
+
+
+@dataclass
+class TubeLayout:
+    """Where each pixel's tube sits in a flat tube volume.
+
+    ``offset`` (H, W) int32: the tube's first disparity minus ``d_min``; ``width`` (H, W) int32: its number of
+    disparities (>= 1); ``start`` (H, W) int64: index of its first disparity in the flat array (row-major order);
+    ``size``: length of the flat array; ``max_width``: the widest tube.
+    """
+
+    offset: np.ndarray
+    width: np.ndarray
+    start: np.ndarray
+    size: int
+    max_width: int
+
+    @classmethod
+    def from_bounds(cls, lo, hi, d_min):
+        """The layout of tubes ``[lo, hi]`` (inclusive disparities, (H, W) int arrays)."""
+        lo = np.asarray(lo, np.int64)
+        width = (np.asarray(hi, np.int64) - lo + 1).astype(np.int32)
+        start = np.zeros(width.shape, np.int64)
+        flat = start.reshape(-1)
+        np.cumsum(width.reshape(-1)[:-1], out=flat[1:])
+        size = int(start.reshape(-1)[-1] + width.reshape(-1)[-1]) if width.size else 0
+        return cls(np.ascontiguousarray(lo - int(d_min), np.int32), np.ascontiguousarray(width), start, size,
+                   int(width.max()) if width.size else 0)
+
+    @property
+    def shape(self):
+        return self.width.shape
+
+
+_NONE = np.zeros((0, 0), np.int64)
+_NONE32 = np.zeros((0, 0), np.int32)
+
+
+def volume_layout(data, shape, tubes=None):
+    """What the kernels take: ``(flat, W, D, start, width, offset)``; for a dense volume ``D`` is its depth and the
+    three layout arrays are empty (0 x 0), for a tube volume ``D`` is 0."""
+    H, W = shape
+    if tubes is None:
+        if data.ndim != 3 or data.shape[:2] != (H, W):
+            raise RiverbedError(f"cost volume {data.shape} does not match the image {H}x{W} (H x W)")
+        if not data.flags.c_contiguous:
+            raise RiverbedError("cost volume must be C-contiguous (the kernels modify it in place)")
+        return data.reshape(-1), W, int(data.shape[2]), _NONE, _NONE32, _NONE32
+    if data.ndim != 1 or data.size != tubes.size or tubes.shape != (H, W):
+        raise RiverbedError(f"tube volume of {data.size} costs does not match its layout ({tubes.size} for "
+                            f"{tubes.shape})")
+    return data, W, 0, tubes.start, tubes.width, tubes.offset

@@ -13,7 +13,7 @@ d_max - off]``; ``off`` is added back. Only the tile's own pixels (not the overl
 import logging
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 import psutil
@@ -22,9 +22,10 @@ from ..errors import RiverbedError
 from ..io.images import to_guide
 from ..io.windowed import image_bits, sparse_points_any
 from ..matching.config import OVERLAP_DEFAULT, TILE_DEFAULT
-from ..matching.guidance import lidar_share_of_points
-from ..matching.pipeline import make_config, match_pair, resolve_disparity_range
-from ..matching.registry import get_guide
+from ..matching.guidance import lidar_share, lidar_share_of_points
+from ..matching.pipeline import make_config, match_pair, resolve_disparity_range, resolve_range
+from ..matching.registry import get_guide, get_matcher
+from ..matching.tubes import lidar_tubes_window
 from ..matching.results import MatchResult, TiledMatchInfo
 
 log = logging.getLogger(__name__)
@@ -166,12 +167,15 @@ def plan_tiles(height, width, sparse, d_min, d_max, tile=TILE_DEFAULT, overlap=O
     return TilePlan(plan(tile), tile, True)
 
 
-def match_tile(left, right, sparse, t, overlap, params, bits=8):
+def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None, global_range=None):
     """Match one :class:`Tile` (sources sliced like numpy arrays: arrays, memory maps, :class:`WindowedRaster`).
 
     Returns ``(block, evaluations, stages)``: the tile's own disparities (float32, ``t.y1 - t.y0`` x ``t.x1 -
     t.x0``), the disparity evaluations done on its crop, and the stage timings. ``params.window`` should be fixed
     (not "auto") so every tile uses the same riverbed window; ``bits`` is the whole pair's effective bit depth.
+    With tubes (``params.range``), ``tube_share`` (the whole image's LiDAR share) and ``global_range`` (the whole
+    image's ``(d_min, d_max)``) make the crop's tubes the whole image's (:func:`lidar_tubes_window`), clipped to
+    the tile's range.
     """
     H, W = left.shape[:2]
     ya, yb = max(0, t.y0 - overlap), min(H, t.y1 + overlap)
@@ -191,9 +195,21 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8):
         if get_guide(params.guide).needs_sparse and not np.isfinite(sc).any():
             sc = None
     kw = {} if sc is not None or not get_guide(params.guide).needs_sparse else {"guide": "none"}
-    res = match_pair(lc, rc, sc, t.d_min - off, t.d_max - off, params, **kw)
+    p = params.replace(**kw) if kw else params
+    mode = resolve_range(p, get_guide(p.guide), get_matcher(p.matcher), sc is not None, False)
+    range_map = None
+    if mode == "tube" and sparse is not None:
+        g_lo, g_hi = global_range if global_range is not None else (t.d_min, t.d_max)
+        share = tube_share if tube_share is not None else lidar_share(np.asarray(sparse[ya:yb, a:b], np.float32))
+        lo, hi = lidar_tubes_window(sparse, ya, yb, a, b, g_lo, g_hi, share, asdict(p.tube))
+        lo = np.clip(lo, t.d_min, t.d_max) - off
+        hi = np.clip(hi, t.d_min, t.d_max) - off
+        range_map = (lo, hi)
+    res = match_pair(lc, rc, sc, t.d_min - off, t.d_max - off, p, range_map=range_map)
     block = res.disparity[t.y0 - ya:t.y1 - ya, t.x0 - a:t.x1 - a] + np.float32(off)
-    return np.ascontiguousarray(block), lc.shape[0] * lc.shape[1] * (t.d_max - t.d_min + 1), res.info["stages"]
+    tubes = res.info.get("tubes")
+    n = int(lc.shape[0] * lc.shape[1] * (tubes["mean_width"] if tubes else (t.d_max - t.d_min + 1)))
+    return np.ascontiguousarray(block), n, res.info["stages"]
 
 
 def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, tile=TILE_DEFAULT,
@@ -236,7 +252,7 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
     stages = {}
     evaluations = 0
     for t in plan.tiles:
-        block, n, st = match_tile(left, right, sparse, t, overlap, p, bits)
+        block, n, st = match_tile(left, right, sparse, t, overlap, p, bits, share, (d_min, d_max))
         out[t.y0:t.y1, t.x0:t.x1] = block
         evaluations += n
         for k, v in st.items():

@@ -65,7 +65,7 @@ class Guide:
         """The riverbed window side for a LiDAR share (None for guides without one)."""
         return None
 
-    def prepare(self, left, right, sparse, d_min, d_max, config, matcher):
+    def prepare(self, left, right, sparse, d_min, d_max, config, matcher, tubes=None):
         """Work before matching (riverbed+'s first pass); its result reaches :meth:`modulate` as
         ``inputs.first_pass``. Default: nothing."""
         return None

@@ -4,7 +4,6 @@ from dataclasses import asdict
 
 from ..diffusion import diffusion_modulate
 from ..registry import register_guide
-from ..volume import CostVolume
 from .base import Guidance, Guide
 
 
@@ -20,9 +19,9 @@ class Diffusion(Guide):
             # a pixel is vouched for when its strongest diffusion weight reaches riverbed's gamma
             data, dref = diffusion_modulate(volume.data, inputs.sparse, inputs.image, volume.d_min,
                                             cost_scale=volume.scale, inplace=True,
-                                            support_weight=config.guidance.gamma, **kw)
+                                            support_weight=config.guidance.gamma, tubes=volume.tubes, **kw)
             support = (dref, dref)
         else:
             data = diffusion_modulate(volume.data, inputs.sparse, inputs.image, volume.d_min,
-                                      cost_scale=volume.scale, inplace=True, **kw)
-        return Guidance(CostVolume(data, volume.d_min, volume.scale, inputs.cap), None, support)
+                                      cost_scale=volume.scale, inplace=True, tubes=volume.tubes, **kw)
+        return Guidance(volume.like(data, inputs.cap), None, support)

@@ -2,7 +2,6 @@
 
 from .. import guidance
 from ..registry import register_guide
-from ..volume import CostVolume
 from .base import Guidance, Guide
 
 
@@ -13,7 +12,7 @@ class Gauss(Guide):
     def modulate(self, volume, inputs, config):
         g = config.guidance
         data = guidance.gauss_modulate(volume.data, inputs.sparse, volume.d_min, g.k, g.c, g.form, volume.scale,
-                                       inputs.cap, inplace=True, fbar=inputs.fbar)
+                                       inputs.cap, inplace=True, fbar=inputs.fbar, tubes=volume.tubes)
         # the LiDAR pixels vouch for their own disparity
         support = (inputs.sparse, inputs.sparse) if inputs.want_support else None
-        return Guidance(CostVolume(data, volume.d_min, volume.scale, inputs.cap), None, support)
+        return Guidance(volume.like(data, inputs.cap), None, support)

@@ -4,7 +4,6 @@
 from .. import guidance
 from ..registry import register_guide
 from ..riverbed_plus import riverbed_support
-from ..volume import CostVolume
 from .base import Guidance, Guide
 
 
@@ -30,6 +29,7 @@ class Riverbed(Guide):
                                              g.literal_eq3)
         data = guidance.riverbed_modulate(volume.data, inputs.sparse, inputs.image, volume.d_min, window, g.k, g.c,
                                           g.sigma_xy, g.sigma_i, g.gamma, g.band, g.form, volume.scale, inputs.cap,
-                                          owners=owners, inplace=True, literal_eq3=g.literal_eq3, fbar=inputs.fbar)
+                                          owners=owners, inplace=True, literal_eq3=g.literal_eq3, fbar=inputs.fbar,
+                                          tubes=volume.tubes)
         support = riverbed_support(inputs.sparse, owners, g.band) if inputs.want_support else None
-        return Guidance(CostVolume(data, volume.d_min, volume.scale, inputs.cap), window, support)
+        return Guidance(volume.like(data, inputs.cap), window, support)

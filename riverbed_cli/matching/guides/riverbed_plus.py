@@ -7,7 +7,6 @@ from ...errors import RiverbedError
 from ..config import CONFIDENCES
 from ..registry import register_guide
 from ..riverbed_plus import riverbed_plus_modulate
-from ..volume import CostVolume
 from .base import Guidance, Guide
 from .riverbed import riverbed_window
 
@@ -22,7 +21,7 @@ class RiverbedPlus(Guide):
     def window(self, share, config):
         return riverbed_window(share, config)
 
-    def prepare(self, left, right, sparse, d_min, d_max, config, matcher):
+    def prepare(self, left, right, sparse, d_min, d_max, config, matcher, tubes=None):
         """The first pass: pixels whose riverbed-guided match fails the left-right check (None: extend to all)."""
         q = config.plus
         if q.confidence == "none":
@@ -30,7 +29,7 @@ class RiverbedPlus(Guide):
         if q.confidence not in CONFIDENCES:
             raise RiverbedError(f"unknown riverbed+ confidence '{q.confidence}' (use lr or none)")
         mask = matcher.unreliable(left, right, sparse, d_min, d_max, config.replace(guide="riverbed"),
-                                  q.lr_threshold)
+                                  q.lr_threshold, tubes)
         return np.asarray(mask, dtype=bool)
 
     def modulate(self, volume, inputs, config):
@@ -39,5 +38,6 @@ class RiverbedPlus(Guide):
         data, extra = riverbed_plus_modulate(volume.data, inputs.sparse, inputs.image, volume.d_min, window, g.k, g.c,
                                              g.sigma_xy, g.sigma_i, g.gamma, g.band, g.form, volume.scale,
                                              inputs.cap, inputs.fbar, config.plus, inputs.first_pass, inputs.share,
-                                             inplace=True, return_support=inputs.want_support)
-        return Guidance(CostVolume(data, volume.d_min, volume.scale, inputs.cap), window, extra.get("support"))
+                                             inplace=True, return_support=inputs.want_support,
+                                             tubes=volume.tubes)
+        return Guidance(volume.like(data, inputs.cap), window, extra.get("support"))

@@ -13,7 +13,7 @@ from .base import Matcher, MatcherOutput
 class ADCensusMatcher(Matcher):
     name = "adcensus"
 
-    def match(self, left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages,
+    def match(self, left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages, tubes=None,
               return_status=False):
         ap = config.adcensus
         bits = effective_bits(left, right)
@@ -44,8 +44,8 @@ class ADCensusMatcher(Matcher):
         status = ref.pop("status") if return_status else None
         return MatcherOutput(disp, used["window"], ref, status)
 
-    def unreliable(self, left, right, sparse, d_min, d_max, config, lr_threshold):
+    def unreliable(self, left, right, sparse, d_min, d_max, config, lr_threshold, tubes=None):
         # AD-Census always checks left-right consistency; its own status map says which pixels failed
         out = self.match(left, right, sparse, d_min, d_max, config, get_guide(config.guide),
-                         guidance.lidar_share(sparse), None, {}, return_status=True)
+                         guidance.lidar_share(sparse), None, {}, return_status=True)  # full range
         return out.status > 0

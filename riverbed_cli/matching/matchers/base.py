@@ -21,16 +21,18 @@ class Matcher:
     """A stereo matcher. Subclasses set ``name`` and implement :meth:`match` and :meth:`unreliable`."""
 
     name = ""
+    supports_tubes = False  # match() takes per-pixel tubes (tubes=(offset, width))
 
-    def match(self, left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages):
+    def match(self, left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages, tubes=None):
         """Match a rectified pair (left image the reference) over ``[d_min, d_max]``.
 
         ``sparse`` is checked and inside the range (or None for ``guide`` ``none``), ``share`` its LiDAR share,
-        ``first_pass`` what ``guide.prepare`` returned; ``stages`` is filled with seconds per stage. Returns a
-        :class:`MatcherOutput`.
+        ``first_pass`` what ``guide.prepare`` returned; ``stages`` is filled with seconds per stage; ``tubes``, for
+        matchers with ``supports_tubes``, a :class:`~riverbed_cli.matching.volume.TubeLayout` (per-pixel ranges).
+        Returns a :class:`MatcherOutput`.
         """
         raise NotImplementedError
 
-    def unreliable(self, left, right, sparse, d_min, d_max, config, lr_threshold):
+    def unreliable(self, left, right, sparse, d_min, d_max, config, lr_threshold, tubes=None):
         """(H, W) bool: pixels whose match with ``config`` (riverbed-guided) fails the left-right check."""
         raise NotImplementedError

@@ -25,7 +25,9 @@ def _lap(stages, name, t0):
 class SGMMatcher(Matcher):
     name = "sgm"
 
-    def match(self, left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages):
+    supports_tubes = True
+
+    def match(self, left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages, tubes=None):
         s = config.sgm
         t0 = time.perf_counter()
         win = census.parse_census_window(config.census)
@@ -36,8 +38,9 @@ class SGMMatcher(Matcher):
         bits = effective_bits(left, right)  # one scale for both images of a 16-bit pair
         cl = census.census_transform(to_grey(left, bits), win)
         cr = census.census_transform(to_grey(right, bits), win)
-        volume = CostVolume(census.census_cost(cl, cr, d_min, d_max, outside, scale), d_min, scale,
-                            max(nbits, outside) * scale)
+        # with tubes (a TubeLayout) the volume holds only each pixel's own disparities, flat
+        volume = CostVolume(census.census_cost(cl, cr, d_min, d_max, outside, scale, tubes), d_min, scale,
+                            max(nbits, outside) * scale, tubes)
         del cl, cr
         _lap(stages, "cost", t0)
 
@@ -58,12 +61,13 @@ class SGMMatcher(Matcher):
 
         t0 = time.perf_counter()
         fwd, bwd = sgm.sgm_aggregate_passes(volume.data, s.p1 * scale, s.p2 * scale, s.paths,
-                                            max_cost=volume.max_cost)
+                                            max_cost=volume.max_cost, tubes=tubes)
         del volume
         _lap(stages, "aggregation", t0)
 
         t0 = time.perf_counter()
-        disp = disparity.select_disparity(fwd, d_min, config.subpixel, s.lr_check, s.lr_threshold, aggregated2=bwd)
+        disp = disparity.select_disparity(fwd, d_min, config.subpixel, s.lr_check, s.lr_threshold, aggregated2=bwd,
+                                          tubes=tubes)
         del fwd, bwd
         _lap(stages, "selection", t0)
 
@@ -72,8 +76,8 @@ class SGMMatcher(Matcher):
         _lap(stages, "refinement", t0)
         return MatcherOutput(disp, window)
 
-    def unreliable(self, left, right, sparse, d_min, d_max, config, lr_threshold):
+    def unreliable(self, left, right, sparse, d_min, d_max, config, lr_threshold, tubes=None):
         config = config.replace(lr_check=True, lr_threshold=lr_threshold, median=1)
         out = self.match(left, right, sparse, d_min, d_max, config, get_guide(config.guide),
-                         guidance.lidar_share(sparse), None, {})
+                         guidance.lidar_share(sparse), None, {}, tubes)
         return ~np.isfinite(out.disparity)

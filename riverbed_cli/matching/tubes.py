@@ -1,0 +1,134 @@
+"""LiDAR tubes: each pixel's disparity search range from the projected LiDAR around it.
+
+The rule (``docs/tubes.md`` measures it and its alternatives): with ``s = 1 / sqrt(p)`` the mean LiDAR spacing (px;
+``p`` the LiDAR share), a pixel's tube at level ``k = 0, 1, ...`` is ``[min - m_k, max + m_k]`` of the LiDAR
+disparities within ``R_k = reach * s * 2^k`` px of it (a square window of ``cell`` px cells), with the margin
+``m_k = margin + k * level_margin`` growing with the distance the LiDAR had to be taken from. The first level that
+holds LiDAR sets the tube; a pixel with none within the last level searches the full nominal range. Every tube is
+clipped to the nominal range. Across a depth edge the window holds both surfaces, so the tube spans both.
+
+A tube volume holds each pixel's tube only, one after the other in a flat array
+(:class:`~riverbed_cli.matching.volume.TubeLayout`): its size is the sum of the tube widths.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from ..errors import RiverbedError
+from ..records import RecordMapping
+from .guidance import lidar_share
+
+
+@dataclass
+class TubeStats(RecordMapping):
+    """``mean_width`` (px, of the tubes), ``max_width`` (the widest), ``nominal`` (the nominal range's
+    disparities), ``full_share`` (share of pixels searching the nominal range)."""
+
+    mean_width: float
+    max_width: int
+    nominal: int
+    full_share: float
+
+
+def _window_extrema(cmin, cmax, r):
+    size = 2 * r + 1
+    lo = ndimage.minimum_filter(cmin, size=size, mode="constant", cval=np.inf)
+    hi = ndimage.maximum_filter(cmax, size=size, mode="constant", cval=-np.inf)
+    return lo, hi
+
+
+def lidar_tubes(sparse, d_min, d_max, reach=2.0, margin=2.0, levels=3, level_margin=4.0, cell=4, share=None):
+    """Per-pixel disparity tubes from sparse LiDAR disparities (module docstring).
+
+    Parameters
+    ----------
+    sparse : (H, W) float
+        LiDAR disparities of the left image (``d = x_left - x_right``), NaN elsewhere.
+    d_min, d_max : int
+        Nominal range (inclusive); every tube lies inside it.
+    reach : float
+        Radius of the first level, in mean LiDAR spacings.
+    margin, level_margin : float
+        Margin (px of disparity) at level 0, and its growth per level.
+    levels : int
+        Levels tried before a pixel falls back to the nominal range.
+    cell : int
+        Side (px) of the cells the LiDAR extrema are gathered in.
+    share : float, optional
+        LiDAR share (default: :func:`~riverbed_cli.matching.guidance.lidar_share` of ``sparse``).
+
+    Returns
+    -------
+    lo, hi : (H, W) int32
+        Inclusive tube ends (disparity px).
+    """
+    sparse = np.asarray(sparse, dtype=np.float32)
+    H, W = sparse.shape
+    d_min, d_max = int(d_min), int(d_max)
+    if d_max < d_min:
+        raise RiverbedError(f"empty disparity range [{d_min}, {d_max}]")
+    valid = np.isfinite(sparse)
+    lo = np.full((H, W), d_min, np.int32)
+    hi = np.full((H, W), d_max, np.int32)
+    if not valid.any():
+        return lo, hi
+    share = lidar_share(sparse) if share is None else share
+    spacing = 1.0 / math.sqrt(max(share, 1e-12))
+    cell = max(1, int(cell))
+    ch, cw = -(-H // cell), -(-W // cell)
+    pad = np.full((ch * cell, cw * cell), np.nan, np.float32)
+    pad[:H, :W] = sparse
+    blocks = pad.reshape(ch, cell, cw, cell)
+    with np.errstate(invalid="ignore"):
+        cmin = np.where(np.isfinite(blocks), blocks, np.inf).min(axis=(1, 3))
+        cmax = np.where(np.isfinite(blocks), blocks, -np.inf).max(axis=(1, 3))
+    done = np.zeros((ch, cw), bool)
+    tlo = np.full((ch, cw), d_min, np.int64)
+    thi = np.full((ch, cw), d_max, np.int64)
+    for k in range(int(levels)):
+        r = max(1, int(math.ceil(reach * spacing * 2 ** k / cell)))
+        wlo, whi = _window_extrema(cmin, cmax, r)
+        new = ~done & np.isfinite(wlo)
+        m = margin + k * level_margin
+        tlo[new] = np.floor(wlo[new] - m)
+        thi[new] = np.ceil(whi[new] + m)
+        done |= new
+        if done.all():
+            break
+    tlo = np.clip(tlo, d_min, d_max)
+    thi = np.clip(thi, d_min, d_max)
+    lo[:] = np.repeat(np.repeat(tlo, cell, axis=0), cell, axis=1)[:H, :W]
+    hi[:] = np.repeat(np.repeat(thi, cell, axis=0), cell, axis=1)[:H, :W]
+    return lo, hi
+
+
+def tube_reach_px(share, reach=2.0, levels=3, cell=4, **_):
+    """How far (px) the tube rule looks for LiDAR: the last level's radius, rounded up to whole cells, plus a cell."""
+    spacing = 1.0 / math.sqrt(max(share, 1e-12))
+    r = max(1, int(math.ceil(reach * spacing * 2 ** (int(levels) - 1) / max(1, int(cell)))))
+    return (r + 1) * max(1, int(cell))
+
+
+def lidar_tubes_window(sparse, y0, y1, x0, x1, d_min, d_max, share, tube):
+    """:func:`lidar_tubes` of the window ``[y0:y1, x0:x1]`` of a whole-image sparse map (an array or anything
+    sliced like one, e.g. a windowed raster), equal to the whole image's tubes there: the LiDAR is read with the
+    rule's reach around the window, on cells aligned with the image's. ``tube`` holds the rule's settings."""
+    H, W = sparse.shape[:2]
+    cell = max(1, int(tube["cell"]))
+    R = tube_reach_px(share, **tube)
+    ya, xa = max(0, (y0 - R) // cell * cell), max(0, (x0 - R) // cell * cell)
+    yb, xb = min(H, y1 + R), min(W, x1 + R)
+    crop = np.asarray(sparse[ya:yb, xa:xb], np.float32)
+    lo, hi = lidar_tubes(crop, d_min, d_max, share=share, **tube)
+    return lo[y0 - ya:y1 - ya, x0 - xa:x1 - xa], hi[y0 - ya:y1 - ya, x0 - xa:x1 - xa]
+
+
+def tube_stats(layout, d_min, d_max):
+    """:class:`TubeStats` of a :class:`~riverbed_cli.matching.volume.TubeLayout` over the nominal range."""
+    D = int(d_max) - int(d_min) + 1
+    w = layout.width
+    return TubeStats(round(float(w.mean()), 3) if w.size else float(D), int(layout.max_width), D,
+                     round(float((w >= D).mean()), 5) if w.size else 1.0)

@@ -1,0 +1,172 @@
+"""LiDAR tubes: the tube rule on hand-made cases, and every stage on a tube volume checked exactly against the dense
+volume (tubes as wide as the range) and against a brute-force reference (narrow tubes)."""
+
+import numpy as np
+import pytest
+
+from riverbed_cli.matching import census, diffusion, disparity, guidance, riverbed_plus, sgm
+from riverbed_cli.matching.pipeline import match_pair
+from riverbed_cli.matching.tubes import lidar_tubes
+from riverbed_cli.matching.volume import TubeLayout
+
+SENT = 10 ** 9
+
+
+def gather(dense, layout):
+    """The tube entries of a dense (H, W, D) volume, as a flat tube volume."""
+    H, W = layout.shape
+    out = np.empty(layout.size, dense.dtype)
+    for y in range(H):
+        for x in range(W):
+            b, w, o = layout.start[y, x], layout.width[y, x], layout.offset[y, x]
+            out[b:b + w] = dense[y, x, o:o + w]
+    return out
+
+
+def random_tubes(rng, H, W, D, narrow=True):
+    lo = rng.integers(0, D, (H, W)) if narrow else np.zeros((H, W), int)
+    hi = np.minimum(D - 1, lo + rng.integers(0, 5, (H, W))) if narrow else np.full((H, W), D - 1)
+    return lo, hi
+
+
+def sgm_reference(cost, lo, hi, P1, P2, dirs):
+    """Path costs summed over ``dirs`` with disparities outside a pixel's tube unreachable (brute force)."""
+    H, W, D = cost.shape
+    total = np.zeros((H, W, D), np.int64)
+    for dx, dy in dirs:
+        L = np.full((H, W, D), SENT, np.int64)
+        forward = dy > 0 or (dy == 0 and dx > 0)
+        ys = range(H) if forward else range(H - 1, -1, -1)
+        xs = list(range(W)) if forward else list(range(W - 1, -1, -1))
+        for y in ys:
+            for x in xs:
+                qx, qy = x - dx, y - dy
+                for d in range(lo[y, x], hi[y, x] + 1):
+                    if not (0 <= qx < W and 0 <= qy < H):
+                        L[y, x, d] = cost[y, x, d]
+                        continue
+                    prev = L[qy, qx]
+                    mp = prev[lo[qy, qx]:hi[qy, qx] + 1].min()
+                    best = min(prev[d], (prev[d - 1] if d > 0 else SENT) + P1,
+                               (prev[d + 1] if d < D - 1 else SENT) + P1, mp + P2)
+                    L[y, x, d] = cost[y, x, d] + best - mp
+        total += np.where(L < SENT, L, 0)
+    return total
+
+
+@pytest.mark.parametrize("paths", [4, 8, 16])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_tube_sgm_equals_the_brute_force_reference(paths, seed):
+    rng = np.random.default_rng(seed)
+    H, W, D = 7, 9, 11
+    cost = rng.integers(0, 60, (H, W, D)).astype(np.uint16)
+    lo, hi = random_tubes(rng, H, W, D)
+    layout = TubeLayout.from_bounds(lo, hi, 0)
+    fwd, bwd = sgm.sgm_aggregate_passes(gather(cost, layout), 7, 40, paths, tubes=layout)
+    dirs = sgm.path_directions(paths)
+    ref_f = sgm_reference(cost, lo, hi, 7, 40, dirs[: paths // 2])
+    ref_b = sgm_reference(cost, lo, hi, 7, 40, dirs[paths // 2:])
+    np.testing.assert_array_equal(fwd, gather(ref_f, layout).astype(np.uint16))
+    np.testing.assert_array_equal(bwd, gather(ref_b, layout).astype(np.uint16))
+
+
+def test_tube_selection_equals_the_brute_force_reference():
+    rng = np.random.default_rng(3)
+    H, W, D = 6, 30, 12
+    agg = rng.integers(0, 500, (H, W, D)).astype(np.uint16)
+    lo, hi = random_tubes(rng, H, W, D)
+    layout = TubeLayout.from_bounds(lo + 2, hi + 2, 2)
+    d = disparity.select_disparity(gather(agg, layout), 2, False, True, 1, gather(np.zeros_like(agg), layout),
+                                   tubes=layout)
+    for y in range(H):
+        best = {x: lo[y, x] + int(np.argmin(agg[y, x, lo[y, x]:hi[y, x] + 1])) for x in range(W)}
+        right = {}
+        for x in range(W):  # the right image's winner over the left pixels whose tube holds the disparity
+            for k in range(lo[y, x], hi[y, x] + 1):
+                xr = x - (2 + k)
+                if 0 <= xr < W and (xr not in right or agg[y, x, k] < right[xr][0]):
+                    right[xr] = (agg[y, x, k], k)
+        for x in range(W):
+            xr = x - (2 + best[x])
+            ok = 0 <= xr < W and xr in right and abs(best[x] - right[xr][1]) <= 1
+            assert (d[y, x] == 2 + best[x]) if ok else np.isnan(d[y, x])
+
+
+def test_full_width_tubes_equal_the_dense_stages_bit_for_bit():
+    """Every stage on tubes as wide as the range gives exactly the dense volume's numbers."""
+    rng = np.random.default_rng(5)
+    H, W, D, d_min = 20, 40, 16, 3
+    left = rng.integers(0, 255, (H, W)).astype(np.float32)
+    right = np.roll(left, -5, axis=1)
+    cl, cr = census.census_transform(left, (5, 5)), census.census_transform(right, (5, 5))
+    lo, hi = random_tubes(rng, H, W, D, narrow=False)
+    layout = TubeLayout.from_bounds(lo + d_min, hi + d_min, d_min)
+    dense = census.census_cost(cl, cr, d_min, d_min + D - 1, 6, 4)
+    tube = census.census_cost(cl, cr, d_min, None, 6, 4, tubes=layout)
+    np.testing.assert_array_equal(tube, dense.reshape(-1))
+    sparse = np.full((H, W), np.nan, np.float32)
+    sparse[::4, ::5] = rng.uniform(d_min, d_min + D - 1, sparse[::4, ::5].shape)
+    guide_img = np.repeat(left[:, :, None], 3, axis=2)
+    a = guidance.riverbed_modulate(dense.copy(), sparse, guide_img, d_min, 9, fbar=12.0, cap=4000, inplace=True)
+    b = guidance.riverbed_modulate(tube.copy(), sparse, guide_img, d_min, 9, fbar=12.0, cap=4000, inplace=True,
+                                   tubes=layout)
+    np.testing.assert_array_equal(b, a.reshape(-1))
+    f, bw = sgm.sgm_aggregate_passes(a, 40, 480, 8)
+    tf, tb = sgm.sgm_aggregate_passes(b, 40, 480, 8, tubes=layout)
+    np.testing.assert_array_equal(tf, f.reshape(-1))
+    np.testing.assert_array_equal(tb, bw.reshape(-1))
+    np.testing.assert_array_equal(disparity.select_disparity(tf, d_min, True, True, 1, tb, tubes=layout),
+                                  disparity.select_disparity(f, d_min, True, True, 1, bw))
+
+
+def test_tube_guidance_equals_dense_guidance_inside_the_tubes():
+    rng = np.random.default_rng(7)
+    H, W, D = 24, 30, 20
+    cost = rng.integers(0, 200, (H, W, D)).astype(np.uint16)
+    lo, hi = random_tubes(rng, H, W, D)
+    layout = TubeLayout.from_bounds(lo, hi, 0)
+    sparse = np.full((H, W), np.nan, np.float32)
+    sparse[::3, ::4] = rng.uniform(0, D - 1, sparse[::3, ::4].shape)
+    img = rng.uniform(0, 255, (H, W, 3)).astype(np.float32)
+    cases = [
+        lambda v, t: guidance.gauss_modulate(v, sparse, 0, cap=3000, inplace=True, fbar=10.0, tubes=t),
+        lambda v, t: guidance.riverbed_modulate(v, sparse, img, 0, 7, cap=3000, inplace=True, fbar=10.0, tubes=t),
+        lambda v, t: diffusion.diffusion_modulate(v, sparse, img, 0, inplace=True, tubes=t),
+        lambda v, t: riverbed_plus.band_modulate(v, np.full((H, W), 5.0, np.float32), np.full((H, W), 8.0,
+                                                 np.float32), np.ones((H, W), bool), 0, inplace=True, tubes=t),
+    ]
+    for run in cases:
+        dense = run(cost.copy(), None)
+        tube = run(gather(cost, layout), layout)
+        np.testing.assert_array_equal(tube, gather(dense, layout))
+
+
+def test_tube_rule_hand_made_cases():
+    H, W = 120, 160
+    sparse = np.full((H, W), np.nan, np.float32)
+    sparse[20:60:3, 20:60:3] = 30.0  # a surface at 30 px...
+    sparse[20:60:3, 62:100:3] = 50.0  # ...meeting one at 50 px along a depth edge at x = 61
+    lo, hi = lidar_tubes(sparse, 0, 127, reach=2.0, margin=2.0, levels=2)
+    assert lo[40, 40] == 28 and hi[40, 40] == 32  # a pixel on the 30 px surface: a narrow tube around it
+    assert lo[40, 61] <= 28 and hi[40, 61] >= 52  # on the edge: the tube spans both surfaces
+    assert lo[110, 150] == 0 and hi[110, 150] == 127  # no LiDAR within reach: the full range
+    lo1, hi1 = lidar_tubes(sparse, 0, 40)
+    assert hi1.max() <= 40 and lo1.min() >= 0  # clipped to the nominal range
+
+
+def test_range_tube_on_a_real_pair_is_as_accurate_and_searches_less(cones):
+    from riverbed_cli.products.evaluate import evaluate_disparity
+    from riverbed_cli.products.simulate import simulate_lidar
+
+    left, right, gt = cones
+    sparse = simulate_lidar(gt, 0.05, seed=0)
+    full = match_pair(left, right, sparse, 0, 59, range="full")
+    tube = match_pair(left, right, sparse, 0, 59, range="tube")
+    assert full.info["range"] == "full" and tube.info["range"] == "tube"
+    t = tube.info["tubes"]
+    assert t["nominal"] == 60 and t["mean_width"] < 25 and 0 <= t["full_share"] < 0.2
+    a = evaluate_disparity(full.disparity, gt, exclude=sparse)
+    b = evaluate_disparity(tube.disparity, gt, exclude=sparse)
+    assert b["bad3"] <= a["bad3"] * 1.02 and b["avg"] <= a["avg"] * 1.02
+    assert match_pair(left, right, sparse, 0, 59).info["range"] == "tube"  # auto with LiDAR guidance
+    assert match_pair(left, right, sparse, 0, 59, guide="none").info["range"] == "full"
