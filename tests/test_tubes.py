@@ -170,3 +170,55 @@ def test_range_tube_on_a_real_pair_is_as_accurate_and_searches_less(cones):
     assert b["bad3"] <= a["bad3"] * 1.02 and b["avg"] <= a["avg"] * 1.02
     assert match_pair(left, right, sparse, 0, 59).info["range"] == "tube"  # auto with LiDAR guidance
     assert match_pair(left, right, sparse, 0, 59, guide="none").info["range"] == "full"
+
+
+def _write_range_map(path, bands):
+    import rasterio
+
+    bands = np.asarray(bands, np.float32)
+    with rasterio.open(path, "w", driver="GTiff", width=bands.shape[2], height=bands.shape[1], count=bands.shape[0],
+                       dtype="float32") as ds:
+        ds.write(bands)
+
+
+def test_range_map_from_the_command_line_and_its_bad_inputs(cones, tmp_path):
+    import warnings
+
+    import rasterio
+    from click.testing import CliRunner
+
+    from riverbed_cli.cli.main import cli
+    from riverbed_cli.io.disparity import read_disparity
+    from riverbed_cli.products.evaluate import evaluate_disparity
+
+    left, right, gt = cones
+    H, W = gt.shape
+    data = "tests/data/cones"
+    good = tmp_path / "range.tif"
+    lo = np.where(np.isfinite(gt), gt - 3, np.nan)
+    warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+    _write_range_map(good, [lo, lo + 6])
+    out = tmp_path / "d.tif"
+    args = ["match", f"{data}/im2.png", f"{data}/im6.png", "--min-disp", "0", "--max-disp", "63"]
+    r = CliRunner().invoke(cli, [*args, "--range-map", str(good), "-o", str(out), "--json"])
+    assert r.exit_code == 0, r.output
+    import json
+
+    s = json.loads(r.output)
+    assert s["range"] == "tube" and s["tubes"]["mean_width"] < 20
+    assert evaluate_disparity(read_disparity(out), gt)["bad3"] < 5.0  # unguided, but searched near the truth only
+    cases = {
+        "size": ([lo[:-1], lo[:-1] + 6], f"range map is {W}x{H - 1} but the images are {W}x{H} (WxH)"),
+        "bands": ([lo], "range map needs 2 bands (min and max disparity), has 1"),
+        "order": ([lo + 6, lo], "range map has min > max at"),
+        "nan": ([np.full_like(lo, np.nan), np.full_like(lo, np.nan)], "range map has no valid pixel (all NaN)"),
+        "outside": ([lo + 30, lo + 36], "range map spans ["),
+    }
+    for name, (bands, message) in cases.items():
+        path = tmp_path / f"{name}.tif"
+        _write_range_map(path, bands)
+        bad_out = tmp_path / f"{name}_d.tif"
+        r = CliRunner().invoke(cli, [*args, "--range-map", str(path), "-o", str(bad_out)])
+        assert r.exit_code == 1, (name, r.output)
+        assert r.stderr.startswith(f"riverbed: error: {path}: {message}"), (name, r.stderr)
+        assert len(r.stderr.strip().splitlines()) == 1 and not bad_out.exists()

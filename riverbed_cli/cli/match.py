@@ -22,6 +22,9 @@ _RUN = [s for s in MATCH_SETTINGS if s.group is None and s.name not in ("tile", 
 @click.option("--sparse", type=input_path(), default=None,
               help="Sparse LiDAR disparities of the left image (.tif/.pfm/.png; NaN, inf or 0 = none).")
 @click.option("--sparse-scale", type=float, default=None, help="Stored value per pixel for an 8-bit PNG --sparse.")
+@click.option("--range-map", type=input_path(), default=None,
+              help="Per-pixel search range from elsewhere (a coarse DSM, a previous run): a 2-band TIFF of min and "
+                   "max disparity (NaN: the nominal range); searched as tubes instead of the LiDAR's.")
 @setting_options(_MATCH, defaults={"guide": None})
 @setting_options(_RUN)
 @click.option("--color", "color_png", type=click.Path(dir_okay=False), default=None,
@@ -35,8 +38,8 @@ _RUN = [s for s in MATCH_SETTINGS if s.group is None and s.name not in ("tile", 
               help="With tiles and --sparse: each tile searches only the disparities its LiDAR allows.")
 @json_opt
 @overwrite_opt
-def match_cmd(left, right, output, sparse, sparse_scale, color_png, tile, overlap, lidar_range, as_json, overwrite,
-              **settings):
+def match_cmd(left, right, output, sparse, sparse_scale, range_map, color_png, tile, overlap, lidar_range, as_json,
+              overwrite, **settings):
     """Match rectified images LEFT (reference) and RIGHT into a disparity map OUTPUT.
 
     Disparity d = x_left - x_right (px). OUTPUT format by extension: .tif (float32, NaN invalid), .pfm
@@ -59,7 +62,7 @@ def match_cmd(left, right, output, sparse, sparse_scale, color_png, tile, overla
         summary = match_files(left, right, output, config, sparse=sparse, sparse_scale=sparse_scale,
                               min_disp=run["min_disp"], max_disp=run["max_disp"], max_pixels=run["max_pixels"],
                               tile=tile, overlap=overlap, lidar_range=lidar_range, color_png=color_png,
-                              overwrite=overwrite, progress=progress)
+                              overwrite=overwrite, progress=progress, range_map=range_map)
     finally:
         for bar in bars:
             bar.close()

@@ -201,6 +201,35 @@ def _read_tif(path):
     return disp
 
 
+def read_range_map(path):
+    """A per-pixel disparity range: a 2-band TIFF of min and max disparity (px, ``d = x_left - x_right``; NaN or
+    nodata: no range there). Returns ``(lo, hi)`` float32 ``H x W``; :class:`RiverbedError` naming the file for
+    anything else."""
+    path = require_file(path)
+    if disparity_format(path) != "tif":
+        raise RiverbedError("range map must be a 2-band GeoTIFF/TIFF (min and max disparity)", path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+        with _open_tif(path) as ds:
+            if ds.count != 2:
+                raise RiverbedError(f"range map needs 2 bands (min and max disparity), has {ds.count}", path)
+            if ds.dtypes[0].startswith("complex"):
+                raise RiverbedError(f"range map must be real-valued, got {ds.dtypes[0]}", path)
+            try:
+                raw = ds.read()
+            except MemoryError:
+                raise
+            except Exception:  # noqa: BLE001 - as in _open_tif
+                raise RiverbedError("cannot read range map (corrupt or truncated data)", path) from None
+            nodata = ds.nodata
+    out = raw.astype(np.float32)
+    invalid = ~np.isfinite(out)
+    if nodata is not None and not np.isnan(nodata):
+        invalid |= raw == nodata
+    out[invalid] = np.nan
+    return out[0], out[1]
+
+
 def read_disparity_tags(path):
     """Dataset tags of a TIFF disparity map (``{}`` for PFM and PNG, which have none).
 

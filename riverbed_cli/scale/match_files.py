@@ -11,7 +11,7 @@ import numpy as np
 
 from ..errors import RiverbedError
 from ..io.atomic import atomic_output, check_output
-from ..io.disparity import disparity_format, read_disparity, write_disparity
+from ..io.disparity import disparity_format, read_disparity, read_range_map, write_disparity
 from ..io.images import check_pair, read_image
 from ..io.windowed import TiffSink, WindowedRaster, is_tiff, sparse_points_any
 from ..matching.pipeline import disparity_range_from_sparse, match_pair, warm_up
@@ -75,12 +75,14 @@ def _range_for_plan(sparse_src, min_disp, max_disp):
 
 def match_files(left, right, output, config, sparse=None, sparse_scale=None, min_disp=None, max_disp=None,
                 max_pixels=None, tile="auto", overlap=128, lidar_range=True, color_png=None, overwrite=False,
-                progress=None):
+                progress=None, range_map=None):
     """Match the files ``left`` (reference) and ``right`` into the disparity file ``output``.
 
     ``config`` is a :class:`~riverbed_cli.matching.config.MatchConfig`; ``tile`` ``"auto"``, 0 (never) or a side
     in px (:func:`~riverbed_cli.scale.tiles.plan_tiles`); ``progress(n_total)`` is called once with the number of
-    steps and returns a callable advanced after each (or None). Returns the ``--json`` summary (a dict).
+    steps and returns a callable advanced after each (or None); ``range_map`` a 2-band TIFF of per-pixel min and
+    max disparity (:func:`~riverbed_cli.io.disparity.read_range_map`), searched instead of the LiDAR's tubes.
+    Returns the ``--json`` summary (a dict).
     """
     disparity_format(output)  # refuse what cannot be written, or would clobber, before any work
     check_output(output, overwrite)
@@ -91,18 +93,32 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     guide = get_guide(config.guide)
     if guide.needs_sparse and not sparse:
         raise RiverbedError(f"--guide {config.guide} needs --sparse")
-    if (min_disp is None or max_disp is None) and not sparse:
+    if (min_disp is None or max_disp is None) and not sparse and not range_map:
         if max_disp is None:
             raise RiverbedError("give --max-disp (and --min-disp) or --sparse to derive the disparity range from")
         min_disp = 0
     tile = check_tile_option(tile, overlap)
     left_src, right_src, sparse_src = open_inputs(left, right, sparse, sparse_scale, max_pixels)
     H, W = left_src.shape[:2]
+    rmap = None
+    if range_map:
+        rmap = read_range_map(range_map)
+        if rmap[0].shape != (H, W):
+            raise RiverbedError(f"range map is {rmap[0].shape[1]}x{rmap[0].shape[0]} but the images are {W}x{H} "
+                                "(WxH)", range_map)
+        if max_disp is None or min_disp is None:
+            known = np.isfinite(rmap[0]) & np.isfinite(rmap[1])
+            if not known.any():
+                raise RiverbedError("range map has no valid pixel (all NaN)", range_map)
+            min_disp = int(np.floor(rmap[0][known].min())) if min_disp is None else min_disp
+            max_disp = int(np.ceil(rmap[1][known].max())) if max_disp is None else max_disp
     rng = _range_for_plan(sparse_src, min_disp, max_disp) if tile != 0 else None
     # the same tiling rule as blocks: untiled when the whole range fits, else tiles sized for the widest LiDAR range
     plan = plan_tiles(H, W, sparse_src, rng[0], rng[1], tile, overlap, lidar_range) if rng is not None else None
     warm_up(config.matcher, (config.guide,))  # load the compiled kernels now: start-up, not matching time
     if plan is not None and plan.tiled:
+        if rmap is not None:
+            raise RiverbedError("--range-map works on an untiled match for now; pass --tile 0", range_map)
         return _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, plan.size, overlap,
                             lidar_range, output, color_png, overwrite, progress)
 
@@ -112,11 +128,13 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     if step:
         step()
     try:
-        result = match_pair(left_img, right_img, sparse_map, min_disp, max_disp, config)
+        result = match_pair(left_img, right_img, sparse_map, min_disp, max_disp, config, range_map=rmap)
     except RiverbedError as e:
-        # Name the file the problem comes from when it is the sparse map.
+        # Name the file the problem comes from when it is the sparse map or the range map.
         if sparse and "sparse" in str(e) and e.path is None:
             raise RiverbedError(str(e), sparse) from None
+        if range_map and "range map" in str(e) and e.path is None:
+            raise RiverbedError(str(e), range_map) from None
         raise
     if step:
         step()
