@@ -7,7 +7,7 @@ import click
 from tqdm import tqdm
 
 from ..errors import RiverbedError
-from ..matching.config import GUIDE_NAMES as GUIDES, MATCHER_NAMES as MATCHERS
+from ..matching.config import GUIDE_NAMES as GUIDES, MATCHER_NAMES as MATCHERS, RANGES
 from ..products import benchmark as bm
 from .options import json_opt, print_json, progress_enabled
 
@@ -45,6 +45,9 @@ def _ints(value, name):
               help="Output folder: results.md/.csv/.json, figure5.png, cache/.")
 @click.option("--matchers", default="sgm", show_default=True, help="Comma-separated matchers.")
 @click.option("--guides", default="none,gauss,riverbed", show_default=True, help="Comma-separated guides.")
+@click.option("--ranges", default="auto", show_default=True,
+              help="Comma-separated search-range modes (auto, tube, tile, full; riverbed match --range): each guide "
+                   "runs once per mode, labelled GUIDE@MODE (auto: plain GUIDE).")
 @click.option("--shares", default="0.05,0.0123,0.0016", show_default=True, help="LiDAR shares of the pixels.")
 @click.option("--windows", default="", help="Extra riverbed windows, e.g. 5,9,15,25 (Figure 5).")
 @click.option("--seeds", "--seed", "seeds", default="0", show_default=True,
@@ -57,8 +60,8 @@ def _ints(value, name):
 @click.option("--write-expected", type=click.Path(dir_okay=False), default=None,
               help="Store these results as expectations (for a later --check).")
 @json_opt
-def benchmark_cmd(dataset, layout, outdir, matchers, guides, shares, windows, seeds, scenes, gt_scale, figure_scene,
-                  expected, write_expected, as_json):
+def benchmark_cmd(dataset, layout, outdir, matchers, guides, ranges, shares, windows, seeds, scenes, gt_scale,
+                  figure_scene, expected, write_expected, as_json):
     """Run the paper's protocol on DATASET: seeded LiDAR sampled from the ground truth at each share, every
     matcher x guide, evaluated on the GT pixels not sampled. Cases are cached in OUTPUT/cache, so an interrupted run
     resumes; --check makes it a regression gate for CI."""
@@ -72,6 +75,8 @@ def benchmark_cmd(dataset, layout, outdir, matchers, guides, shares, windows, se
     scene_list = bm.load_dataset(dataset, layout, gt_scale, [s for s in scenes.split(",") if s])
     ms = _names(matchers, "matchers", MATCHERS)
     gs = _names(guides, "guides", GUIDES)
+    rs = _names(ranges, "ranges", RANGES)
+    gs = tuple(g if r == "auto" else f"{g}@{r}" for g in gs for r in rs)
     sh = _floats(shares, "shares")
     ws = tuple(int(w) for w in _floats(windows, "windows"))
     se = _ints(seeds, "seeds")

@@ -126,7 +126,11 @@ def run_benchmark(scenes, matchers=("sgm",), guides=("none", "gauss", "riverbed"
                         row = json.loads(f.read_text())
                         row["cached"] = True
                     else:
-                        kw = {"guide": guide}
+                        # a guide label GUIDE@MODE runs GUIDE with --range MODE
+                        name, _, rng = guide.partition("@")
+                        kw = {"guide": name}
+                        if rng:
+                            kw["range"] = rng
                         if matcher != "sgm":
                             kw["matcher"] = matcher
                         if window is not None:
@@ -136,7 +140,8 @@ def run_benchmark(scenes, matchers=("sgm",), guides=("none", "gauss", "riverbed"
                         row = {"key": key, "scene": sc.name, "matcher": matcher, "guide": guide,
                                "window": res.info.get("window") if window is None else window,
                                "window_set": window, "share": share, "seed": seed, **m,
-                               "seconds": res.info["seconds"]}
+                               "seconds": res.info["seconds"], "range": res.info.get("range", "full"),
+                               "tube_width": (res.info.get("tubes") or {}).get("mean_width")}
                         if f is not None:
                             tmp = f.with_suffix(".tmp")
                             tmp.write_text(json.dumps(row))

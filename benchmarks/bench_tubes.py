@@ -1,0 +1,162 @@
+"""LiDAR tubes (riverbed match --range tube) against the full range and OpenCV StereoSGBM, measured in one run.
+
+Usage: python benchmarks/bench_tubes.py [DATA_DIR] [--skip-speed] [--skip-coverage] [--repeat 3]
+
+1. Coverage of the tube rule (and alternatives) on the Middlebury dev scenes and the dev aerial pair: the share of
+   ground-truth pixels (not sampled as LiDAR) whose true disparity lies in their tube, the mean tube width, the share
+   of pixels left on the full range. LiDAR is a seeded sample of the GT at a share of the *image* pixels
+   (``simulate_lidar``), as in docs/benchmarks.md.
+2. Accuracy, full range against tubes, riverbed-guided SGM (same LiDAR).
+3. Speed as a user runs it: fresh ``riverbed match`` processes (``seconds`` from --json and whole-process wall time),
+   full range and tubes, against OpenCV StereoSGBM MODE_HH and MODE_SGBM_3WAY at the same nominal range, on the
+   740 x 500 / 80-disparity speed pair and on the aerial pair padded to 1024 x 1024 (144 disparities).
+"""
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_match import opencv_sgbm  # noqa: E402
+from datasets import DEV_SCENES, middlebury, speed_pair  # noqa: E402
+
+from riverbed_cli.io.disparity import read_disparity, write_disparity  # noqa: E402
+from riverbed_cli.io.images import read_image  # noqa: E402
+from riverbed_cli.matching.pipeline import match_pair  # noqa: E402
+from riverbed_cli.matching.tubes import lidar_tubes  # noqa: E402
+from riverbed_cli.products.evaluate import evaluate_disparity  # noqa: E402
+from riverbed_cli.products.simulate import simulate_lidar  # noqa: E402
+
+AERIAL = "aerial_dublincity_fusionx3"
+RULES = {
+    "default (reach 2 s, margin 2, 3 levels)": {},
+    "reach 1 s": {"reach": 1.0},
+    "reach 4 s": {"reach": 4.0},
+    "margin 1": {"margin": 1.0},
+    "margin 4": {"margin": 4.0},
+    "1 level": {"levels": 1},
+}
+
+
+def aerial(data_dir, pad_to=None):
+    base = Path(data_dir) / AERIAL
+    left, right = read_image(base / "left.png"), read_image(base / "right.png")
+    gt = read_disparity(base / "gt.png", scale=256)
+    if pad_to:
+        reps = -(-pad_to // left.shape[0])
+        left = np.concatenate([left, left[::-1]] * reps)[:pad_to]
+        right = np.concatenate([right, right[::-1]] * reps)[:pad_to]
+        gt = np.concatenate([gt, gt[::-1]] * reps)[:pad_to]
+    return left, right, gt
+
+
+def scenes(data_dir):
+    out = [(n, *(lambda s: (s.left, s.right, s.gt))(middlebury(data_dir, n))) for n in DEV_SCENES]
+    if (Path(data_dir) / AERIAL).is_dir():
+        out.append(("Dublin aerial", *aerial(data_dir)))
+    return out
+
+
+def coverage(data_dir, shares):
+    print("### Tube coverage of the true disparity (GT pixels not sampled), mean width, pixels on the full range\n")
+    print("LiDAR: a share of the image pixels sampled from the GT (seed 0).\n")
+    print("| scene | LiDAR | rule | coverage % | mean width px | nominal px | full range % |")
+    print("|---|---:|---|---:|---:|---:|---:|")
+    for name, _, _, gt in scenes(data_dir):
+        d_max = int(math.ceil(np.nanmax(gt))) + 4
+        for share in shares:
+            sparse = simulate_lidar(gt, share, seed=0)
+            ev = np.isfinite(gt) & ~np.isfinite(sparse)
+            for label, kw in RULES.items():
+                lo, hi = lidar_tubes(sparse, 0, d_max, **kw)
+                inside = (gt[ev] >= lo[ev]) & (gt[ev] <= hi[ev])
+                w = hi - lo + 1
+                print(f"| {name} | {share * 100:.2f} % | {label} | {100 * inside.mean():.2f} | {w.mean():.1f} | "
+                      f"{d_max + 1} | {100 * (w >= d_max + 1).mean():.1f} |", flush=True)
+
+
+def accuracy(data_dir, shares):
+    print("\n### Accuracy: riverbed-guided SGM, full range against tubes (bad3 % / avg px)\n")
+    print("| scene | LiDAR | full range | tubes | tube mean width / nominal |")
+    print("|---|---:|---|---|---|")
+    for name, left, right, gt in scenes(data_dir):
+        d_max = int(math.ceil(np.nanmax(gt))) + 4
+        for share in shares:
+            sparse = simulate_lidar(gt, share, seed=0)
+            cells = []
+            for rng in ("full", "tube"):
+                res = match_pair(left, right, sparse, 0, d_max, range=rng)
+                m = evaluate_disparity(res.disparity, gt, exclude=sparse)
+                cells.append(f"{m['bad3']:.2f} / {m['avg']:.3f}")
+                t = res.info.get("tubes")
+            print(f"| {name} | {share * 100:.2f} % | {cells[0]} | {cells[1]} | "
+                  f"{t['mean_width']:.1f} / {t['nominal']} |", flush=True)
+
+
+def run_cli(args, env):
+    t = time.perf_counter()
+    p = subprocess.run([sys.executable, "-m", "riverbed_cli", "match", *args, "--json", "--overwrite"], env=env,
+                       capture_output=True, text=True, check=True)
+    return json.loads(p.stdout), time.perf_counter() - t
+
+
+def speed(data_dir, repeat):
+    print("\n### Speed: fresh `riverbed match` processes (median of runs), OpenCV in this process\n")
+    cases = [("740x500 Reindeer, 0..79, 5 % LiDAR", *speed_pair(data_dir), 79)]
+    if (Path(data_dir) / AERIAL).is_dir():
+        left, right, gt = aerial(data_dir, pad_to=1024)
+        cases.append(("1024x1024 Dublin aerial, 0..143, 1 % LiDAR", left, right, simulate_lidar(gt, 0.01, 0), 143))
+    print("| pair | method | seconds (--json) | wall s | mean tube width | vs OpenCV HH | vs OpenCV 3WAY |")
+    print("|---|---|---:|---:|---:|---:|---:|")
+    for label, left, right, sparse, d_max in cases:
+        hh = np.median([opencv_sgbm(left, right, 0, d_max, cv2.STEREO_SGBM_MODE_HH)[1] for _ in range(repeat)])
+        w3 = np.median([opencv_sgbm(left, right, 0, d_max, cv2.STEREO_SGBM_MODE_SGBM_3WAY)[1]
+                        for _ in range(repeat)])
+        with tempfile.TemporaryDirectory() as tmp:
+            for n, img in (("l.png", left), ("r.png", right)):
+                cv2.imwrite(os.path.join(tmp, n), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+            write_disparity(os.path.join(tmp, "s.tif"), sparse)
+            env = dict(os.environ)
+            base = [os.path.join(tmp, "l.png"), os.path.join(tmp, "r.png"), "--sparse", os.path.join(tmp, "s.tif"),
+                    "--min-disp", "0", "--max-disp", str(d_max), "--tile", "0", "-o", os.path.join(tmp, "d.tif")]
+            run_cli(base, env)  # load Numba's cache once
+            for rng in ("full", "tube"):
+                runs = [run_cli(base + ["--range", rng], env) for _ in range(repeat)]
+                sec = float(np.median([r[0]["seconds"] for r in runs]))
+                wall = float(np.median([r[1] for r in runs]))
+                width = (runs[0][0].get("tubes") or {}).get("mean_width", d_max + 1)
+                print(f"| {label} | riverbed, range {rng} | {sec:.3f} | {wall:.2f} | {width:.1f} | "
+                      f"{sec / hh:.2f} | {sec / w3:.2f} |", flush=True)
+        print(f"| {label} | OpenCV MODE_HH | {hh:.3f} | | {d_max + 1} | 1.00 | {hh / w3:.2f} |")
+        print(f"| {label} | OpenCV MODE_SGBM_3WAY | {w3:.3f} | | {d_max + 1} | {w3 / hh:.2f} | 1.00 |", flush=True)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("data_dir", nargs="?", default=os.environ.get("RIVERBED_DATA", "../shared/data"))
+    ap.add_argument("--shares", default="0.05,0.0123,0.0016")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--skip-coverage", action="store_true")
+    ap.add_argument("--skip-accuracy", action="store_true")
+    ap.add_argument("--skip-speed", action="store_true")
+    args = ap.parse_args()
+    shares = [float(s) for s in args.shares.split(",")]
+    if not args.skip_coverage:
+        coverage(args.data_dir, shares)
+    if not args.skip_accuracy:
+        accuracy(args.data_dir, shares)
+    if not args.skip_speed:
+        speed(args.data_dir, args.repeat)
+
+
+if __name__ == "__main__":
+    main()
