@@ -197,9 +197,9 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
     return MatchResult(out.disparity, info)
 
 
-def warm_up(matcher="sgm", guides=("none", "gauss", "riverbed")):
+def warm_up(matcher="sgm", guides=("none", "gauss", "riverbed"), config=None):
     """Compile (or load from Numba's cache) the kernels ``match_pair`` uses with ``matcher`` and ``guides``, on a
-    tiny pair.
+    tiny pair; with ``config`` only those of that one configuration (what a ``riverbed match`` run needs).
 
     Loading compiled code is start-up cost; calling this first keeps it out of ``info["seconds"]``.
     """
@@ -208,6 +208,10 @@ def warm_up(matcher="sgm", guides=("none", "gauss", "riverbed")):
     right = np.roll(left, -2, axis=1)
     sparse = np.full((24, 32), np.nan, dtype=np.float32)
     sparse[::5, ::5] = 2.0
+    if config is not None:
+        match_pair(left, right, sparse if get_guide(config.guide).needs_sparse or config.range != "full" else None,
+                   0, 7, config)
+        return
     for guide in guides:
         match_pair(left, right, sparse, 0, 7, guide=guide, matcher=matcher)
     if matcher == "sgm":

@@ -14,8 +14,8 @@ A tube volume holds each pixel's tube only, one after the other in a flat array
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
-from scipy import ndimage
 
 from ..errors import RiverbedError
 from ..records import RecordMapping
@@ -34,9 +34,10 @@ class TubeStats(RecordMapping):
 
 
 def _window_extrema(cmin, cmax, r):
-    size = 2 * r + 1
-    lo = ndimage.minimum_filter(cmin, size=size, mode="constant", cval=np.inf)
-    hi = ndimage.maximum_filter(cmax, size=size, mode="constant", cval=-np.inf)
+    # min / max over (2r + 1)^2 cells, the window cut at the image border (a replicated border changes no extremum)
+    kernel = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
+    lo = cv2.erode(np.ascontiguousarray(cmin, np.float32), kernel, borderType=cv2.BORDER_REPLICATE)
+    hi = cv2.dilate(np.ascontiguousarray(cmax, np.float32), kernel, borderType=cv2.BORDER_REPLICATE)
     return lo, hi
 
 

@@ -115,7 +115,7 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     rng = _range_for_plan(sparse_src, min_disp, max_disp) if tile != 0 else None
     # the same tiling rule as blocks: untiled when the whole range fits, else tiles sized for the widest LiDAR range
     plan = plan_tiles(H, W, sparse_src, rng[0], rng[1], tile, overlap, lidar_range) if rng is not None else None
-    warm_up(config.matcher, (config.guide,))  # load the compiled kernels now: start-up, not matching time
+    warm_up(config=config)  # load the kernels this run uses now: start-up, not matching time
     if plan is not None and plan.tiled:
         if rmap is not None:
             raise RiverbedError("--range-map works on an untiled match for now; pass --tile 0", range_map)
