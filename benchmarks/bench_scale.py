@@ -29,13 +29,14 @@ import numpy as np
 from riverbed_cli.io.windowed import TiffSink, open_windowed
 from riverbed_cli.scale.tiles import match_tiled
 from riverbed_cli.matching.pipeline import warm_up
-d, lidar_range = sys.argv[1], sys.argv[2] == "1"
+d, lidar_range, rng = sys.argv[1], sys.argv[2] == "1", sys.argv[3]
 warm_up()
 left, right = open_windowed(d + "/left.tif"), open_windowed(d + "/right.tif")
 sparse = open_windowed(d + "/lidar.tif", "disparity")
 t = time.perf_counter()
-with TiffSink(d + f"/disp_{int(lidar_range)}.tif", *left.shape[:2]) as sink:
-    r = match_tiled(left, right, sparse, 0, 520, tile="auto", overlap=128, lidar_range=lidar_range, out=sink)
+with TiffSink(d + f"/disp_{int(lidar_range)}_{rng}.tif", *left.shape[:2]) as sink:
+    r = match_tiled(left, right, sparse, 0, 520, tile="auto", overlap=128, lidar_range=lidar_range, out=sink,
+                    range=rng)
 info = {k: r.info[k] for k in ("tiles", "tile", "disparity_evaluations", "tile_ranges", "window")}
 info["seconds"] = time.perf_counter() - t
 info["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
@@ -97,10 +98,10 @@ def make_pair(folder, megapixels, seed=0):
     return H, W
 
 
-def run_child(folder, lidar_range):
+def run_child(folder, lidar_range, rng="tile"):
     env = dict(os.environ)
-    p = subprocess.run([sys.executable, "-c", CHILD, str(folder), "1" if lidar_range else "0"], capture_output=True,
-                       text=True, env=env)
+    p = subprocess.run([sys.executable, "-c", CHILD, str(folder), "1" if lidar_range else "0", rng],
+                       capture_output=True, text=True, env=env)
     if p.returncode:
         sys.exit(f"bench_scale: child failed: {p.stderr[-2000:]}")
     return json.loads(p.stdout.strip().splitlines()[-1])
@@ -140,6 +141,7 @@ def main():
     ap.add_argument("--sizes", default="10,20,40", help="megapixels, comma separated")
     ap.add_argument("--workdir", default=None)
     ap.add_argument("--skip-full", action="store_true", help="do not match the full range on the largest size")
+    ap.add_argument("--ranges", default="tile,tube", help="range modes matched at every size (tile, tube)")
     args = ap.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
     with tempfile.TemporaryDirectory(dir=args.workdir) as tmp:
@@ -150,25 +152,27 @@ def main():
             t = time.perf_counter()
             H, W = make_pair(folder, mp)
             gen = time.perf_counter() - t
-            r = run_child(folder, True)
-            m = accuracy(folder, "disp_1.tif")
-            rows.append((mp, H, W, "LiDAR tile ranges", r, m))
-            print(f"{mp} MP ({W}x{H}, generated in {gen:.0f} s): {r}", file=sys.stderr, flush=True)
+            for rng in args.ranges.split(","):
+                r = run_child(folder, True, rng)
+                m = accuracy(folder, f"disp_1_{rng}.tif")
+                rows.append((mp, H, W, "LiDAR tubes" if rng == "tube" else "LiDAR tile ranges", r, m))
+                print(f"{mp} MP ({W}x{H}, generated in {gen:.0f} s), range {rng}: {r}", file=sys.stderr, flush=True)
             if mp == max(sizes) and not args.skip_full:
-                rf = run_child(folder, False)
-                mf = accuracy(folder, "disp_0.tif")
+                rf = run_child(folder, False, "full")
+                mf = accuracy(folder, "disp_0_full.tif")
                 rows.append((mp, H, W, "full range", rf, mf))
                 print(f"  full range: {rf}", file=sys.stderr, flush=True)
                 cv_mevals, cv_t = opencv_tile(folder)
-        print("| size | pixels | ranges | tile | tiles | seconds | peak RSS MiB | Mevals/s | bad3 % | avg px |")
-        print("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|")
+        print("| size | pixels | ranges | tile | tiles | seconds | peak RSS MiB | Mevals/s done | nominal Mevals/s "
+              "(H W 521 / s) | bad3 % | avg px |")
+        print("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|")
         for mp, H, W, label, r, m in rows:
             print(f"| {mp} MP | {W}x{H} | {label} | {r['tile']} | {r['tiles']} | {r['seconds']:.1f} | "
                   f"{r['peak_rss_mib']:.0f} | {r['disparity_evaluations'] / r['seconds'] / 1e6:.0f} | "
-                  f"{m['bad3']:.2f} | {m['avg']:.3f} |")
+                  f"{H * W * 521 / r['seconds'] / 1e6:.0f} | {m['bad3']:.2f} | {m['avg']:.3f} |")
         full = [x for x in rows if x[3] == "full range"]
         if full:
-            lid = [x for x in rows if x[0] == full[0][0] and x[3] != "full range"][0]
+            lid = [x for x in rows if x[0] == full[0][0] and x[3] != "full range"][-1]
             speedup = full[0][4]["seconds"] / lid[4]["seconds"]
             print(f"\nLiDAR tile ranges vs full range on {full[0][0]} MP: {speedup:.1f}x "
                   f"faster; OpenCV StereoSGBM MODE_HH on one 1024x1024 tile, 512 disparities: {cv_mevals:.0f} "
