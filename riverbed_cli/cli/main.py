@@ -22,6 +22,7 @@ COMMANDS = {
     "pair": ("pair", "pair_cmd", "Write a pair file (the geometry of a rectified pair) from a benchmark calibration."),
     "project": ("project", "project_cmd", "Project a LiDAR cloud through a pair file into sparse disparities."),
     "match": ("match", "match_cmd", "Match a rectified pair into a disparity map, optionally guided by LiDAR."),
+    "densify": ("densify", "densify_cmd", "Interpolate sparse LiDAR into a dense disparity map (no matching)."),
     "evaluate": ("evaluate", "evaluate_cmd", "Compare a disparity map (or a DSM) with ground truth."),
     "dsm": ("dsm", "dsm_cmd", "Triangulate disparity maps of pairs into a point cloud and a DSM."),
     "sample": ("sample", "sample_cmd", "Generate the synthetic aerial block (pair, LiDAR, ground truth)."),

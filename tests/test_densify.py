@@ -1,0 +1,71 @@
+"""LiDAR-only baselines (riverbed densify): exact on hand-computed cases, one-line errors for bad input."""
+
+import math
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from riverbed_cli.cli.main import cli
+from riverbed_cli.errors import RiverbedError
+from riverbed_cli.io.disparity import read_disparity, write_disparity
+from riverbed_cli.products.densify import densify
+from riverbed_cli.products.evaluate import evaluate_disparity
+from riverbed_cli.products.simulate import simulate_lidar
+
+
+def test_nearest_and_linear_by_hand():
+    sparse = np.full((3, 5), np.nan, np.float32)
+    sparse[1, 0], sparse[1, 4] = 10.0, 30.0
+    near = densify(sparse, "nearest")
+    np.testing.assert_array_equal(near[1], [10, 10, 10, 30, 30])  # x = 2 is a tie: the first found
+    sparse[0, 2] = 20.0
+    sparse[2, 2] = 20.0
+    lin = densify(sparse, "linear")
+    # on the segment (0, 1)-(2, 0)... inside the hull the plane through the triangle's corners
+    assert lin[1, 1] == pytest.approx(15.0) and lin[1, 3] == pytest.approx(25.0) and lin[1, 2] == pytest.approx(20.0)
+    assert lin[0, 0] == 10.0  # outside the hull: the nearest
+
+
+def test_guided_is_the_bilateral_weighted_average():
+    sparse = np.full((5, 5), np.nan, np.float32)
+    sparse[2, 0], sparse[2, 4] = 10.0, 30.0
+    img = np.zeros((5, 5), np.float32)
+    img[:, 3:] = 100.0  # the right point's colour differs from the pixel at x = 1
+    d = densify(sparse, "guided", img, radius=4, sigma_s=2.0, sigma_i=8.0)
+    ws = [math.exp(-1 / 8.0), math.exp(-9 / 8.0 - 100.0 ** 2 / 128.0)]  # x = 1: distances 1 and 3
+    assert d[2, 1] == pytest.approx((10 * ws[0] + 30 * ws[1]) / sum(ws), rel=1e-5)
+    assert d[2, 4] == pytest.approx(30.0, abs=1e-3) and d[2, 0] == pytest.approx(10.0, abs=1e-3)
+
+
+def test_baselines_on_cones(cones):
+    left, _, gt = cones
+    sparse = simulate_lidar(gt, 0.05, seed=0)
+    m = {k: evaluate_disparity(densify(sparse, k, left), gt, exclude=sparse) for k in ("nearest", "linear", "guided")}
+    # measured (docs/benchmarks.md): bad3 3.05 / 3.84 / 1.48 %, mean 0.380 / 0.436 / 0.255 px
+    assert m["guided"]["bad3"] < m["nearest"]["bad3"] < m["linear"]["bad3"] < 4.5
+    assert abs(m["guided"]["avg"] - 0.255) < 0.03 and abs(m["nearest"]["avg"] - 0.380) < 0.04
+
+
+def test_bad_input_one_line_errors(tmp_path, cones):
+    left, _, gt = cones
+    empty = tmp_path / "empty.tif"
+    write_disparity(empty, np.full(gt.shape, np.nan, np.float32))
+    small = tmp_path / "small.tif"
+    write_disparity(small, simulate_lidar(gt, 0.05, 0)[:100])
+    img = "tests/data/cones/im2.png"
+    cases = [
+        ([str(empty)], f"{empty}: sparse map has no valid disparities"),
+        ([str(small), "--method", "guided", "--image", img],
+         f"{img}: image is 450x375 but the sparse map is 450x100 (WxH)"),
+        ([str(small), "--method", "guided"], "--method guided needs --image LEFT"),
+    ]
+    for args, message in cases:
+        out = tmp_path / "out.tif"
+        r = CliRunner().invoke(cli, ["densify", *args, "-o", str(out)])
+        assert r.exit_code == 1 and r.stderr == f"riverbed: error: {message}\n", r.stderr
+        assert not out.exists()
+    with pytest.raises(RiverbedError, match="guide image is 450x375 but the sparse map is 450x100"):
+        densify(read_disparity(small), "guided", left)
+    with pytest.raises(RiverbedError, match="unknown densify method 'cubic'"):
+        densify(read_disparity(small), "cubic")
