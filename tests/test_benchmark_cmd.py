@@ -20,7 +20,8 @@ def dataset(tmp_path_factory):
 
 
 def run(*args):
-    return CliRunner().invoke(cli, ["benchmark", *map(str, args)])
+    # the matcher cases only (the LiDAR-only baseline rows are tested in test_benchmark_baselines_and_winners)
+    return CliRunner().invoke(cli, ["benchmark", "--baselines", "", *map(str, args)])
 
 
 def test_benchmark_tables_figure_cache_and_check(dataset, tmp_path):
@@ -45,7 +46,8 @@ def test_benchmark_tables_figure_cache_and_check(dataset, tmp_path):
     for case in exp["cases"]:
         case["bad3"] -= 1.0
     (tmp_path / "better.json").write_text(json.dumps(exp))
-    r = CliRunner().invoke(cli, ["benchmark", *map(str, args[:-1]), "--check", str(tmp_path / "better.json")])
+    r = CliRunner().invoke(cli, ["benchmark", "--baselines", "", *map(str, args[:-1]), "--check",
+                                 str(tmp_path / "better.json")])
     assert r.exit_code == 1
     assert "riverbed: regression: cones|sgm|none|0.05|None|0: bad3" in r.output
 
@@ -112,9 +114,26 @@ def test_benchmark_check_on_a_subset(dataset, tmp_path):
     # expectations of another dataset: nothing compared is a failure, not a pass
     other = {"tolerance": exp["tolerance"], "cases": [{**exp["cases"][0], "key": "teddy|sgm|riverbed|0.05|None|0"}]}
     (tmp_path / "other.json").write_text(json.dumps(other))
-    r = CliRunner().invoke(cli, ["benchmark", str(dataset), "--layout", "middlebury", "--guides", "riverbed",
-                                 "--shares", "0.05", "-o", str(tmp_path / "sub"),
+    r = CliRunner().invoke(cli, ["benchmark", "--baselines", "", str(dataset), "--layout", "middlebury", "--guides",
+                                 "riverbed", "--shares", "0.05", "-o", str(tmp_path / "sub"),
                                  "--check", str(tmp_path / "other.json")])
     assert r.exit_code == 1
     assert "riverbed: regression: none of the 1 expected cases ran (expectations of another dataset or selection?)" \
         in r.output
+
+
+def test_benchmark_baselines_and_winners(dataset, tmp_path):
+    """Every table shows the LiDAR-only baselines beside the matchers, says what the shares are of, and names the
+    best method per scene and metric."""
+    r = CliRunner().invoke(cli, ["benchmark", str(dataset), "--layout", "middlebury", "--guides", "none,riverbed",
+                                 "--shares", "0.05", "--share-of", "gt", "-o", str(tmp_path), "--json"])
+    assert r.exit_code == 0, r.output
+    rows = json.loads((tmp_path / "results.json").read_text())
+    assert {(x["matcher"], x["guide"]) for x in rows} == {("sgm", "none"), ("sgm", "riverbed"), ("lidar", "nearest"),
+                                                         ("lidar", "linear"), ("lidar", "guided")}
+    md = (tmp_path / "results.md").read_text()
+    assert md.startswith("LiDAR shares are of the GT pixels")
+    assert "Best method per scene and LiDAR share" in md
+    by = {x["guide"]: x for x in rows}
+    # Cones at 5 % of the GT pixels: riverbed beats unguided matching and nearest-neighbour LiDAR on bad3
+    assert by["riverbed"]["bad3"] < by["nearest"]["bad3"] < by["none"]["bad3"]

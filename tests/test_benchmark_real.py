@@ -17,7 +17,7 @@ KITTI = "kitti2015_stereo_sttr/sample_data/KITTI_2015"
 
 
 def bench(*args):
-    r = CliRunner().invoke(cli, ["benchmark", *map(str, args), "--json"])
+    r = CliRunner().invoke(cli, ["benchmark", "--baselines", "", *map(str, args), "--json"])
     return r.exit_code, (json.loads(r.output) if r.exit_code == 0 else r.output)
 
 

@@ -8,6 +8,7 @@ from tqdm import tqdm
 
 from ..errors import RiverbedError
 from ..matching.config import GUIDE_NAMES as GUIDES, MATCHER_NAMES as MATCHERS, RANGES
+from ..products.densify import METHODS as DENSIFY_METHODS
 from ..products import benchmark as bm
 from .options import json_opt, print_json, progress_enabled
 
@@ -49,6 +50,10 @@ def _ints(value, name):
               help="Comma-separated search-range modes (auto, tube, tile, full; riverbed match --range): each guide "
                    "runs once per mode, labelled GUIDE@MODE (auto: plain GUIDE).")
 @click.option("--shares", default="0.05,0.0123,0.0016", show_default=True, help="LiDAR shares of the pixels.")
+@click.option("--share-of", type=click.Choice(["image", "gt"]), default="image", show_default=True,
+              help="The shares are of the image's pixels or of its ground-truth pixels (a sensor's density).")
+@click.option("--baselines", default="nearest,linear,guided", show_default=True,
+              help="LiDAR-only interpolations run beside the matchers ('' for none; riverbed densify).")
 @click.option("--windows", default="", help="Extra riverbed windows, e.g. 5,9,15,25 (Figure 5).")
 @click.option("--seeds", "--seed", "seeds", default="0", show_default=True,
               help="Seeds of the LiDAR sampling, comma-separated: each case runs once per sampling.")
@@ -60,8 +65,8 @@ def _ints(value, name):
 @click.option("--write-expected", type=click.Path(dir_okay=False), default=None,
               help="Store these results as expectations (for a later --check).")
 @json_opt
-def benchmark_cmd(dataset, layout, outdir, matchers, guides, ranges, shares, windows, seeds, scenes, gt_scale,
-                  figure_scene, expected, write_expected, as_json):
+def benchmark_cmd(dataset, layout, outdir, matchers, guides, ranges, shares, share_of, baselines, windows, seeds,
+                  scenes, gt_scale, figure_scene, expected, write_expected, as_json):
     """Run the paper's protocol on DATASET: seeded LiDAR sampled from the ground truth at each share, every
     matcher x guide, evaluated on the GT pixels not sampled. Cases are cached in OUTPUT/cache, so an interrupted run
     resumes; --check makes it a regression gate for CI."""
@@ -81,10 +86,12 @@ def benchmark_cmd(dataset, layout, outdir, matchers, guides, ranges, shares, win
     ws = tuple(int(w) for w in _floats(windows, "windows"))
     se = _ints(seeds, "seeds")
     out.mkdir(parents=True, exist_ok=True)
-    total = bm.count_cases(scene_list, ms, gs, sh, ws, se)
+    bl = _names(baselines, "baselines", DENSIFY_METHODS) if baselines.strip() else ()
+    total = bm.count_cases(scene_list, ms, gs, sh, ws, se, bl)
     with tqdm(total=total, desc="benchmark", unit="case", disable=not progress_enabled()) as bar:
-        rows = bm.run_benchmark(scene_list, ms, gs, sh, ws, se, out / "cache", progress=bar.update)
-    bm.write_tables(rows, out)
+        rows = bm.run_benchmark(scene_list, ms, gs, sh, ws, se, out / "cache", progress=bar.update, baselines=bl,
+                                share_of=share_of)
+    bm.write_tables(rows, out, share_of)
     fig = None
     if ws:
         fig = bm.figure5(rows, out / "figure5.png", figure_scene, ms[0])

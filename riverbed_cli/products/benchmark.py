@@ -10,6 +10,7 @@ import csv
 import hashlib
 import json
 import math
+import time
 from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -21,6 +22,7 @@ from ..errors import RiverbedError
 from ..io.disparity import read_disparity
 from ..io.images import read_image
 from ..matching.pipeline import match_pair
+from .densify import densify
 from .evaluate import evaluate_disparity
 from .simulate import simulate_lidar
 
@@ -101,12 +103,25 @@ def _cache_name(key):
     return hashlib.sha1(f"{v}|{key}".encode()).hexdigest()[:16] + ".json"
 
 
+def lidar_sample(gt, share, seed, share_of="image"):
+    """The benchmark's LiDAR: ``share`` of the image's pixels (``share_of="image"``) or of its GT pixels
+    (``"gt"``, the density a sensor gives), sampled from the GT."""
+    if share_of == "gt":
+        n_gt = int(np.isfinite(gt).sum())
+        share = min(1.0, share * n_gt / gt.size)
+    elif share_of != "image":
+        raise RiverbedError(f"LiDAR shares are of 'gt' or 'image' pixels, not '{share_of}'")
+    return simulate_lidar(gt, share, seed=seed)
+
+
 def run_benchmark(scenes, matchers=("sgm",), guides=("none", "gauss", "riverbed"), shares=(0.05, 0.0123, 0.0016),
-                  windows=(), seeds=(0,), cache_dir=None, progress=None):
+                  windows=(), seeds=(0,), cache_dir=None, progress=None, baselines=(), share_of="image"):
     """Run every case (cached per case in ``cache_dir``); returns a list of result rows (dicts).
 
     ``seeds``: one LiDAR sampling per seed (an int is one seed); every case runs once per sampling, so results can
-    be reported as a mean and spread over samplings rather than one lucky or unlucky draw.
+    be reported as a mean and spread over samplings rather than one lucky or unlucky draw. ``baselines``: LiDAR-only
+    interpolations (:mod:`.densify` methods) run beside the matchers as matcher ``lidar``. ``share_of``: the shares
+    are of the image's pixels (``image``) or of its GT pixels (``gt``).
     """
     cache = Path(cache_dir) if cache_dir else None
     if cache:
@@ -116,11 +131,22 @@ def run_benchmark(scenes, matchers=("sgm",), guides=("none", "gauss", "riverbed"
     for sc in scenes:
         d_max = int(math.ceil(np.nanmax(sc.gt))) + 4
         for share, seed in ((sh, se) for sh in shares for se in seeds):
-            sparse = simulate_lidar(sc.gt, share, seed=seed)
+            sparse = lidar_sample(sc.gt, share, seed, share_of)
+            for method in baselines:
+                key = case_key(sc.name, "lidar", method, share, None, seed) + ("|gt" if share_of == "gt" else "")
+                t = time.perf_counter()
+                disp = densify(sparse, method, sc.left)
+                m = evaluate_disparity(disp, sc.gt, exclude=sparse)
+                rows.append({"key": key, "scene": sc.name, "matcher": "lidar", "guide": method, "window": None,
+                             "window_set": None, "share": share, "seed": seed, **m,
+                             "seconds": round(time.perf_counter() - t, 4), "range": None, "tube_width": None,
+                             "cached": False})
+                if progress:
+                    progress(1)
             for matcher in matchers:
                 cases = [(g, None) for g in guides] + [("riverbed", w) for w in windows]
                 for guide, window in cases:
-                    key = case_key(sc.name, matcher, guide, share, window, seed)
+                    key = case_key(sc.name, matcher, guide, share, window, seed) + ("|gt" if share_of == "gt" else "")
                     f = cache / _cache_name(key) if cache else None
                     if f is not None and f.is_file():
                         row = json.loads(f.read_text())
@@ -153,15 +179,31 @@ def run_benchmark(scenes, matchers=("sgm",), guides=("none", "gauss", "riverbed"
     return rows
 
 
-def count_cases(scenes, matchers, guides, shares, windows, seeds=(0,)):
-    return len(scenes) * len(shares) * len(seeds) * len(matchers) * (len(guides) + len(windows))
+def count_cases(scenes, matchers, guides, shares, windows, seeds=(0,), baselines=()):
+    return len(scenes) * len(shares) * len(seeds) * (len(matchers) * (len(guides) + len(windows)) + len(baselines))
 
 
 def _label(r):
     return r["guide"] if r["window_set"] is None else f"riverbed s={r['window_set']}"
 
 
-def write_tables(rows, outdir):
+def winners(rows):
+    """Per scene and share, the method with the best mean (over seeds) of each metric: ``{(scene, share): {metric:
+    (label, value)}}``; labels are ``matcher guide``."""
+    per = {}
+    for r in rows:
+        per.setdefault((r["scene"], r["share"]), {}).setdefault(f"{r['matcher']} {_label(r)}", []).append(r)
+    out = {}
+    for key, methods in per.items():
+        out[key] = {}
+        for metric in ("bad1", "bad3", "avg"):
+            means = {label: float(np.mean([r[metric] for r in rs])) for label, rs in methods.items()}
+            best = min(means, key=means.get)
+            out[key][metric] = (best, means[best])
+    return out
+
+
+def write_tables(rows, outdir, share_of="image"):
     """results.md (paper-style: mean over scenes per share, then per scene), results.csv, results.json.
 
     With several seeds the first table is the mean over scenes and seeds, a second one gives each scene's mean over
@@ -176,7 +218,9 @@ def write_tables(rows, outdir):
         for r in rows:
             w.writerow([r[k] for k in keys])
     (out / "results.json").write_text(json.dumps([{k: r[k] for k in keys} for r in rows], indent=1))
-    lines = ["| LiDAR | matcher | guide | bad1 % | bad2 % | bad3 % | avg px | rmse px |",
+    of = "GT pixels" if share_of == "gt" else "image pixels"
+    lines = [f"LiDAR shares are of the {of}; matcher `lidar` rows are LiDAR-only interpolations (no matching).", "",
+             "| LiDAR | matcher | guide | bad1 % | bad2 % | bad3 % | avg px | rmse px |",
              "|---:|---|---|---:|---:|---:|---:|---:|"]
     groups = {}
     for r in rows:
@@ -197,6 +241,13 @@ def write_tables(rows, outdir):
             lines.append(f"| {scene} | {share * 100:.2f} % | {matcher} | {label} | "
                          f"{np.mean([r['bad1'] for r in rs]):.2f} | {np.mean([r['bad3'] for r in rs]):.2f} | "
                          f"{np.mean([r['avg'] for r in rs]):.3f} | {max(r['avg'] for r in rs):.3f} |")
+    win = winners(rows)
+    lines += ["", "Best method per scene and LiDAR share (mean over seeds):", "",
+              "| scene | LiDAR | bad1 % | bad3 % | avg px |", "|---|---:|---|---|---|"]
+    for (scene, share), best in win.items():
+        lines.append(f"| {scene} | {share * 100:.2f} % | " + " | ".join(
+            f"{best[m][0]} ({best[m][1]:.2f})" if m != "avg" else f"{best[m][0]} ({best[m][1]:.3f})"
+            for m in ("bad1", "bad3", "avg")) + " |")
     lines += ["", "| scene | LiDAR | seed | matcher | guide | window | bad1 % | bad2 % | bad3 % | avg px | density % |",
               "|---|---:|---:|---|---|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
