@@ -153,3 +153,47 @@ def test_ownership_matches_brute_force(window, channels):
     ref_owner, ref_dis = owners_reference(sparse, guide, window)
     np.testing.assert_array_equal(owner, ref_owner)
     np.testing.assert_allclose(dis, ref_dis, rtol=1e-5)
+
+
+def walls_reference(F, dm, w, lidar_pixel, k, c, band, form, scale, fbar, cap, d_min=0):
+    """Riverbed eq. 6 (docs/method.md reading) evaluated directly, disparity by disparity, in float64."""
+    out = []
+    for i, f in enumerate(F.astype(np.float64)):
+        d = d_min + i
+        q = scale * f
+        half = band * w
+        t = max(dm - half - d, d - (dm + half), 0.0)
+        g = 1.0 - math.exp(-t * t / (2.0 * c * c))
+        if form == "additive":
+            v = (1.0 if lidar_pixel else w) * q + scale * k * fbar * g
+        else:
+            v = ((0.0 if lidar_pixel else w) + k * g) * q
+        out.append(min(v, cap))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("form", ["additive", "product"])
+def test_riverbed_walls_equal_eq6_value_by_value(form):
+    """Every modulated cost of every owned pixel against a direct evaluation of eq. 6 (to the uint16 rounding)."""
+    rng = np.random.default_rng(11)
+    H, W, D = 11, 13, 40
+    cost = rng.integers(0, 63, (H, W, D)).astype(np.uint8)
+    sparse = np.full((H, W), np.nan, np.float32)
+    sparse[3, 4], sparse[7, 9] = 12.3, 27.8
+    guide = rng.uniform(100, 110, (H, W)).astype(np.float32)
+    k, c, band, scale, fbar, cap = 10.0, 1.5, 3.0, 4, 20.0, 6000
+    owner, dis = homogeneous_owners(sparse, guide, 7)
+    out = riverbed_modulate(cost, sparse, guide, 0, 7, k=k, c=c, band=band, form=form, cost_scale=scale, cap=cap,
+                            fbar=fbar)
+    values = [12.3, 27.8]
+    n = 0
+    for y in range(H):
+        for x in range(W):
+            if owner[y, x] < 0:
+                np.testing.assert_array_equal(out[y, x], cost[y, x].astype(np.uint16) * scale)  # untouched
+                continue
+            ref = walls_reference(cost[y, x], values[owner[y, x]], float(dis[y, x]), dis[y, x] == 0, k, c, band,
+                                  form, scale, fbar, cap)
+            np.testing.assert_allclose(out[y, x], ref, atol=1.0)  # rounded to the nearest stored unit
+            n += 1
+    assert n > 20  # owned pixels were checked
