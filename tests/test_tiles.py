@@ -1,11 +1,15 @@
 """Tiled matching: the tiling must not show in the result, and LiDAR-driven tile ranges must hold the truth."""
 
+import json
 import warnings
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
+from riverbed_cli.cli.main import cli
 from riverbed_cli.errors import RiverbedError
+from riverbed_cli.io.disparity import read_disparity, write_disparity
 from riverbed_cli.matching.pipeline import match_pair
 from riverbed_cli.products.evaluate import evaluate_disparity
 from riverbed_cli.products.simulate import simulate_lidar
@@ -124,3 +128,23 @@ def test_match_command_tiles_tiff_inputs(cones, tmp_path):
     r = CliRunner().invoke(cli, ["match", *common, "--tile", "8", "-o", str(tmp_path / "x.tif")])
     assert r.exit_code == 1
     assert r.output == "riverbed: error: --tile must be auto, 0 or a size of at least 16 px, not '8'\n"
+
+
+def test_tile_auto_tiles_under_a_small_budget(tmp_path, cones, monkeypatch):
+    """--tile auto with a budget the whole image does not fit: tiles are used, and the map equals the untiled one
+    away from the borders (every tile searches the global range)."""
+    left, right, gt = cones
+    sparse = simulate_lidar(gt, 0.05, seed=0)
+    write_disparity(tmp_path / "s.tif", sparse)
+    common = ["tests/data/cones/im2.png", "tests/data/cones/im6.png", "--sparse", str(tmp_path / "s.tif"),
+              "--min-disp", "0", "--max-disp", "59", "--global-range", "--json"]
+    r = CliRunner().invoke(cli, ["match", *common, "--tile", "0", "-o", str(tmp_path / "whole.tif")])
+    assert r.exit_code == 0, r.output
+    monkeypatch.setenv("RIVERBED_TILE_BUDGET_MIB", "40")  # 450 x 375 x 60 x 6 bytes = 58 MiB do not fit
+    r = CliRunner().invoke(cli, ["match", *common, "--overlap", "96", "-o", str(tmp_path / "tiled.tif")])
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.output)
+    assert s["tiles"] > 1 and s["tile"] < 450
+    a, b = read_disparity(tmp_path / "tiled.tif"), read_disparity(tmp_path / "whole.tif")
+    inner = (slice(BORDER, -BORDER), slice(BORDER, -BORDER))
+    assert (np.abs(a[inner] - b[inner]) <= 0.01).mean() >= 0.999

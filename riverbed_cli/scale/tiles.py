@@ -12,6 +12,7 @@ d_max - off]``; ``off`` is added back. Only the tile's own pixels (not the overl
 
 import logging
 import math
+import os
 import time
 from dataclasses import asdict, dataclass
 
@@ -130,7 +131,14 @@ class TilePlan:
 
 
 def tile_budget():
-    """Bytes a tile's volumes may take: :data:`TILE_BUDGET`, or a quarter of the free memory when that is less."""
+    """Bytes a tile's volumes may take: :data:`TILE_BUDGET`, or a quarter of the free memory when that is less;
+    ``RIVERBED_TILE_BUDGET_MIB`` in the environment sets it (a small machine, or a test of the tiling)."""
+    env = os.environ.get("RIVERBED_TILE_BUDGET_MIB")
+    if env:
+        try:
+            return int(float(env) * 2**20)
+        except ValueError:
+            raise RiverbedError(f"RIVERBED_TILE_BUDGET_MIB must be a number of MiB, not '{env}'") from None
     return int(min(TILE_BUDGET, psutil.virtual_memory().available // 4))
 
 
