@@ -1,7 +1,9 @@
 """The committed benchmark expectations as a regression gate, on real data read from RIVERBED_DATA.
 
 `benchmarks/expected_middlebury.json` and `benchmarks/expected_kitti.json` hold the full tables of
-docs/benchmarks.md (issue 6); a CI job may gate on a subset of them, which is what these tests do.
+docs/benchmarks.md, reviewed and committed (`riverbed benchmark --write-expected`); a case regresses when a metric
+exceeds its expectation by 10 % and by a small floor (0.05 points, 0.005 px). The gate covers every dev scene and
+share for the guides the docs make claims for.
 """
 
 import json
@@ -37,10 +39,20 @@ def test_middlebury_expectations_hold_on_cones(shared_data, tmp_path):
     assert rb["bad1"] <= diff["bad1"] + 0.1 and rb["bad3"] <= diff["bad3"] + 0.1
 
 
-def test_kitti_expectations_hold_and_beat_the_paper_table_3(shared_data, tmp_path):
+def test_middlebury_expectations_hold_on_every_dev_scene_and_share(shared_data, tmp_path):
+    code, s = bench(shared_data / MIDDLEBURY, "--layout", "middlebury", "--matchers", "sgm,adcensus", "--guides",
+                    "none,gauss,riverbed,diffusion,riverbed+", "-o", tmp_path, "--check",
+                    EXPECTED / "expected_middlebury.json")
+    assert code == 0, s
+    assert s["checked"] == 4 * 3 * 2 * 5 and s["regressions"] == []
+
+
+def test_kitti_expectations_hold(shared_data, tmp_path):
     code, s = bench(shared_data / KITTI, "--layout", "kitti", "--matchers", "sgm", "--guides", "riverbed",
                     "--shares", "0.05", "-o", tmp_path, "--check", EXPECTED / "expected_kitti.json")
     assert code == 0, s
     assert s["checked"] == 1 and s["regressions"] == []
     (row,) = json.loads((tmp_path / "results.json").read_text())
-    assert row["bad3"] < 0.73 and row["avg"] < 0.45  # the paper's Table 3, SGM + riverbed at 5 %: 0.73 %, 0.45 px
+    # 5 % of the *image* pixels here (42 % of this frame's GT): not the paper's Table 3 protocol (5 % of the GT),
+    # which riverbed does not beat (docs/benchmarks.md); these bounds are the Table 3 figures, kept as a sanity floor
+    assert row["bad3"] < 0.73 and row["avg"] < 0.45

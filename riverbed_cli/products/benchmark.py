@@ -283,11 +283,25 @@ def figure5(rows, path, scene=None, matcher="sgm"):
     return path
 
 
-def expectations(rows, tolerance=None):
-    """An EXPECTED.json document from results: each case's metrics, with per-metric tolerances."""
-    tol = {"bad1": 0.5, "bad2": 0.5, "bad3": 0.5, "avg": 0.05, "rmse": 0.2, **(tolerance or {})}
-    return {"tolerance": tol,
-            "cases": [{"key": r["key"], **{k: r[k] for k in tol}} for r in rows]}
+#: Relative tolerance of an expectation, and the absolute floor per metric (% points, px) below which a change is
+#: noise: a metric regresses when it exceeds ``expected * (1 + relative)`` and ``expected + floor``.
+RELATIVE = 0.10
+FLOORS = {"bad1": 0.05, "bad2": 0.05, "bad3": 0.05, "avg": 0.005, "rmse": 0.02}
+
+
+def expectations(rows, relative=RELATIVE, floors=None):
+    """An EXPECTED.json document from results: each case's metrics, with a relative tolerance and absolute floors."""
+    floors = {**FLOORS, **(floors or {})}
+    return {"tolerance": {"relative": relative, "floor": floors},
+            "cases": [{"key": r["key"], **{k: r[k] for k in floors}} for r in rows]}
+
+
+def _limit(value, metric, tol):
+    """The largest value of ``metric`` that passes an expectation of ``value``: relative with a floor, or (older
+    expectation files) an absolute per-metric tolerance."""
+    if "relative" in tol:
+        return value + max(tol["relative"] * value, tol["floor"].get(metric, 0.0))
+    return value + tol[metric]
 
 
 def check(rows, expected):
@@ -311,9 +325,11 @@ def check(rows, expected):
             if len(parts) == 6 and all(v in a for v, a in zip(parts, asked)):
                 failures.append(f"{case['key']}: expected but not run")
             continue
-        for metric, t in tol.items():
-            if metric in case and r[metric] > case[metric] + t:
-                failures.append(f"{case['key']}: {metric} {r[metric]:.3f} > expected {case[metric]:.3f} + {t:g}")
+        metrics = tol["floor"] if "relative" in tol else tol
+        for metric in metrics:
+            if metric in case and r[metric] > _limit(case[metric], metric, tol):
+                failures.append(f"{case['key']}: {metric} {r[metric]:.3f} > {_limit(case[metric], metric, tol):.3f} "
+                                f"(expected {case[metric]:.3f})")
     cases = expected.get("cases", [])
     if cases and not any(case["key"] in by_key for case in cases):
         failures.append(f"none of the {len(cases)} expected cases ran (expectations of another dataset or selection?)")
