@@ -55,9 +55,6 @@ MALFORMED = {
     "garbage_nVariableLength.las":
         "malformed LAS header: 1069128089 VLRs declared, but only 0 bytes lie between the header and the "
         "point data",
-    # 3 VLRs declared, the third would start where the point data starts (laspy reads an empty VLR).
-    "bad_vlr_count.las":
-        "malformed LAS header: VLR 3 of 3 (at byte 429) does not fit before the point data (byte 429)",
     # Header says 1065 points, the file ends after the header (laspy silently returns 0 points).
     "1.2-no-points.las":
         "truncated LAS: the header declares 1065 points of 34 bytes from byte 229 (36439 bytes), the file "
@@ -127,7 +124,7 @@ def _laspy_crs(path):
 
 def test_copied_set_is_what_the_tests_expect():
     on_disk = {p.name for p in DATA.iterdir() if p.suffix in (".las", ".laz")}
-    assert on_disk == set(READABLE) | set(MALFORMED)
+    assert on_disk == set(READABLE) | set(MALFORMED) | {"bad_vlr_count.las"}
     assert sum(p.stat().st_size for p in DATA.iterdir()) < 3 * 2**20
     versions = {v for v, _, _ in READABLE.values()}
     formats = {f for _, f, _ in READABLE.values()}
@@ -271,6 +268,19 @@ def test_malformed_file_is_refused_quickly(name):
     assert messages == [f"{path}: {MALFORMED[name]}"] * 3
 
 
+def test_overstated_vlr_count_is_read_with_a_warning(caplog):
+    """bad_vlr_count.las (PDAL): the header declares 3 VLRs, 2 fit before the point data, the 10 points are intact.
+    laspy reads it; so do we, with a one-line warning naming the file and what is wrong."""
+    path = DATA / "bad_vlr_count.las"
+    with caplog.at_level(logging.WARNING, logger="riverbed_cli.io.lidar"):
+        pts = read_lidar(path)
+    las = laspy.read(path)
+    np.testing.assert_array_equal(pts["xyz"], np.column_stack([las.x, las.y, las.z]))
+    assert len(pts["xyz"]) == 10
+    assert [r.getMessage() for r in caplog.records] == [
+        f"{path}: the LAS header declares 3 VLRs but only 2 fit before the point data (byte 429); the points are read"]
+
+
 # ---------------------------------------------------------------------------------------------------------
 # Hand-made bad input
 
@@ -366,10 +376,14 @@ def test_garbage_vlr_count(tmp_path):
     )
     path = _patched(tmp_path, "simple.las", [(100, "<I", 2**32 - 1)], "max.las")
     assert "4294967295 VLRs declared" in _refused("lidar_info", path)
-    # One VLR too many where the VLRs would fit by count: found by walking them.
+    # One VLR too many, where the VLRs end exactly at the point data: an overstated count, read with a warning
+    # (as bad_vlr_count.las; the points are intact).
     path = _patched(tmp_path, "autzen.las", [(100, "<I", 5)])
+    assert read_lidar(path)["xyz"].shape == read_lidar(DATA / "autzen.las")["xyz"].shape
+    # A VLR whose length runs past the point data: found by walking them, refused.
+    path = _patched(tmp_path, "autzen.las", [(227 + 20, "<H", 60000)], "long_vlr.las")
     assert _refused("lidar_info", path) == (
-        f"{path}: malformed LAS header: VLR 5 of 5 (at byte 1994) does not fit before the point data (byte 1994)"
+        f"{path}: malformed LAS header: VLR 1 of 4 (at byte 227) does not fit before the point data (byte 1994)"
     )
 
 
@@ -464,7 +478,6 @@ def test_kitti_bin_non_finite(tmp_path):
 SHARED_SETS = ("lidar_laspy_testdata", "lidar_pdal_testdata", "lidar_ign_lidarhd_nimes")
 SHARED_MALFORMED = {
     "lidar_pdal_testdata/test/data/las/garbage_nVariableLength.las": MALFORMED["garbage_nVariableLength.las"],
-    "lidar_pdal_testdata/test/data/las/bad_vlr_count.las": MALFORMED["bad_vlr_count.las"],
     "lidar_pdal_testdata/test/data/las/permutations/1.2-no-points.las": MALFORMED["1.2-no-points.las"],
     "lidar_pdal_testdata/test/data/laz/simple-laszip-compressor-version-1.2r0.laz":
         MALFORMED["simple-laszip-compressor-version-1.2r0.laz"],

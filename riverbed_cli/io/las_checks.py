@@ -20,6 +20,7 @@ Whatever laspy or lazrs still raise while reading (including a Rust panic, which
 ``BaseException``) becomes, through :func:`native_errors`, a one-line :class:`RiverbedError` naming the file.
 """
 
+import logging
 import math
 import struct
 from contextlib import contextmanager
@@ -37,6 +38,8 @@ MAX_CHUNK_BYTES = 256 * 2**20
 _HEADER_SIZE = {0: 227, 1: 227, 2: 227, 3: 235, 4: 375}  # by minor version
 # Size of each point format's standard fields (the record may be longer: extra bytes).
 _RECORD_SIZE = {0: 20, 1: 28, 2: 26, 3: 34, 4: 57, 5: 63, 6: 30, 7: 36, 8: 38, 9: 59, 10: 67}
+log = logging.getLogger("riverbed_cli.io.lidar")  # the readers' logger: their warnings in one place
+
 _VLR_HEADER = 54
 _EVLR_HEADER = 60
 _LASZIP_USER_ID = b"laszip encoded"
@@ -135,6 +138,12 @@ def check_las_header(path):
         laszip_vlr = None
         pos = 0
         for i in range(n_vlr):
+            if pos == space:
+                # The header overstates its VLR count: the VLRs it has end exactly where the point data starts.
+                # laspy reads such a file (the points are where the header says); say so and read it.
+                log.warning("%s: the LAS header declares %d VLRs but only %d fit before the point data (byte %d); "
+                            "the points are read", path, n_vlr, i, offset)
+                break
             length = 0
             if pos + _VLR_HEADER <= space:
                 user_id = vlr_bytes[pos + 2:pos + 18].split(b"\0")[0]
