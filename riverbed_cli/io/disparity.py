@@ -180,25 +180,33 @@ def _open_tif(path):
         raise RiverbedError("cannot read TIFF disparity (not a TIFF rasterio reads)", path) from None
 
 
-def _read_tif(path):
+def _read_tif_bands(path, what, bands=None):
+    """Bands of a real-valued TIFF as float32 with nodata, inf and NaN as NaN: ``(count, H, W)`` for ``bands=None``
+    (checked against ``bands`` when given: a number), ``(H, W)`` for band 1 only (``bands=1``)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
         with _open_tif(path) as ds:
+            if bands is not None and bands > 1 and ds.count != bands:
+                raise RiverbedError(f"{what} needs {bands} bands (min and max disparity), has {ds.count}", path)
             if ds.dtypes[0].startswith("complex"):
-                raise RiverbedError(f"TIFF disparity must be real-valued, got {ds.dtypes[0]}", path)
+                raise RiverbedError(f"{what} must be real-valued, got {ds.dtypes[0]}", path)
             try:
-                raw = ds.read(1)
+                raw = ds.read(1) if bands == 1 else ds.read()
             except MemoryError:
                 raise
             except Exception:  # noqa: BLE001 - as in _open_tif
-                raise RiverbedError("cannot read TIFF disparity (corrupt or truncated data)", path) from None
+                raise RiverbedError(f"cannot read {what} (corrupt or truncated data)", path) from None
             nodata = ds.nodata
-    disp = raw.astype(np.float32)
-    invalid = ~np.isfinite(disp)
+    out = raw.astype(np.float32)
+    invalid = ~np.isfinite(out)
     if nodata is not None and not np.isnan(nodata):
         invalid |= raw == nodata  # compare in the stored type: exact
-    disp[invalid] = np.nan
-    return disp
+    out[invalid] = np.nan
+    return out
+
+
+def _read_tif(path):
+    return _read_tif_bands(path, "TIFF disparity", bands=1)
 
 
 def read_range_map(path):
@@ -208,25 +216,7 @@ def read_range_map(path):
     path = require_file(path)
     if disparity_format(path) != "tif":
         raise RiverbedError("range map must be a 2-band GeoTIFF/TIFF (min and max disparity)", path)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
-        with _open_tif(path) as ds:
-            if ds.count != 2:
-                raise RiverbedError(f"range map needs 2 bands (min and max disparity), has {ds.count}", path)
-            if ds.dtypes[0].startswith("complex"):
-                raise RiverbedError(f"range map must be real-valued, got {ds.dtypes[0]}", path)
-            try:
-                raw = ds.read()
-            except MemoryError:
-                raise
-            except Exception:  # noqa: BLE001 - as in _open_tif
-                raise RiverbedError("cannot read range map (corrupt or truncated data)", path) from None
-            nodata = ds.nodata
-    out = raw.astype(np.float32)
-    invalid = ~np.isfinite(out)
-    if nodata is not None and not np.isnan(nodata):
-        invalid |= raw == nodata
-    out[invalid] = np.nan
+    out = _read_tif_bands(path, "range map", bands=2)
     return out[0], out[1]
 
 

@@ -11,6 +11,43 @@ from numba import njit, prange
 from ..errors import RiverbedError
 
 
+@njit(cache=True, inline="always")
+def _pick(s, D, o, d_min, subpixel):
+    # winner index of the D costs s and its disparity d_min + o + index, parabola-refined inside the range
+    bi = 0
+    bv = s[0]
+    for i in range(1, D):
+        if s[i] < bv:
+            bv = s[i]
+            bi = i
+    val = np.float32(d_min + o + bi)
+    if subpixel and bi > 0 and bi < D - 1:
+        a = s[bi - 1]
+        c = s[bi + 1]
+        den = a - 2 * bv + c
+        if den > 0:
+            val += np.float32(0.5 * (a - c) / den)
+    return bi, val
+
+
+@njit(cache=True, inline="always")
+def _vote_right(s, D, x, o, d_min, W, right_cost, right_best):
+    # Right-image winner: min over d of S(y, xr + d, d), accumulated while scanning the row (as d - d_min).
+    for i in range(D):
+        xr = x - (d_min + o + i)
+        if xr >= 0 and xr < W and s[i] < right_cost[xr]:
+            right_cost[xr] = s[i]
+            right_best[xr] = o + i
+
+
+@njit(cache=True, inline="always")
+def _lr_reject(disp_row, best_left, right_best, d_min, W, lr_threshold):
+    for x in range(W):
+        xr = x - (d_min + best_left[x])
+        if xr < 0 or xr >= W or abs(best_left[x] - right_best[xr]) > lr_threshold:
+            disp_row[x] = np.nan
+
+
 @njit(cache=True, parallel=True)
 def _select_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold):
     H, W, D = fwd.shape
@@ -18,38 +55,17 @@ def _select_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold):
     for y in prange(H):
         s = np.empty(D, dtype=np.int32)
         best_left = np.empty(W, dtype=np.int64)
-        # Right-image winner: min over d of S(y, xr + d, d), accumulated while scanning the row.
         right_cost = np.full(W, 2147483647, dtype=np.int64)
         right_best = np.zeros(W, dtype=np.int64)
         for x in range(W):
             for i in range(D):
                 s[i] = np.int32(fwd[y, x, i]) + np.int32(bwd[y, x, i])
-            bi = 0
-            bv = s[0]
-            for i in range(1, D):
-                if s[i] < bv:
-                    bv = s[i]
-                    bi = i
+            bi, disp[y, x] = _pick(s, D, 0, d_min, subpixel)
             best_left[x] = bi
-            val = np.float32(d_min + bi)
-            if subpixel and bi > 0 and bi < D - 1:
-                a = s[bi - 1]
-                c = s[bi + 1]
-                den = a - 2 * bv + c
-                if den > 0:
-                    val += np.float32(0.5 * (a - c) / den)
-            disp[y, x] = val
             if lr_check:
-                for i in range(D):
-                    xr = x - (d_min + i)
-                    if xr >= 0 and xr < W and s[i] < right_cost[xr]:
-                        right_cost[xr] = s[i]
-                        right_best[xr] = i
+                _vote_right(s, D, x, 0, d_min, W, right_cost, right_best)
         if lr_check:
-            for x in range(W):
-                xr = x - (d_min + best_left[x])
-                if xr < 0 or xr >= W or abs(best_left[x] - right_best[xr]) > lr_threshold:
-                    disp[y, x] = np.nan
+            _lr_reject(disp[y], best_left, right_best, d_min, W, lr_threshold)
     return disp
 
 
@@ -73,32 +89,12 @@ def _select_tube_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold, start
             o = np.int64(offset[y, x])
             for i in range(D):
                 s[i] = np.int32(fwd[b + i]) + np.int32(bwd[b + i])
-            bi = 0
-            bv = s[0]
-            for i in range(1, D):
-                if s[i] < bv:
-                    bv = s[i]
-                    bi = i
+            bi, disp[y, x] = _pick(s, D, o, d_min, subpixel)
             best_left[x] = o + bi
-            val = np.float32(d_min + o + bi)
-            if subpixel and bi > 0 and bi < D - 1:
-                a = s[bi - 1]
-                c = s[bi + 1]
-                den = a - 2 * bv + c
-                if den > 0:
-                    val += np.float32(0.5 * (a - c) / den)
-            disp[y, x] = val
             if lr_check:
-                for i in range(D):
-                    xr = x - (d_min + o + i)
-                    if xr >= 0 and xr < W and s[i] < right_cost[xr]:
-                        right_cost[xr] = s[i]
-                        right_best[xr] = o + i
+                _vote_right(s, D, x, o, d_min, W, right_cost, right_best)
         if lr_check:
-            for x in range(W):
-                xr = x - (d_min + best_left[x])
-                if xr < 0 or xr >= W or abs(best_left[x] - right_best[xr]) > lr_threshold:
-                    disp[y, x] = np.nan
+            _lr_reject(disp[y], best_left, right_best, d_min, W, lr_threshold)
     return disp
 
 
