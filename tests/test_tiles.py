@@ -140,11 +140,15 @@ def test_tile_auto_tiles_under_a_small_budget(tmp_path, cones, monkeypatch):
               "--min-disp", "0", "--max-disp", "59", "--global-range", "--json"]
     r = CliRunner().invoke(cli, ["match", *common, "--tile", "0", "-o", str(tmp_path / "whole.tif")])
     assert r.exit_code == 0, r.output
-    monkeypatch.setenv("RIVERBED_TILE_BUDGET_MIB", "40")  # 450 x 375 x 60 x 6 bytes = 58 MiB do not fit
+    # with tubes (~11 disparities a pixel on Cones) the whole image's volumes take ~12 MiB: 4 MiB do not hold them
+    monkeypatch.setenv("RIVERBED_TILE_BUDGET_MIB", "4")
     r = CliRunner().invoke(cli, ["match", *common, "--overlap", "96", "-o", str(tmp_path / "tiled.tif")])
     assert r.exit_code == 0, r.output
     s = json.loads(r.output)
     assert s["tiles"] > 1 and s["tile"] < 450
+    monkeypatch.setenv("RIVERBED_TILE_BUDGET_MIB", "64")  # 64 MiB hold the tube volume (the full range: ~190 MiB): untiled
+    r = CliRunner().invoke(cli, ["match", *common, "-o", str(tmp_path / "fits.tif")])
+    assert r.exit_code == 0 and "tiles" not in json.loads(r.output)
     a, b = read_disparity(tmp_path / "tiled.tif"), read_disparity(tmp_path / "whole.tif")
     inner = (slice(BORDER, -BORDER), slice(BORDER, -BORDER))
     assert (np.abs(a[inner] - b[inner]) <= 0.01).mean() >= 0.999

@@ -86,6 +86,16 @@ def lidar_tubes(sparse, d_min, d_max, reach=2.0, margin=2.0, levels=3, level_mar
     with np.errstate(invalid="ignore"):
         cmin = np.where(np.isfinite(blocks), blocks, np.inf).min(axis=(1, 3))
         cmax = np.where(np.isfinite(blocks), blocks, -np.inf).max(axis=(1, 3))
+    tlo, thi = cell_tubes(cmin, cmax, d_min, d_max, spacing, reach, margin, levels, level_margin, cell)
+    lo[:] = np.repeat(np.repeat(tlo, cell, axis=0), cell, axis=1)[:H, :W]
+    hi[:] = np.repeat(np.repeat(thi, cell, axis=0), cell, axis=1)[:H, :W]
+    return lo, hi
+
+
+def cell_tubes(cmin, cmax, d_min, d_max, spacing, reach=2.0, margin=2.0, levels=3, level_margin=4.0, cell=4):
+    """The tube rule on cells: ``cmin``/``cmax`` the LiDAR extrema per ``cell`` x ``cell`` cell (+-inf: none);
+    returns the cells' inclusive tube ends (int64), clipped to ``[d_min, d_max]``."""
+    ch, cw = cmin.shape
     done = np.zeros((ch, cw), bool)
     tlo = np.full((ch, cw), d_min, np.int64)
     thi = np.full((ch, cw), d_max, np.int64)
@@ -99,11 +109,23 @@ def lidar_tubes(sparse, d_min, d_max, reach=2.0, margin=2.0, levels=3, level_mar
         done |= new
         if done.all():
             break
-    tlo = np.clip(tlo, d_min, d_max)
-    thi = np.clip(thi, d_min, d_max)
-    lo[:] = np.repeat(np.repeat(tlo, cell, axis=0), cell, axis=1)[:H, :W]
-    hi[:] = np.repeat(np.repeat(thi, cell, axis=0), cell, axis=1)[:H, :W]
-    return lo, hi
+    return np.clip(tlo, d_min, d_max), np.clip(thi, d_min, d_max)
+
+
+def cell_widths_from_points(rows, cols, values, shape, d_min, d_max, share, tube):
+    """Tube widths per cell (int64 ``ceil(H / cell) x ceil(W / cell)``) from the LiDAR points (pixel rows, columns,
+    disparities) of an image of ``shape``: the tube rule without an image-sized array, for planning tiles."""
+    cell = max(1, int(tube["cell"]))
+    ch, cw = -(-shape[0] // cell), -(-shape[1] // cell)
+    cmin = np.full((ch, cw), np.inf, np.float32)
+    cmax = np.full((ch, cw), -np.inf, np.float32)
+    keep = (values >= d_min) & (values <= d_max)
+    r, c, v = rows[keep] // cell, cols[keep] // cell, values[keep].astype(np.float32)
+    np.minimum.at(cmin, (r, c), v)
+    np.maximum.at(cmax, (r, c), v)
+    spacing = 1.0 / math.sqrt(max(share, 1e-12))
+    tlo, thi = cell_tubes(cmin, cmax, d_min, d_max, spacing, **tube)
+    return thi - tlo + 1
 
 
 def tube_reach_px(share, reach=2.0, levels=3, cell=4, **_):

@@ -17,7 +17,8 @@ from ..io.windowed import TiffSink, WindowedRaster, is_tiff, sparse_points_any
 from ..matching.pipeline import disparity_range_from_sparse, match_pair, warm_up
 from ..matching.registry import get_guide
 from ..products.visualize import colorize_disparity, write_png
-from .tiles import match_tiled, plan_tiles
+from ..matching.guidance import lidar_share_of_points
+from .tiles import match_tiled, plan_tiles, tube_widths
 
 log = logging.getLogger(__name__)
 
@@ -113,8 +114,15 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
             min_disp = int(np.floor(rmap[0][known].min())) if min_disp is None else min_disp
             max_disp = int(np.ceil(rmap[1][known].max())) if max_disp is None else max_disp
     rng = _range_for_plan(sparse_src, min_disp, max_disp) if tile != 0 else None
-    # the same tiling rule as blocks: untiled when the whole range fits, else tiles sized for the widest LiDAR range
-    plan = plan_tiles(H, W, sparse_src, rng[0], rng[1], tile, overlap, lidar_range) if rng is not None else None
+    # the same tiling rule as blocks: untiled when the whole range (with tubes: their volume) fits, else tiles sized
+    # for the widest LiDAR range
+    plan = None
+    if rng is not None:
+        widths = None
+        if sparse_src is not None and rmap is None:
+            pr, pc, pv = sparse_points_any(sparse_src)
+            widths = tube_widths(config, (pr, pc, pv), (H, W), rng[0], rng[1], lidar_share_of_points(pr, pc, (H, W)))
+        plan = plan_tiles(H, W, sparse_src, rng[0], rng[1], tile, overlap, lidar_range, widths=widths)
     warm_up(config=config)  # load the kernels this run uses now: start-up, not matching time
     if plan is not None and plan.tiled:
         if rmap is not None:

@@ -26,7 +26,7 @@ from ..matching.config import OVERLAP_DEFAULT, TILE_DEFAULT
 from ..matching.guidance import lidar_share, lidar_share_of_points
 from ..matching.pipeline import make_config, match_pair, resolve_disparity_range, resolve_range
 from ..matching.registry import get_guide, get_matcher
-from ..matching.tubes import lidar_tubes_window
+from ..matching.tubes import cell_widths_from_points, lidar_tubes_window
 from ..matching.results import MatchResult, TiledMatchInfo
 
 log = logging.getLogger(__name__)
@@ -36,15 +36,17 @@ log = logging.getLogger(__name__)
 TILE_BUDGET = 1536 * 2**20
 
 
-def auto_tile(d_range, overlap=128, budget=TILE_BUDGET, smallest=128, largest=4096):
+def auto_tile(d_range, overlap=128, budget=TILE_BUDGET, smallest=128, largest=4096, depth=None):
     """The largest tile side (a multiple of 64) whose crop's volumes fit ``budget`` bytes for ``d_range`` disparities.
 
-    A crop is ``(T + 2 overlap)`` rows by ``(T + 2 overlap + d_range)`` columns; its volumes take 6 bytes per cell.
+    A crop is ``(T + 2 overlap)`` rows by ``(T + 2 overlap + d_range)`` columns; its volumes take 6 bytes per cell,
+    ``depth`` cells per pixel (the range's disparities, or with tubes their mean width).
     """
     D = int(d_range) + 1
+    depth = D if depth is None else max(1.0, float(depth))
     best = smallest
     for T in range(smallest, largest + 1, 64):
-        if 6 * (T + 2 * overlap) * (T + 2 * overlap + D) * D <= budget:
+        if 6 * (T + 2 * overlap) * (T + 2 * overlap + D) * depth <= budget:
             best = T
     return best
 
@@ -142,15 +144,27 @@ def tile_budget():
     return int(min(TILE_BUDGET, psutil.virtual_memory().available // 4))
 
 
+def tube_widths(config, points, shape, d_min, d_max, share):
+    """``(cell widths, cell)`` of the tubes a match with ``config`` will search (for :func:`plan_tiles`), or None when
+    it searches whole ranges. ``points``: the LiDAR's ``(rows, cols, values)``."""
+    guide, matcher = get_guide(config.guide), get_matcher(config.matcher)
+    if points is None or resolve_range(config, guide, matcher, True, False) != "tube":
+        return None
+    tube = asdict(config.tube)
+    return cell_widths_from_points(*points, shape, d_min, d_max, share, tube), max(1, int(tube["cell"]))
+
+
 def plan_tiles(height, width, sparse, d_min, d_max, tile=TILE_DEFAULT, overlap=OVERLAP_DEFAULT, lidar_range=True,
-               budget=None):
+               budget=None, widths=None):
     """The tiling of a ``height x width`` match over ``[d_min, d_max]``: one rule for ``riverbed match`` and blocks.
 
     ``tile="auto"``: the image is matched whole when its volumes fit ``budget`` (:func:`tile_budget` by default)
     for the whole range; otherwise tiles take the largest side that fits ``budget`` for the widest range a 1024 px
     tile would search (its LiDAR range with ``lidar_range``, else the global one). ``tile=0``: never tile. An
     integer: tiles of that side when the image is larger. Each tile gets its LiDAR range (:func:`lidar_ranges`) or
-    the global one. Returns a :class:`TilePlan`; an untiled plan holds the one tile covering the image.
+    the global one. With tubes, ``widths`` (:func:`tube_widths`) makes the volume count their mean width instead of
+    the range's disparities (the image's for the whole, the widest 1024 px tile's for tiles). Returns a
+    :class:`TilePlan`; an untiled plan holds the one tile covering the image.
     """
     def plan(size):
         ts = tile_grid(height, width, max(size, 16))
@@ -166,9 +180,15 @@ def plan_tiles(height, width, sparse, d_min, d_max, tile=TILE_DEFAULT, overlap=O
         return TilePlan(plan(whole), whole, False)
     if tile == "auto":
         budget = tile_budget() if budget is None else budget
-        if whole <= auto_tile(d_max - d_min, overlap, budget):
+        cells, cell = widths if widths is not None else (None, 1)
+        depth = float(cells.mean()) if cells is not None else None
+        if whole <= auto_tile(d_max - d_min, overlap, budget, depth=depth):
             return TilePlan(plan(whole), whole, False)
-        tile = auto_tile(max(t.d_max - t.d_min for t in plan(1024)), overlap, budget)
+        probe = plan(1024)
+        if cells is not None:
+            depth = max(float(cells[t.y0 // cell:-(-t.y1 // cell), t.x0 // cell:-(-t.x1 // cell)].mean())
+                        for t in probe)
+        tile = auto_tile(max(t.d_max - t.d_min for t in probe), overlap, budget, depth=depth)
     tile = int(tile)
     if whole <= tile:
         return TilePlan(plan(whole), whole, False)
@@ -254,7 +274,8 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
     if guide.uses_window and p.guidance.window == "auto":
         # One window for the whole image: a tile's own LiDAR share would change it from tile to tile.
         p = p.replace(window=guide.window(share, p))
-    plan = plan_tiles(H, W, sparse, d_min, d_max, tile, overlap, lidar_range)
+    widths = tube_widths(p, (pr, pc, pv), (H, W), d_min, d_max, share) if sparse is not None else None
+    plan = plan_tiles(H, W, sparse, d_min, d_max, tile, overlap, lidar_range, widths=widths)
     if out is None:
         out = np.full((H, W), np.nan, np.float32)
     stages = {}

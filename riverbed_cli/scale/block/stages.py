@@ -24,7 +24,7 @@ from ...matching.guidance import lidar_share_of_points
 from ...matching.pipeline import match_pair, resolve_disparity_range
 from ...matching.registry import get_guide
 from ...products.dsm import build_dsm
-from ..tiles import Tile, match_tile, plan_tiles
+from ..tiles import Tile, match_tile, plan_tiles, tube_widths
 from .plan import DONE, OUTPUTS, WORK, riverbed_version, sha256_file, write_json
 from .settings import match_params
 
@@ -139,7 +139,8 @@ def project_stage(job):
     share = lidar_share_of_points(pr, pc, (H, W))
     d_min, d_max = resolve_disparity_range(s["min_disp"], s["max_disp"], pv)
 
-    plan = plan_tiles(H, W, sparse, d_min, d_max, s["tile"], s["overlap"], s["lidar_range"])
+    widths = tube_widths(p, (pr, pc, pv), (H, W), d_min, d_max, share)
+    plan = plan_tiles(H, W, sparse, d_min, d_max, s["tile"], s["overlap"], s["lidar_range"], widths=widths)
     tiles, window, bits = [], p.guidance.window, None
     if plan.tiled:
         srcs = [_image_source(getattr(pair, side), (H, W), s["max_pixels"]) for side in ("left", "right")]
