@@ -36,17 +36,23 @@ log = logging.getLogger(__name__)
 TILE_BUDGET = 1536 * 2**20
 
 
+#: Bytes per crop pixel besides the cost volumes that a tube match holds (census, grey and guide images, tube ends
+#: and layout, ownership): small against a full-range volume, the larger part of a tube match's memory.
+TUBE_PIXEL_BYTES = 160
+
+
 def auto_tile(d_range, overlap=128, budget=TILE_BUDGET, smallest=128, largest=4096, depth=None):
-    """The largest tile side (a multiple of 64) whose crop's volumes fit ``budget`` bytes for ``d_range`` disparities.
+    """The largest tile side (a multiple of 64) whose crop fits ``budget`` bytes for ``d_range`` disparities.
 
     A crop is ``(T + 2 overlap)`` rows by ``(T + 2 overlap + d_range)`` columns; its volumes take 6 bytes per cell,
-    ``depth`` cells per pixel (the range's disparities, or with tubes their mean width).
+    ``d_range + 1`` cells per pixel; with tubes (``depth``: their mean width) ``6 depth +``
+    :data:`TUBE_PIXEL_BYTES` bytes per pixel.
     """
     D = int(d_range) + 1
-    depth = D if depth is None else max(1.0, float(depth))
+    per_pixel = 6.0 * D if depth is None else 6.0 * max(1.0, float(depth)) + TUBE_PIXEL_BYTES
     best = smallest
     for T in range(smallest, largest + 1, 64):
-        if 6 * (T + 2 * overlap) * (T + 2 * overlap + D) * depth <= budget:
+        if (T + 2 * overlap) * (T + 2 * overlap + D) * per_pixel <= budget:
             best = T
     return best
 
