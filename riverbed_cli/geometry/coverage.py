@@ -32,3 +32,12 @@ def lidar_share_of_points(rows, cols, shape):
         twice = abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
         area = max(twice / 2.0 + boundary / 2.0 + 1.0, float(n))
     return n / area
+
+
+def lidar_rows(sparse):
+    """LiDAR pixels by row (CSR) for kernels that visit the LiDAR near a pixel: the columns of row ``y`` are
+    ``cols[ptr[y]:ptr[y + 1]]``, ascending (LiDAR: not NaN). Returns ``(ptr, cols)``, int64."""
+    rows, cols = np.nonzero(~np.isnan(sparse))
+    ptr = np.zeros(sparse.shape[0] + 1, dtype=np.int64)
+    np.cumsum(np.bincount(rows, minlength=sparse.shape[0]), out=ptr[1:])
+    return ptr, cols.astype(np.int64)

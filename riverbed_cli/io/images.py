@@ -22,7 +22,8 @@ from ..errors import RiverbedError
 from ..settings import MAX_PIXELS  # noqa: F401  (the default pixel limit; --max-pixels raises it)
 
 _UNREADABLE = "cannot read image (not a format OpenCV or rasterio reads)"
-_TIFF_MAGIC = (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
+#: The first four bytes of a TIFF or BigTIFF file.
+TIFF_MAGIC = (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
 
 
 def read_image(path, max_pixels=MAX_PIXELS):
@@ -65,7 +66,7 @@ def read_image(path, max_pixels=MAX_PIXELS):
         check_pixels(path, height, width, max_pixels)
 
     img = None
-    if head[:4] in _TIFF_MAGIC:
+    if head[:4] in TIFF_MAGIC:
         # TIFF goes to rasterio first: OpenCV silently mixes a 3-band MINISBLACK TIFF (the usual multi-band
         # GeoTIFF) down to one grey channel, and rasterio checks the size before reading the pixels.
         img = _read_rasterio(path, max_pixels, required=False)

@@ -9,7 +9,7 @@ from rasterio.windows import Window
 
 from ..errors import RiverbedError
 from .disparity import read_disparity
-from .images import effective_bits, read_image
+from .images import TIFF_MAGIC, effective_bits, read_image
 
 
 class WindowedRaster:
@@ -60,7 +60,7 @@ class WindowedRaster:
 def is_tiff(path):
     """True when the file starts with a TIFF or BigTIFF signature."""
     with open(path, "rb") as f:
-        return f.read(4) in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
+        return f.read(4) in TIFF_MAGIC
 
 
 def open_windowed(path, kind="image"):

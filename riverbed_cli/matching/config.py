@@ -201,13 +201,13 @@ class MatchConfig:
                                 if k in SETTINGS_BY_NAME and SETTINGS_BY_NAME[k].group is not None})
 
 
-def _group_rows(group, cls, prefix, applies, helps, kinds, checks):
-    """Rows for every field of a group dataclass: ``prefix + field`` names, defaults from the dataclass."""
-    rows = []
-    for f in fields(cls):
-        rows.append(Setting(prefix + f.name, f.default, checks[f.name], helps[f.name], group, f.name, applies,
-                            kinds.get(f.name, _kind_of(f.default))))
-    return rows
+def _group_rows(group, cls, prefix, applies, helps, kinds, checks, applies_to=None):
+    """Rows for every field of a group dataclass: ``prefix + field`` names, defaults from the dataclass; ``kinds``
+    and ``applies_to`` override a field's kind (command-line reading) and the matchers/guides it applies to."""
+    applies_to = applies_to or {}
+    return [Setting(prefix + f.name, f.default, checks[f.name], helps[f.name], group, f.name,
+                    applies_to.get(f.name, applies), kinds.get(f.name, _kind_of(f.default)))
+            for f in fields(cls)]
 
 
 def _kind_of(default):
@@ -334,14 +334,11 @@ MATCH_SETTINGS = (
             "range per tile, from its LiDAR), full (the nominal range everywhere); auto: tube for LiDAR-guided "
             "sgm, else full.", "match", "range"),
     # census + SGM
-    *[Setting(s.name, s.default, s.check, s.help, s.group, s.field, "sgm",
-              "choice-int" if s.name == "paths" else ("auto-int" if s.name == "outside_cost" else s.kind))
-      for s in _group_rows("sgm", SGMConfig, "", "sgm", _SGM_HELP, {}, _SGM_CHECKS)],
+    *_group_rows("sgm", SGMConfig, "", "sgm", _SGM_HELP, {"paths": "choice-int", "outside_cost": "auto-int"},
+                 _SGM_CHECKS),
     # Gauss and riverbed guidance
-    *[Setting(s.name, s.default, s.check, s.help, s.group, s.field,
-              _GUIDANCE_APPLIES.get(s.name, "riverbed, riverbed+"),
-              {"window": "auto-int", "wall_scale": "auto-float"}.get(s.name, s.kind))
-      for s in _group_rows("guidance", GuidanceConfig, "", "", _GUIDANCE_HELP, {}, _GUIDANCE_CHECKS)],
+    *_group_rows("guidance", GuidanceConfig, "", "riverbed, riverbed+", _GUIDANCE_HELP,
+                 {"window": "auto-int", "wall_scale": "auto-float"}, _GUIDANCE_CHECKS, _GUIDANCE_APPLIES),
     *_group_rows("diffusion", DiffusionConfig, "diffusion_", "diffusion", _DIFFUSION_HELP, {}, _DIFFUSION_CHECKS),
     *_group_rows("plus", PlusConfig, "plus_", "riverbed+", _PLUS_HELP, {"hops": "auto-int"}, _PLUS_CHECKS),
     *_group_rows("adcensus", ADCensusConfig, "adcensus_", "adcensus", _ADC_HELP, {}, _ADC_CHECKS),

@@ -40,16 +40,9 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
+from ..geometry.coverage import lidar_rows
 from .guidance import check_volume, guide_image, scaled_volume
 from .volume import volume_layout
-
-
-def _row_points(sparse):
-    """LiDAR pixels by row (CSR): columns of row ``y`` are ``cols[ptr[y]:ptr[y + 1]]``, ascending."""
-    rows, cols = np.nonzero(~np.isnan(sparse))
-    ptr = np.zeros(sparse.shape[0] + 1, dtype=np.int64)
-    np.cumsum(np.bincount(rows, minlength=sparse.shape[0]), out=ptr[1:])
-    return ptr, cols.astype(np.int64)
 
 
 @njit(cache=True, parallel=True)
@@ -156,7 +149,7 @@ def diffusion_modulate(cost, sparse, guide, d_min, radius=5, sigma_s=10.0, sigma
     out = scaled_volume(cost, cost_scale, inplace)
     C = guide.shape[2]
     sparse = np.ascontiguousarray(sparse, dtype=np.float32)
-    ptr, cols = _row_points(sparse)
+    ptr, cols = lidar_rows(sparse)
     shape = sparse.shape if support_weight is not None else (0, 0)
     dref = np.full(shape, np.nan, dtype=np.float32)
     flat, _, D0, ts, tw, to = volume_layout(out, sparse.shape, tubes)

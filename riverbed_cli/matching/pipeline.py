@@ -13,8 +13,7 @@ from dataclasses import asdict
 import numpy as np
 
 from ..errors import RiverbedError
-from . import guides as _guides  # noqa: F401  (importing them fills the registries)
-from . import matchers as _matchers  # noqa: F401
+from . import guides, matchers  # noqa: F401  (importing them fills the registries)
 from .config import MatchConfig
 from .guidance import lidar_share
 from .registry import get_guide, get_matcher
@@ -197,8 +196,8 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
     return MatchResult(out.disparity, info)
 
 
-def warm_up(matcher="sgm", guides=("none", "gauss", "riverbed"), config=None):
-    """Compile (or load from Numba's cache) the kernels ``match_pair`` uses with ``matcher`` and ``guides``, on a
+def warm_up(matcher="sgm", guide_names=("none", "gauss", "riverbed"), config=None):
+    """Compile (or load from Numba's cache) the kernels ``match_pair`` uses with ``matcher`` and ``guide_names``, on a
     tiny pair; with ``config`` only those of that one configuration (what a ``riverbed match`` run needs).
 
     Loading compiled code is start-up cost; calling this first keeps it out of ``info["seconds"]``.
@@ -212,7 +211,7 @@ def warm_up(matcher="sgm", guides=("none", "gauss", "riverbed"), config=None):
         match_pair(left, right, sparse if get_guide(config.guide).needs_sparse or config.range != "full" else None,
                    0, 7, config)
         return
-    for guide in guides:
+    for guide in guide_names:
         match_pair(left, right, sparse, 0, 7, guide=guide, matcher=matcher)
     if matcher == "sgm":
         match_pair(left, right, sparse, 0, 7, guide="none", lr_check=True)

@@ -24,7 +24,7 @@ from scipy import ndimage
 from scipy.interpolate import LinearNDInterpolator
 
 from ..errors import RiverbedError
-from ..geometry.coverage import lidar_share
+from ..geometry.coverage import lidar_rows, lidar_share
 
 METHODS = ("nearest", "linear", "guided")
 
@@ -120,12 +120,10 @@ def densify_guided(sparse, image, radius=None, sigma_s=None, sigma_i=8.0, min_we
     if radius < 0 or sigma_s <= 0 or sigma_i <= 0:
         raise RiverbedError(f"guided densify needs radius >= 0 and positive sigmas (got {radius}, {sigma_s}, "
                             f"{sigma_i})")
-    rows, cols = np.nonzero(valid)
-    ptr = np.zeros(sparse.shape[0] + 1, dtype=np.int64)
-    np.cumsum(np.bincount(rows, minlength=sparse.shape[0]), out=ptr[1:])
+    ptr, cols = lidar_rows(np.where(valid, sparse, np.nan))
     out = np.empty(sparse.shape, np.float32)
     wsum = np.empty(sparse.shape, np.float64)
-    _guided_kernel(np.where(valid, sparse, 0).astype(np.float32), ptr, cols.astype(np.int64),
+    _guided_kernel(np.where(valid, sparse, 0).astype(np.float32), ptr, cols,
                    np.ascontiguousarray(guide), radius, 1.0 / (2.0 * sigma_s * sigma_s),
                    1.0 / (2.0 * sigma_i * sigma_i * guide.shape[2]), out, wsum)
     weak = ~(wsum >= min_weight)

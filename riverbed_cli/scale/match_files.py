@@ -63,11 +63,11 @@ def open_inputs(left, right, sparse, sparse_scale, max_pixels):
     return srcs[0], srcs[1], sparse_src
 
 
-def _range_for_plan(sparse_src, min_disp, max_disp):
-    """The global range the tiling is planned for (the matcher resolves it again the same way)."""
+def _range_for_plan(vals, min_disp, max_disp):
+    """The global range the tiling is planned for (the matcher resolves it again the same way); ``vals``: the
+    LiDAR disparities (or None)."""
     if min_disp is not None and max_disp is not None:
         return min_disp, max_disp
-    _, _, vals = sparse_points_any(sparse_src)
     if vals.size == 0:
         return None  # match_pair reports the empty map
     lo, hi = disparity_range_from_sparse(vals)
@@ -113,15 +113,16 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
                 raise RiverbedError("range map has no valid pixel (all NaN)", range_map)
             min_disp = int(np.floor(rmap[0][known].min())) if min_disp is None else min_disp
             max_disp = int(np.ceil(rmap[1][known].max())) if max_disp is None else max_disp
-    rng = _range_for_plan(sparse_src, min_disp, max_disp) if tile != 0 else None
     # the same tiling rule as blocks: untiled when the whole range (with tubes: their volume) fits, else tiles sized
-    # for the widest LiDAR range
+    # for the widest LiDAR range; the LiDAR points are read once for both
     plan = None
+    points = sparse_points_any(sparse_src) if sparse_src is not None and tile != 0 else None
+    rng = _range_for_plan(points[2] if points else None, min_disp, max_disp) if tile != 0 else None
     if rng is not None:
         widths = None
-        if sparse_src is not None and rmap is None:
-            pr, pc, pv = sparse_points_any(sparse_src)
-            widths = tube_widths(config, (pr, pc, pv), (H, W), rng[0], rng[1], lidar_share_of_points(pr, pc, (H, W)))
+        if points is not None and rmap is None:
+            widths = tube_widths(config, points, (H, W), rng[0], rng[1],
+                                 lidar_share_of_points(points[0], points[1], (H, W)))
         plan = plan_tiles(H, W, sparse_src, rng[0], rng[1], tile, overlap, lidar_range, widths=widths)
     warm_up(config=config)  # load the kernels this run uses now: start-up, not matching time
     if plan is not None and plan.tiled:

@@ -234,7 +234,7 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
     range_map = None
     if mode == "tube" and sparse is not None:
         g_lo, g_hi = global_range if global_range is not None else (t.d_min, t.d_max)
-        share = tube_share if tube_share is not None else lidar_share(np.asarray(sparse[ya:yb, a:b], np.float32))
+        share = tube_share if tube_share is not None else lidar_share(sc)
         lo, hi = lidar_tubes_window(sparse, ya, yb, a, b, g_lo, g_hi, share, asdict(p.tube))
         lo = np.clip(lo, t.d_min, t.d_max) - off
         hi = np.clip(hi, t.d_min, t.d_max) - off
