@@ -12,6 +12,7 @@ from riverbed_cli.cli.main import cli
 from riverbed_cli.io.disparity import read_disparity, read_disparity_tags, write_disparity
 from riverbed_cli.products.evaluate import evaluate_disparity
 from riverbed_cli.products.simulate import simulate_lidar
+from riverbed_cli.products.visualize import disparity_picture
 
 DATA = Path(__file__).parent / "data" / "cones"
 LEFT, RIGHT, GT = str(DATA / "im2.png"), str(DATA / "im6.png"), str(DATA / "disp2.png")
@@ -47,7 +48,10 @@ def test_match_guided_json_and_accuracy(work):
     m = evaluate_disparity(read_disparity(out), gt, exclude=read_disparity(work / "sparse.tif"))
     assert m["bad3"] < 2.5 and m["avg"] < 0.4
     assert read_disparity_tags(out)["riverbed_guide"] == "riverbed"
-    assert cv2.imread(str(work / "d.png")).shape == (375, 450, 3)
+    # The colour preview: the Turbo map at 1:1 (under a title, beside its colour bar), exactly.
+    preview = disparity_picture(read_disparity(out))
+    assert preview.data.shape == (375, 450, 3)
+    np.testing.assert_array_equal(cv2.cvtColor(cv2.imread(str(work / "d.png")), cv2.COLOR_BGR2RGB), preview.rgb)
 
 
 @pytest.mark.parametrize("ext", [".pfm", ".png"])

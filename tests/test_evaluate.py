@@ -10,9 +10,17 @@ import pytest
 from click.testing import CliRunner
 
 from riverbed_cli.errors import RiverbedError
-from riverbed_cli.io.disparity import write_disparity
+from riverbed_cli.geometry.cameras import PairGeometry
+from riverbed_cli.geometry.pairfile import write_pairfile
+from riverbed_cli.io.disparity import read_disparity, write_disparity
+from riverbed_cli.io.raster import write_geotiff
+from riverbed_cli.products.dsm import hillshade
+from riverbed_cli.products.dsm_compare import compare_dsm, difference_limit, difference_map
 from riverbed_cli.products.evaluate import evaluate_disparity, evaluation_mask
-from riverbed_cli.products.visualize import colorize_disparity, error_map, write_png
+from riverbed_cli.products.visualize import (ERROR_BINS, MISSING_COLOUR, PAD, PANEL_HEIGHT, PANEL_WIDTH,
+                                             TITLE_HEIGHT, colorize_disparity, difference_picture,
+                                             disparity_picture, error_map, error_map_picture, hillshade_picture,
+                                             write_picture, write_png)
 
 DATA = Path(__file__).parent / "data"
 NAN = np.nan
@@ -139,6 +147,143 @@ def test_write_png(tmp_path):
         write_png(tmp_path / "e.jpg", rgb)
 
 
+# --- pictures with a legend (what riverbed writes) ------------------------------------------------------------------
+
+def _read_rgb(path):
+    return cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
+
+
+def _data(rgb, box):
+    r, c, h, w = box
+    return rgb[r:r + h, c:c + w]
+
+
+def _panel_colours(picture):
+    """The exact colours in the legend panel beside the map."""
+    r, c, h, w = picture.box
+    panel = picture.rgb[r:, c + w + PAD:c + w + PAD + PANEL_WIDTH]
+    return {tuple(int(v) for v in px) for px in panel.reshape(-1, 3)}
+
+
+def _dark_pixels(strip):
+    return int((strip.min(axis=2) < 128).sum())
+
+
+TURBO = cv2.cvtColor(cv2.applyColorMap(np.arange(256, dtype=np.uint8)[None], cv2.COLORMAP_TURBO),
+                     cv2.COLOR_BGR2RGB)[0]
+
+
+def test_error_map_picture_has_a_legend():
+    pic = error_map_picture(DISP, GT)
+    assert pic.title == "disparity error |d - gt| (px), bad3 44.44 %, mean 2.25 px, n 9 px"
+    # The map's pixels at 1:1, below the title strip, unchanged; white around them.
+    assert pic.box == (TITLE_HEIGHT, PAD, 2, 5)
+    np.testing.assert_array_equal(pic.data, error_map(DISP, GT))
+    assert (pic.rgb[TITLE_HEIGHT + 2:, PAD:PAD + 5] == 255).all() and (pic.rgb[TITLE_HEIGHT:, :PAD] == 255).all()
+    # Larger than the map by the title and the legend panel (a 2-row map gets the smallest panel).
+    assert pic.rgb.dtype == np.uint8 and pic.rgb.shape[0] == TITLE_HEIGHT + PANEL_HEIGHT[0] + PAD
+    assert pic.rgb.shape[1] >= PAD + 5 + PAD + PANEL_WIDTH
+    # The colour bar shows every bin's colour; the swatches explain magenta and black; the title is drawn.
+    assert {c for _, c in ERROR_BINS} | {MISSING_COLOUR, (0, 0, 0)} <= _panel_colours(pic)
+    assert _dark_pixels(pic.rgb[:TITLE_HEIGHT]) > 100
+    nothing = error_map_picture(np.full(GT.shape, NAN), GT)
+    assert nothing.title == "disparity error |d - gt| (px), bad3 100.00 %, mean n/a px, n 9 px"
+
+
+def test_error_map_picture_metrics_are_those_of_the_shown_pixels():
+    mask = evaluation_mask(GT, max_disp=50)
+    pic = error_map_picture(DISP, GT, mask)
+    # bad3 2/7, mean 8/6 px over the 7 pixels shown (test_max_disp).
+    assert pic.title == "disparity error |d - gt| (px), bad3 28.57 %, mean 1.33 px, n 7 px"
+    np.testing.assert_array_equal(pic.data, error_map(DISP, GT, mask))
+    given = error_map_picture(DISP, GT, mask, metrics=evaluate_disparity(DISP, GT, max_disp=50))
+    assert given.title == pic.title
+    np.testing.assert_array_equal(given.rgb, pic.rgb)
+    # Another metric value draws another title strip; the legend panel stays the same.
+    other = error_map_picture(DISP, GT)
+    assert not np.array_equal(other.rgb[:TITLE_HEIGHT], pic.rgb[:TITLE_HEIGHT])
+    panel = (slice(TITLE_HEIGHT, None), slice(PAD + 5 + PAD, PAD + 5 + PAD + PANEL_WIDTH))
+    np.testing.assert_array_equal(other.rgb[panel], pic.rgb[panel])
+
+
+def test_difference_picture_has_a_legend():
+    ref = np.zeros((2, 3))
+    dsm = np.array([[0.0, 1.0, NAN], [-1.0, 0.5, 2.0]])
+    # dz 0 1 -1 0.5 2: median 0.5, NMAD 1.4826 * 0.5, RMSE sqrt(6.25 / 5), 5 of 6 reference cells covered.
+    pic = difference_picture(dsm, ref)
+    assert pic.title == ("DSM - reference dz (m), median +0.500 m, NMAD 0.741 m, RMSE 1.118 m, "
+                         "completeness 83.3 %")
+    assert difference_limit(dsm, ref) == pytest.approx(3 * 1.4826 * 0.5)
+    np.testing.assert_array_equal(pic.data, difference_map(dsm, ref))
+    assert tuple(pic.data[0, 0]) == (255, 255, 255) and tuple(pic.data[0, 2]) == (0, 0, 0)
+    # The bar runs from blue (-limit) to red (+limit); the no-data swatch is black.
+    assert {(0, 0, 255), (255, 0, 0), (0, 0, 0)} <= _panel_colours(pic)
+    assert pic.rgb.shape[0] == TITLE_HEIGHT + PANEL_HEIGHT[0] + PAD
+    # A given limit saturates the colours there; given metrics make the same title.
+    one = difference_picture(dsm, ref, compare_dsm(dsm, ref, (0.5,), resolution=0.5), limit=1.0)
+    assert one.title == pic.title
+    np.testing.assert_array_equal(one.data, difference_map(dsm, ref, 1.0))
+    assert tuple(one.data[1, 0]) == (0, 0, 255) and tuple(one.data[1, 2]) == (255, 0, 0)
+    assert difference_limit(np.full((2, 2), NAN), np.zeros((2, 2))) == 0.1
+
+
+def test_disparity_picture_has_a_legend():
+    d = np.array([[2.0, 4.0, NAN, 6.0, 100.0]])
+    pic = disparity_picture(d, vmin=2, vmax=6)
+    assert pic.title == "disparity d = x_left - x_right (px), 80.0 % matched, 2.0 .. 6.0 px"
+    np.testing.assert_array_equal(pic.data, colorize_disparity(d, vmin=2, vmax=6))
+    # The bar (about 220 px for 256 Turbo levels) shows most of them, from both ends; the swatch is black.
+    colours = _panel_colours(pic)
+    shown = [k for k in range(256) if tuple(int(v) for v in TURBO[k]) in colours]
+    assert len(shown) > 180 and shown[0] < 5 and shown[-1] > 250 and (0, 0, 0) in colours
+    assert disparity_picture(d).title == "disparity d = x_left - x_right (px), 80.0 % matched, 2.0 .. 100.0 px"
+    none = disparity_picture(np.full((3, 4), NAN))
+    assert none.title == "disparity d = x_left - x_right (px), 0.0 % matched"
+    assert (none.data == 0).all()
+
+
+def test_hillshade_picture_flat_and_relief():
+    flat = np.full((60, 80), 12.0)
+    flat[0, 0] = NAN
+    pic = hillshade_picture(hillshade(flat, 0.5), flat, 0.5)
+    assert pic.title == "DSM hillshade (sun 315° az, 45° alt), height 12.00 .. 12.00 m, 0.5 m cells"
+    assert pic.box == (TITLE_HEIGHT, PAD, 60, 80) and pic.rgb.shape[0] == TITLE_HEIGHT + PANEL_HEIGHT[0] + PAD
+    # A flat DSM is shaded uniformly: 255 sin(45 deg) = 180 in all three channels; no data black.
+    grey = pic.data.reshape(-1, 3)
+    assert tuple(pic.data[0, 0]) == (0, 0, 0) and {tuple(v) for v in grey[1:]} == {(180, 180, 180)}
+    roof = flat.copy()
+    roof[20:40, 30:50] = 20.0
+    relief = hillshade_picture(hillshade(roof, 0.5), roof, 0.5)
+    assert relief.title == "DSM hillshade (sun 315° az, 45° alt), height 12.00 .. 20.00 m, 0.5 m cells"
+    for k in range(3):
+        np.testing.assert_array_equal(relief.data[..., k], hillshade(roof, 0.5))
+    # The roof's edges are shaded apart from the flat roof and ground (which of them is lit is test_dsm's matter).
+    assert relief.data[30, 40, 0] == relief.data[50, 10, 0] == 180
+    north, south = relief.data[20, 40, 0], relief.data[39, 40, 0]
+    assert north != 180 and south != 180 and north != south
+    # The scale bar: 50 m = 100 cells of 0.5 m, drawn at the map's scale in the panel.
+    r, c, h, w = relief.box
+    panel = relief.rgb[r:, c + w + PAD:c + w + PAD + PANEL_WIDTH]
+    assert 99 <= max(int((row == 0).all(axis=1).sum()) for row in panel[:40]) <= 101
+    with pytest.raises(RiverbedError) as e:
+        hillshade_picture(hillshade(roof, 0.5)[:5], roof, 0.5)
+    assert str(e.value) == "hillshade must be uint8 HxW like the DSM, got uint8 5x80 for a 60x80 DSM"
+
+
+def test_write_picture(tmp_path):
+    pic = disparity_picture(np.array([[1.0, 2.0]]))
+    p = tmp_path / "d.png"
+    write_picture(p, pic)
+    np.testing.assert_array_equal(_read_rgb(p), pic.rgb)
+    with pytest.raises(RiverbedError) as e:
+        write_picture(p, pic)
+    assert str(e.value) == f"{p}: output exists; pass --overwrite to replace it"
+    with pytest.raises(RiverbedError) as e:
+        write_picture(tmp_path / "d.jpg", pic)
+    assert str(e.value) == f"{tmp_path / 'd.jpg'}: image output must be a .png file, not '.jpg'"
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["d.png"]
+
+
 # --- CLI ------------------------------------------------------------------------------------------
 
 @pytest.fixture
@@ -222,9 +367,13 @@ def test_cli_error_map_and_overwrite(pair):
     args = ["evaluate", str(pair / "disp.pfm"), str(pair / "gt.tif"), "--error-map", str(out)]
     r = CliRunner().invoke(_cli(), args)
     assert r.exit_code == 0, r.output
-    rgb = cv2.cvtColor(cv2.imread(str(out)), cv2.COLOR_BGR2RGB)
-    np.testing.assert_array_equal(rgb, error_map(DISP, GT))
-    assert tuple(rgb[0, 4]) == (255, 0, 255)
+    rgb = _read_rgb(out)
+    # The written picture: the error map at 1:1 below its title, the legend beside it.
+    picture = error_map_picture(DISP, GT)
+    np.testing.assert_array_equal(rgb, picture.rgb)
+    assert picture.box == (TITLE_HEIGHT, PAD, 2, 5)
+    np.testing.assert_array_equal(_data(rgb, picture.box), error_map(DISP, GT))
+    assert tuple(_data(rgb, picture.box)[0, 4]) == (255, 0, 255)
     before = out.read_bytes()
 
     r = CliRunner().invoke(_cli(), args)
@@ -235,5 +384,74 @@ def test_cli_error_map_and_overwrite(pair):
 
     r = CliRunner().invoke(_cli(), args + ["--overwrite", "--max-disp", "50"])
     assert r.exit_code == 0, r.output
-    rgb = cv2.cvtColor(cv2.imread(str(out)), cv2.COLOR_BGR2RGB)
-    assert tuple(rgb[1, 1]) == (0, 0, 0)  # gt 100 > --max-disp: not drawn
+    rgb = _read_rgb(out)
+    data = _data(rgb, (TITLE_HEIGHT, PAD, 2, 5))
+    assert tuple(data[1, 1]) == (0, 0, 0)  # gt 100 > --max-disp: not drawn
+    np.testing.assert_array_equal(data, error_map(DISP, GT, evaluation_mask(GT, max_disp=50)))
+    # The title carries the metrics of the evaluated pixels (those of test_max_disp).
+    np.testing.assert_array_equal(rgb, error_map_picture(DISP, GT, evaluation_mask(GT, max_disp=50)).rgb)
+    assert not np.array_equal(rgb[:TITLE_HEIGHT], error_map_picture(DISP, GT).rgb[:TITLE_HEIGHT])
+
+
+def test_cli_dsm_error_map_has_a_legend(tmp_path):
+    from rasterio.transform import from_origin
+
+    ref = np.zeros((40, 50), np.float32)
+    dsm = np.full((40, 50), 0.25, np.float32)
+    dsm[10:20, 10:30] = 3.0
+    dsm[30:, :] = NAN
+    for name, z in (("dsm.tif", dsm), ("ref.tif", ref)):
+        write_geotiff(tmp_path / name, z, from_origin(500000.0, 5000020.0, 0.5, 0.5), "EPSG:32632", float("nan"))
+    out = tmp_path / "dz.png"
+    r = CliRunner().invoke(_cli(), ["evaluate", "--dsm", str(tmp_path / "dsm.tif"), str(tmp_path / "ref.tif"),
+                                    "--error-map", str(out), "--json"])
+    assert r.exit_code == 0, r.output
+    m = json.loads(r.stdout)
+    assert m["median"] == pytest.approx(0.25) and m["completeness"] == pytest.approx(75.0)
+    picture = difference_picture(dsm, ref, m)
+    # 1500 cells compared of 2000: 200 at 3 m, 1300 at 0.25 m; RMSE sqrt((200 * 9 + 1300 / 16) / 1500).
+    assert picture.title == ("DSM - reference dz (m), median +0.250 m, NMAD 0.000 m, RMSE 1.120 m, "
+                             "completeness 75.0 %")
+    rgb = _read_rgb(out)
+    np.testing.assert_array_equal(rgb, picture.rgb)
+    np.testing.assert_array_equal(_data(rgb, (TITLE_HEIGHT, PAD, 40, 50)), difference_map(dsm, ref))
+    # NMAD 0: the colours saturate at 0.1 m, so 0.25 and 3 m above the reference are both pure red.
+    assert {tuple(v) for v in _data(rgb, picture.box)[:30].reshape(-1, 3)} == {(255, 0, 0)}
+    assert rgb.shape[0] > 40 + TITLE_HEIGHT and rgb.shape[1] > 50 + PANEL_WIDTH
+
+
+def _nadir_pair(f=1000.0, B=50.0, height=400.0, W=120, H=100):
+    """A rectified nadir pair 400 m above ground (as in test_dsm): x right = east, image rows = south."""
+    K = np.array([[f, 0, W / 2], [0, f, H / 2], [0, 0, 1.0]])
+    R = np.diag([1.0, -1.0, -1.0])
+    C = np.array([0.0, 0.0, height])
+    return PairGeometry(K @ np.c_[R, -R @ C], K @ np.c_[R, -R @ (C + [B, 0, 0])],
+                        origin=np.array([500000.0, 5000000.0, 0.0]), crs="EPSG:32632", width=W, height=H)
+
+
+@pytest.mark.parametrize("roof", [False, True])
+def test_cli_dsm_hillshade_picture(tmp_path, roof):
+    """``riverbed dsm --hillshade``: the hillshade of the written DSM at 1:1, its height range in the title."""
+    write_pairfile(tmp_path / "pair.yaml", _nadir_pair())
+    disp = np.full((100, 120), 1000 * 50 / 400.0, np.float32)  # ground at 0 m
+    if roof:
+        disp[30:60, 40:80] = 1000 * 50 / 370.0  # a roof at 30 m
+    write_disparity(tmp_path / "d.tif", disp)
+    out = tmp_path / "hs.png"
+    r = CliRunner().invoke(_cli(), ["dsm", str(tmp_path / "d.tif"), str(tmp_path / "pair.yaml"), "-o",
+                                    str(tmp_path / "dsm.tif"), "--hillshade", str(out)])
+    assert r.exit_code == 0, r.output
+    z = read_disparity(tmp_path / "dsm.tif")  # the DSM band (float32, NaN no data)
+    rgb = _read_rgb(out)
+    picture = hillshade_picture(hillshade(z, 0.4), z, 0.4)
+    top = "30.00" if roof else "0.00"
+    assert picture.title == f"DSM hillshade (sun 315° az, 45° alt), height 0.00 .. {top} m, 0.4 m cells"
+    np.testing.assert_array_equal(rgb, picture.rgb)
+    assert picture.box == (TITLE_HEIGHT, PAD) + z.shape
+    assert rgb.shape[0] == TITLE_HEIGHT + max(z.shape[0], PANEL_HEIGHT[0]) + PAD
+    assert rgb.shape[1] >= PAD + z.shape[1] + PAD + PANEL_WIDTH
+    data = _data(rgb, picture.box)[np.isfinite(z)]
+    if roof:
+        assert len({tuple(v) for v in data}) > 2  # the roof's edges shade apart from the flat parts
+    else:
+        assert {tuple(v) for v in data} == {(180, 180, 180)}  # flat: 255 sin(45 deg) everywhere

@@ -15,7 +15,7 @@ from ..geometry.pairfile import load_pairfile, load_registration
 from ..io.pointcloud import check_pointcloud_path, write_points
 from ..io.raster import parse_creation_options, write_geotiff
 from ..products.dsm import AGGREGATIONS, build_dsm, hillshade
-from ..products.visualize import write_png
+from ..products.visualize import hillshade_picture, write_picture
 from .options import json_opt, overwrite_opt, print_json, progress_enabled
 
 
@@ -112,8 +112,9 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
         rgb = np.concatenate(rgbs) if blocks and all(r is not None for r in rgbs) else None
         write_points(points_out, xyz, rgb, crs, overwrite=overwrite)
     if hillshade_png:
-        write_png(hillshade_png, np.repeat(hillshade(result.dsm, result.grid.resolution)[:, :, None], 3, axis=2),
-                  overwrite=overwrite)
+        res = result.grid.resolution
+        write_picture(hillshade_png, hillshade_picture(hillshade(result.dsm, res), result.dsm, res),
+                      overwrite=overwrite)
     summary = {"output": str(output), **result.stats, "crs": crs if crs is None or len(str(crs)) < 40 else "wkt",
                "seconds": round(time.perf_counter() - t0, 3)}
     if as_json:

@@ -7,9 +7,9 @@ import click
 from ..errors import RiverbedError
 from ..io.atomic import check_output
 from ..io.disparity import read_disparity
-from ..products.dsm_compare import compare_dsm, difference_map, read_dsm_on_grid
+from ..products.dsm_compare import compare_dsm, read_dsm_on_grid
 from ..products.evaluate import evaluate_disparity, evaluation_mask
-from ..products.visualize import error_map, write_png
+from ..products.visualize import difference_picture, error_map_picture, write_picture
 from .options import input_path, json_opt, overwrite_opt, print_json
 
 # name -> (unit, what it is) for the text table
@@ -92,7 +92,8 @@ def evaluate_cmd(disp, gt, dsm_mode, thresholds, exclude, max_disp, gt_scale, di
     metrics = evaluate_disparity(d, g, exclude=ex, max_disp=max_disp)
 
     if error_png is not None:
-        write_png(error_png, error_map(d, g, evaluation_mask(g, ex, max_disp)), overwrite=overwrite)
+        write_picture(error_png, error_map_picture(d, g, evaluation_mask(g, ex, max_disp), metrics),
+                      overwrite=overwrite)
 
     if as_json:
         # JSON has no NaN: a metric without any valid prediction is null.
@@ -112,7 +113,7 @@ def _evaluate_dsm(dsm_path, ref_path, thresholds, as_json, error_png, overwrite)
     dsm, ref, res = read_dsm_on_grid(dsm_path, ref_path)
     metrics = compare_dsm(dsm, ref, ts, resolution=res)
     if error_png is not None:
-        write_png(error_png, difference_map(dsm, ref), overwrite=overwrite)
+        write_picture(error_png, difference_picture(dsm, ref, metrics), overwrite=overwrite)
     if as_json:
         print_json({k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in metrics.items()})
     else:

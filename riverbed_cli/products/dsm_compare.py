@@ -75,10 +75,20 @@ def compare_dsm(dsm, ref, thresholds=DEFAULT_THRESHOLDS, resolution=None, mask=N
     return {k: out[k] for k in order}
 
 
+def difference_limit(dsm, ref):
+    """Default saturation of :func:`difference_map`: 3 NMAD of ``dsm - ref`` over the cells both have, at least 0.1
+    (height units); 0.1 when they share no cell."""
+    dz = np.asarray(dsm, np.float64) - np.asarray(ref, np.float64)
+    v = dz[np.isfinite(dz)]
+    if v.size == 0:
+        return 0.1
+    return max(0.1, 3 * 1.4826 * float(np.median(np.abs(v - np.median(v)))))
+
+
 def difference_map(dsm, ref, limit=None):
     """RGB (uint8) of ``dsm - ref``: blue below, white equal, red above, saturating at +-``limit``; black no data.
 
-    ``limit`` defaults to 3 NMAD of the differences (at least 0.1).
+    ``limit`` defaults to :func:`difference_limit` (3 NMAD of the differences, at least 0.1).
     """
     dz = np.asarray(dsm, np.float64) - np.asarray(ref, np.float64)
     ok = np.isfinite(dz)
@@ -86,8 +96,7 @@ def difference_map(dsm, ref, limit=None):
     if not ok.any():
         return rgb
     if limit is None:
-        v = dz[ok]
-        limit = max(0.1, 3 * 1.4826 * float(np.median(np.abs(v - np.median(v)))))
+        limit = difference_limit(dsm, ref)
     t = np.clip(dz[ok] / limit, -1, 1)
     r = np.where(t > 0, 1.0, 1.0 + t)
     b = np.where(t < 0, 1.0, 1.0 - t)

@@ -16,7 +16,7 @@ from ..io.images import check_pair, read_image
 from ..io.windowed import TiffSink, WindowedRaster, is_tiff, sparse_points_any
 from ..matching.pipeline import disparity_range_from_sparse, match_pair, warm_up
 from ..matching.registry import get_guide
-from ..products.visualize import colorize_disparity, write_png
+from ..products.visualize import disparity_picture, write_picture
 from ..matching.guidance import lidar_share_of_points
 from .tiles import match_tiled, plan_tiles, tube_widths
 
@@ -153,7 +153,7 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
             "riverbed_lidar_share": f"{info['lidar_share']:.6f}"}
     write_disparity(output, result.disparity, overwrite=overwrite, tags=tags)
     if color_png:
-        write_png(color_png, colorize_disparity(result.disparity), overwrite=overwrite)
+        write_picture(color_png, disparity_picture(result.disparity), overwrite=overwrite)
     if step:
         step()
     log.info("%s: %dx%d, d in [%d, %d], guide %s, %.3f s", output, *info["size"], info["d_min"], info["d_max"],
@@ -184,7 +184,7 @@ def _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, si
         if disp is None:
             step_px = max(1, max(H, W) // 4096)  # a preview: read the written map back decimated
             disp = read_disparity(output)[::step_px, ::step_px]
-        write_png(color_png, colorize_disparity(disp), overwrite=overwrite)
+        write_picture(color_png, disparity_picture(disp), overwrite=overwrite)
     info = result.info.to_dict()
     log.info("%s: %dx%d in %d tiles of %d px, %.1f s", output, W, H, info["tiles"], size, info["seconds"])
     return {"output": str(output), **info}
