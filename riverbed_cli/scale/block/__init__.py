@@ -48,6 +48,13 @@ Rules
   other exception is retried up to ``retries`` times (dask ``retries``), and a task whose worker died is rerun
   elsewhere up to ``retries`` times (``distributed.scheduler.allowed-failures``, set on the local cluster; an
   existing cluster keeps its scheduler's setting).
+- *Interruptions*: a block killed mid-run (its process, or a worker of its cluster) leaves at most temporary files
+  (``.STEM.XXXXXXXX.tmp.SUFFIX``, io.atomic's names), image copies in ``pairs/NAME/.work/`` and pairs without a
+  ``done.json``. A task redone in the same run removes its own outputs' temporaries before writing; the next run's
+  plan removes every temporary file in ``pairs/NAME/`` (and its ``.work/``, ``rectified/``) of the manifest's pairs
+  and those of ``dsm.tif`` and ``block.json`` in ``OUTDIR``, and a finished pair's ``.work/`` (killed between its
+  ``done.json`` and their removal); it lists them under ``cleaned`` in the summary. Pairs without a verified
+  ``done.json`` then run again from their projection; finished pairs are skipped.
 - *Merging*: the merged DSM is rasterised from the per-pair LAZ files, streamed in chunks into one
   :class:`~riverbed_cli.products.dsm.Accumulator` on one grid snapped to multiples of the resolution, so every
   aggregation (median and mean included) is exact over the union of the points, not a mosaic of per-pair rasters.
@@ -72,14 +79,17 @@ a pair no larger than the tile is one task running :func:`~riverbed_cli.matching
 images. ``workers=0`` runs the same task functions in order, without dask.
 
 Numba: each task sets its thread's Numba threads to ``CPUs // (workers * threads_per_worker)`` on a local cluster
-(on an existing cluster: the worker host's CPUs // the worker's threads).
+(on an existing cluster: the worker host's CPUs // the worker's threads). The summary's ``cluster`` holds what the
+scheduler reports once the workers are up (``scheduler``, ``workers``, ``threads_per_worker`` per worker, the
+``numba_threads`` planned per task), and each pair run now its finish task's ``numba_threads``.
 """
 
 from .manifest import (BLOCK_KEYS, MANIFEST_MAX_BYTES, PAIR_KEYS, RAW_KEYS, RAW_OPTIONS, TOP_KEYS, Manifest,
                        PairSpec, default_name, load_manifest)
 from .merge import merge_dsm, merge_settings
-from .plan import (DONE, MARKER, OUTPUTS, WORK, BlockPlan, PairJob, job_dict, plan_block, prepare_outdir,
-                   rectify_raw, riverbed_version, sha256_file, verify_done, write_json)
+from .plan import (DONE, MARKER, MERGED, OUTPUTS, TEMP_NAME, WORK, BlockPlan, PairJob, clean_pair_leftovers,
+                   clean_temps, job_dict, plan_block, prepare_outdir, rectify_raw, riverbed_version, sha256_file,
+                   verify_done, write_json)
 from .runner import BlockResult, run_block, task_finish, task_merge, task_project, task_tile
 from .settings import SettingError, default_settings, match_params, settings_spec
 from .stages import PairFailure, finish_stage, n_tasks, project_stage, run_pair, tile_stage
@@ -91,8 +101,9 @@ __all__ = [
     # settings
     "SettingError", "default_settings", "match_params", "settings_spec",
     # planning
-    "DONE", "MARKER", "OUTPUTS", "WORK", "BlockPlan", "PairJob", "job_dict", "plan_block", "prepare_outdir",
-    "rectify_raw", "riverbed_version", "sha256_file", "verify_done", "write_json",
+    "DONE", "MARKER", "MERGED", "OUTPUTS", "TEMP_NAME", "WORK", "BlockPlan", "PairJob", "clean_pair_leftovers",
+    "clean_temps", "job_dict", "plan_block", "prepare_outdir", "rectify_raw", "riverbed_version", "sha256_file",
+    "verify_done", "write_json",
     # stages
     "PairFailure", "finish_stage", "n_tasks", "project_stage", "run_pair", "tile_stage",
     # merging

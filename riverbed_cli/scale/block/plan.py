@@ -1,9 +1,12 @@
 """Planning a block: the output folder, the raw pairs rectified, and per pair run, skip (a verified ``done.json``) or
 failed; the block's file names and the JSON records and hashes of its outputs."""
 
+import contextlib
 import hashlib
 import json
 import os
+import re
+import shutil
 import time
 import warnings
 from dataclasses import asdict, dataclass, field
@@ -23,6 +26,47 @@ OUTPUTS = ("sparse.tif", "disparity.tif", "points.laz", "dsm.tif")
 DONE = "done.json"
 MARKER = "block.json"
 WORK = ".work"
+MERGED = "dsm.tif"
+# io.atomic's temporary names: .STEM.XXXXXXXX.tmp.SUFFIX (8 hex digits)
+TEMP_NAME = re.compile(r"^\..+\.[0-9a-f]{8}\.tmp(\.[^.]*)?$")
+
+
+def clean_temps(folder, names=None):
+    """Remove the temporary files a killed writer left in ``folder`` (``.STEM.XXXXXXXX.tmp.SUFFIX``, see
+    :func:`~riverbed_cli.io.atomic.atomic_output`): those of the output ``names``, or every one (``None``).
+
+    Returns the paths removed, sorted.
+    """
+    folder = Path(folder)
+    if names is None:
+        pattern = TEMP_NAME
+    else:
+        alts = [rf"\.{re.escape(Path(n).stem)}\.[0-9a-f]{{8}}\.tmp{re.escape(Path(n).suffix)}" for n in names]
+        pattern = re.compile("^(" + "|".join(alts) + ")$")
+    try:
+        found = sorted(p for p in folder.iterdir() if pattern.match(p.name))
+    except OSError:  # no such folder
+        return []
+    removed = []
+    for p in found:
+        with contextlib.suppress(OSError):
+            if p.is_file() and not p.is_symlink():
+                p.unlink()
+                removed.append(p)
+    return removed
+
+
+def clean_pair_leftovers(folder, finished):
+    """What an interrupted run leaves in a pair's folder: temporary files (in it, ``.work/`` and ``rectified/``)
+    and, for a ``finished`` pair (killed between its ``done.json`` and removing them), the image copies in
+    ``.work/``. Returns the paths removed."""
+    folder = Path(folder)
+    removed = [p for sub in (folder, folder / WORK, folder / "rectified") for p in clean_temps(sub)]
+    work = folder / WORK
+    if finished and work.is_dir() and not work.is_symlink():
+        removed += sorted(p for p in work.iterdir())
+        shutil.rmtree(work, ignore_errors=True)
+    return removed
 
 
 def rectify_raw(spec, outdir):
@@ -66,6 +110,7 @@ class BlockPlan:
     outdir: Path
     jobs: list
     seconds: float = 0.0  # validating, stat-ing inputs, verifying finished pairs (sha256 of their outputs)
+    cleaned: list = field(default_factory=list)  # leftovers of an interrupted run removed (paths)
 
     @property
     def to_run(self):
@@ -185,6 +230,7 @@ def plan_block(manifest, outdir, overwrite=False):
         manifest = load_manifest(manifest)
     outdir = Path(outdir).absolute()
     prepare_outdir(outdir, manifest.path, overwrite)
+    cleaned = clean_temps(outdir, (MERGED, MARKER))
     base = manifest.path.parent
     version = riverbed_version()
     jobs = []
@@ -193,6 +239,7 @@ def plan_block(manifest, outdir, overwrite=False):
         job = PairJob(spec.name, spec.index, str(spec.pair), [str(c) for c in spec.clouds], s,
                       str(outdir / "pairs" / spec.name))
         jobs.append(job)
+        cleaned += clean_pair_leftovers(job.folder, finished=False)
         try:
             if spec.raw is not None:
                 # raw frames: rectify first (cheap, here in the planner), then the pair runs like any other
@@ -220,7 +267,8 @@ def plan_block(manifest, outdir, overwrite=False):
         record = verify_done(job.folder, job.settings_hash)
         if record is not None:
             job.status, job.record = "skip", record
-    return BlockPlan(manifest, outdir, jobs, time.perf_counter() - t0)
+            cleaned += clean_pair_leftovers(job.folder, finished=True)
+    return BlockPlan(manifest, outdir, jobs, time.perf_counter() - t0, cleaned)
 
 
 def job_dict(job):

@@ -14,7 +14,7 @@ import numba
 
 from ...errors import RiverbedError
 from .merge import merge_dsm, merge_settings
-from .plan import DONE, MARKER, WORK, sha256_file, write_json
+from .plan import DONE, MARKER, MERGED, WORK, clean_temps, sha256_file, write_json
 from .stages import PairFailure, finish_stage, n_tasks, project_stage, tile_stage
 
 log = logging.getLogger(__name__)
@@ -59,10 +59,14 @@ def task_finish(job, proj, tiles, threads):
         if isinstance(r, PairFailure):
             return r
     _numba_threads(threads)
-    return _guard("dsm", finish_stage, job, proj, tiles)
+    result = _guard("dsm", finish_stage, job, proj, tiles)
+    if isinstance(result, dict):  # the Numba threads this task ran with (the summary's, not done.json's)
+        result = {**result, "numba_threads": numba.get_num_threads()}
+    return result
 
 
 def task_merge(laz_paths, output, resolution, agg, crs):
+    clean_temps(Path(output).parent, (Path(output).name,))  # a merge killed mid-write and retried
     return _guard("merge", merge_dsm, laz_paths, output, resolution, agg, crs)
 
 
@@ -80,7 +84,8 @@ class BlockResult:
     seconds: float
     cluster_seconds: float = None  # starting (or connecting to) the cluster
     plan_seconds: float = 0.0
-
+    cluster: dict = None  # the dask cluster the pairs ran on (None: sequential, or nothing to run)
+    cleaned: list = None  # leftovers of an interrupted run removed by the plan (paths relative to outdir)
 
     @property
     def failed(self):
@@ -91,7 +96,8 @@ class BlockResult:
         return {"outdir": str(self.outdir), "mode": self.mode, "seconds": round(self.seconds, 3),
                 "plan_seconds": round(self.plan_seconds, 3),
                 "cluster_seconds": None if self.cluster_seconds is None else round(self.cluster_seconds, 3),
-                "pairs": self.pairs, "merged": self.merged}
+                "cluster": self.cluster, "cleaned": list(self.cleaned or []), "pairs": self.pairs,
+                "merged": self.merged}
 
 
 def _pair_entry(job, status, seconds=None, summary=None, error=None, stage=None):
@@ -100,7 +106,8 @@ def _pair_entry(job, status, seconds=None, summary=None, error=None, stage=None)
     summary = summary or {}
     return {"name": job.name, "status": status, "seconds": None if seconds is None else round(seconds, 3),
             "points": summary.get("points"), "tiles": summary.get("tiles"), "error": error, "stage": stage,
-            "stage_seconds": summary.get("seconds") if status == "done" else None}
+            "stage_seconds": summary.get("seconds") if status == "done" else None,
+            "numba_threads": summary.get("numba_threads") if status == "done" else None}
 
 
 def _default_workers(threads_per_worker):
@@ -134,7 +141,7 @@ def run_block(plan, workers=None, threads_per_worker=1, scheduler=None, retries=
     BlockResult
     """
     t0 = time.perf_counter()
-    entries, startup = {}, None
+    entries, startup, info = {}, None, None
     for job in plan.jobs:
         if job.status == "failed":
             entries[job.name] = _pair_entry(job, "failed", 0.0, error=job.error, stage="plan")
@@ -156,6 +163,10 @@ def run_block(plan, workers=None, threads_per_worker=1, scheduler=None, retries=
             if own:
                 client, cluster, threads = _connect(workers, threads_per_worker, scheduler, retries)
             startup = time.perf_counter() - t1
+            info = _cluster_info(client, threads)
+            log.info("dask cluster at %s: %d workers, threads per worker %s, Numba threads per task %s",
+                     info["scheduler"], info["workers"], info["threads_per_worker"],
+                     info["numba_threads"] if threads is not None else "CPUs of its host / its threads")
             entries.update(_run_dask(client, to_run, retries, threads, progress))
         for job in to_run:  # a failed pair's image copies are not kept
             if entries[job.name]["status"] == "failed":
@@ -167,7 +178,18 @@ def run_block(plan, workers=None, threads_per_worker=1, scheduler=None, retries=
         if cluster is not None:
             cluster.close()
     pairs = [entries[j.name] for j in plan.jobs]
-    return BlockResult(plan.outdir, pairs, merged, mode, time.perf_counter() - t0, startup, plan.seconds)
+    cleaned = sorted(Path(p).relative_to(plan.outdir).as_posix() for p in plan.cleaned)
+    return BlockResult(plan.outdir, pairs, merged, mode, time.perf_counter() - t0, startup, plan.seconds, info,
+                       cleaned)
+
+
+def _cluster_info(client, threads):
+    """The cluster the block runs on, as its scheduler reports it: address, workers, each worker's threads (sorted)
+    and the Numba threads a task sets (``threads``; None on an existing cluster: each host's CPUs / its threads)."""
+    info = client.scheduler_info(n_workers=-1)
+    workers = info.get("workers", {})
+    return {"scheduler": info.get("address"), "workers": len(workers),
+            "threads_per_worker": sorted(int(w["nthreads"]) for w in workers.values()), "numba_threads": threads}
 
 
 def _quiet_dask_logs():
@@ -203,6 +225,7 @@ def _connect(workers, threads_per_worker, scheduler, retries):
                                dashboard_address=":0", silence_logs=logging.ERROR)
     try:
         client = Client(cluster)
+        client.wait_for_workers(n, timeout="60s")  # every worker counted in the summary's cluster
     except BaseException:
         cluster.close()
         raise
@@ -287,7 +310,7 @@ def _merge(plan, entries, client, retries):
     """Merge the finished pairs' points into ``OUTDIR/dsm.tif`` unless the last merge used exactly these pairs."""
     t0 = time.perf_counter()
     good = [j for j in plan.jobs if entries[j.name]["status"] in ("done", "skipped")]
-    output = plan.outdir / "dsm.tif"
+    output = plan.outdir / MERGED
     if not good:
         return {"status": "failed", "error": "no pair finished: no merged DSM", "output": None}
     records, hashes = {}, {}

@@ -2,7 +2,6 @@
 (stitch, triangulate, DSM, ``done.json``)."""
 
 import contextlib
-import glob
 import json
 import shutil
 import time
@@ -25,7 +24,7 @@ from ...matching.pipeline import match_pair, resolve_disparity_range
 from ...matching.registry import get_guide
 from ...products.dsm import build_dsm
 from ..tiles import Tile, match_tile, plan_tiles, tube_widths
-from .plan import DONE, OUTPUTS, WORK, riverbed_version, sha256_file, write_json
+from .plan import DONE, OUTPUTS, WORK, clean_temps, riverbed_version, sha256_file, write_json
 from .settings import match_params
 
 
@@ -55,15 +54,6 @@ def _cloud_may_land(path, pair, reg, shape):
 
 
 _EMPTY_CLOUD = ("no point lands in both images", "no point is left after")
-
-
-def _clean_temps(folder, names):
-    """Remove temporary files a killed task left behind (``.STEM.XXXXXXXX.tmp.SUFFIX``, see io.atomic)."""
-    for name in names:
-        p = Path(name)
-        for tmp in Path(folder).glob(f".{glob.escape(p.stem)}.*.tmp{p.suffix}"):
-            with contextlib.suppress(OSError):
-                tmp.unlink()
 
 
 def _image_source(path, shape, max_pixels):
@@ -102,8 +92,8 @@ def project_stage(job):
     folder.mkdir(parents=True, exist_ok=True)
     with contextlib.suppress(FileNotFoundError):
         (folder / DONE).unlink()  # from now on the folder is not a finished pair
-    _clean_temps(folder, ("sparse.tif",))
-    _clean_temps(folder / WORK, ("left.npy", "right.npy"))
+    clean_temps(folder, ("sparse.tif",))
+    clean_temps(folder / WORK, ("left.npy", "right.npy"))
     pair = load_pairfile(job.pair)
     reg = load_registration(s["registration"]) if s["registration"] else None
     H, W = job.shape
@@ -209,7 +199,7 @@ def finish_stage(job, proj, tiles):
     t0 = time.perf_counter()
     s = job.settings
     folder = Path(job.folder)
-    _clean_temps(folder, (*OUTPUTS, DONE))
+    clean_temps(folder, (*OUTPUTS, DONE))
     H, W = job.shape
     tiled = bool(proj["tiles"])
     if tiled:
