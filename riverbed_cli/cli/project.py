@@ -69,13 +69,17 @@ def _footprint(ctx, param, value):
 @click.option("--footprint", default=str(vis.ZBUFFER_RADIUS), callback=_footprint, show_default=True,
               help="Z-buffer splat radius in px, or auto: per point, the distance to its 4th nearest "
                    "neighbour of the same surface (1..8 px).")
+@click.option("--edge-reach", type=click.FloatRange(0.0, 1.0), default=vis.ZBUFFER_EDGE_REACH, show_default=True,
+              help="Z-buffer: share of a splat's radius that hides on its own; below 1, a point farther out is "
+                   "hidden only when nearer points surround it (keeps the background beside depth edges; for "
+                   "LiDAR seen from about the camera's viewpoint, see docs/projection.md).")
 @click.option("--crs", default=None, help="CRS of the cloud when its file states none (e.g. EPSG:2154).")
 @click.option("--chunk-size", type=click.IntRange(1000), default=1_000_000, show_default=True,
               help="Points read at a time.")
 @json_opt
 @overwrite_opt
 def project_cmd(cloud, pair, output, registration, classes, drop_classes, outliers, visibility, side,
-                footprint, crs, chunk_size, as_json, overwrite):
+                footprint, edge_reach, crs, chunk_size, as_json, overwrite):
     """Project the LiDAR CLOUD (LAS/LAZ/COPC, KITTI .bin) through PAIR (a pair file) into sparse OUTPUT.
 
     d = x_left - x_right (px) on the left image; per pixel the nearest point. OUTPUT format by extension: .tif
@@ -94,7 +98,8 @@ def project_cmd(cloud, pair, output, registration, classes, drop_classes, outlie
               leave=False) as bar:
         sparse, stats = project_cloud(cloud, geometry, registration=reg, classes=classes,
                                       drop_classes=drop_classes or (), outliers=outliers, side=side,
-                                      visibility=visibility, footprint=footprint, crs=crs, shape=shape,
+                                      visibility=visibility, footprint=footprint, edge_reach=edge_reach, crs=crs,
+                                      shape=shape,
                                       chunk_size=chunk_size, progress=bar.update)
     stats.window = riverbed_window(stats.lidar_share, MatchConfig())  # the window riverbed match would use
     keys = ("points_read", "filtered", "behind_camera", "outside", "row_offset", "occluded", "kept")

@@ -210,7 +210,7 @@ def image_shape(pair):
 def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classes=NOISE_CLASSES,
                   outliers="sor", side="both", visibility="zbuffer", footprint=vis.ZBUFFER_RADIUS,
                   tolerance=vis.ZBUFFER_TOLERANCE, slope=vis.ZBUFFER_SLOPE, hpr_gamma=vis.HPR_GAMMA, crs=None,
-                  shape=None, chunk_size=1_000_000, progress=None):
+                  shape=None, chunk_size=1_000_000, progress=None, edge_reach=vis.ZBUFFER_EDGE_REACH):
     """Project a LiDAR cloud into the pair's left image as sparse disparities.
 
     Parameters
@@ -234,6 +234,9 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
         Z-buffer splat radius (px); auto: per point, from the density (``visibility.footprint_radii``).
     tolerance, slope : float
         Z-buffer disparity margin (px) and splat fall-off (px per px), see ``visibility.zbuffer_visible``.
+    edge_reach : float
+        Z-buffer one-sided splat reach, a fraction of the radius in [0, 1] (1: the whole disc hides), see
+        ``visibility.zbuffer_visible``.
     hpr_gamma : float
         HPR flipping radius exponent (``R = max|p| * 10**gamma``).
     crs : str, optional
@@ -259,6 +262,8 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
         raise RiverbedError(f"side must be one of {', '.join(SIDES)}, got '{side}'")
     if visibility not in VISIBILITY:
         raise RiverbedError(f"visibility must be one of {', '.join(VISIBILITY)}, got '{visibility}'")
+    if not 0.0 <= edge_reach <= 1.0:
+        raise RiverbedError(f"edge_reach must be between 0 and 1, got {edge_reach}")
     info = lidar_info(cloud_path)
     cloud_crs = resolve_crs(info, crs)
     _check_crs(pair, cloud_crs, cloud_path)
@@ -349,14 +354,14 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
     visible = usable.copy()
     if visibility != "none" and side in ("left", "both"):
         visible &= _visible(visibility, rows, cols, d, xyz, pair.centres[0], (H, W), footprint, tolerance,
-                            slope, hpr_gamma)
+                            slope, hpr_gamma, edge_reach)
     n_occ_left = int(usable.sum() - visible.sum())
     if visibility != "none" and side in ("right", "both"):
         in_right = (code == 0) | (code == 3)  # points with a place in the right image hide others there
         vr = np.ones(win.size, bool)
         vr[in_right] = _visible(visibility, np.floor(yr[in_right] + 0.5).astype(np.int64),
                                 np.floor(xr[in_right] + 0.5).astype(np.int64), d[in_right], xyz[in_right],
-                                pair.centres[1], (H, W), footprint, tolerance, slope, hpr_gamma)
+                                pair.centres[1], (H, W), footprint, tolerance, slope, hpr_gamma, edge_reach)
         visible &= vr
     n_occ_right = int(usable.sum() - visible.sum()) - n_occ_left
     t_vis = time.perf_counter()
@@ -390,7 +395,7 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
     return sparse, stats
 
 
-def _visible(method, rows, cols, disp, xyz, centre, shape, footprint, tolerance, slope, gamma):
+def _visible(method, rows, cols, disp, xyz, centre, shape, footprint, tolerance, slope, gamma, edge_reach):
     if method == "zbuffer":
-        return vis.zbuffer_visible(rows, cols, disp, shape, footprint, tolerance, slope)
+        return vis.zbuffer_visible(rows, cols, disp, shape, footprint, tolerance, slope, edge_reach)
     return vis.hpr_visible(xyz, centre, gamma)

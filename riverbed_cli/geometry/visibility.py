@@ -8,7 +8,10 @@ Both take the points that already won their pixel (the nearest point per pixel, 
   disparity falls off by ``slope`` px per px from its centre). The disc closes the gaps between sparse LiDAR
   samples of a surface, through which points behind it would otherwise show; the tolerance and the slope keep
   points of the same, slanted surface. The default radius is per point (:func:`footprint_radii`), so it
-  follows the LiDAR density.
+  follows the LiDAR density. With ``edge_reach < 1`` a covered point stays hidden only when a splat covers it
+  within ``edge_reach`` of that splat's radius, or when covering points surround it (no empty angle of 180 deg
+  or more within ``SURROUND_RADIUS`` px): that keeps the background next to a depth edge, which nearer points
+  cover from one side only (see :func:`zbuffer_visible`).
 * :func:`hpr_visible`: Katz, Tal, Basri, "Direct visibility of point sets" (SIGGRAPH 2007): spherical flipping
   ``p' = p + 2 (R - |p|) p / |p|`` about the viewpoint with ``R = max|p| * 10**gamma``, then the convex hull
   of the flipped points and the viewpoint; the points on the hull are visible.
@@ -31,6 +34,11 @@ ZBUFFER_TOLERANCE = 1.0  # px of disparity
 ZBUFFER_SLOPE = 0.5  # px of disparity per px of image distance
 ZBUFFER_K = 4
 ZBUFFER_MAX_RADIUS = 8
+#: One-sided reach of a splat, as a fraction of its radius (1: the whole disc hides, the default).
+ZBUFFER_EDGE_REACH = 1.0
+#: Radius (px) and angular sectors of the surround test used when ``edge_reach < 1``.
+SURROUND_RADIUS = 12
+SURROUND_SECTORS = 16
 HPR_GAMMA = 3.5
 
 
@@ -114,6 +122,52 @@ def _splat_kernel(rows, cols, disp, radius, slope, H, W):
     return cover
 
 
+@njit(cache=True)
+def _surround_kernel(cand, img, rows, cols, disp, radius, ody, odx, odist, slope, tolerance, reach, nsec):
+    """For each candidate (a point some splat covers): still hidden under the edge-reach rule?
+
+    Scans the nearest point of each pixel within the offsets (in order of distance) for covering points ``j``
+    (``disp[j] - slope * e - disp[i] > tolerance``, ``e`` the image distance). Hidden when one of them is within
+    ``reach * radius[j]``, or when their directions leave no empty run of ``nsec // 2`` sectors or more (no
+    empty half-plane: ``i`` lies inside the nearer surface, not beside its edge).
+    """
+    H, W = img.shape
+    out = np.zeros(cand.shape[0], np.bool_)
+    bits = np.zeros(nsec, np.bool_)
+    for a in range(cand.shape[0]):
+        i = cand[a]
+        bits[:] = False
+        hidden = False
+        for o in range(1, ody.shape[0]):
+            y = rows[i] + ody[o]
+            x = cols[i] + odx[o]
+            if y < 0 or y >= H or x < 0 or x >= W:
+                continue
+            j = img[y, x]
+            if j < 0:
+                continue
+            e = odist[o]
+            if disp[j] - slope * e - disp[i] <= tolerance:
+                continue
+            if e <= reach * radius[j]:
+                hidden = True
+                break
+            ang = math.atan2(float(ody[o]), float(odx[o]))
+            bits[int((ang + math.pi) / (2.0 * math.pi) * nsec) % nsec] = True
+        if not hidden:
+            longest = 0
+            run = 0
+            for t in range(2 * nsec):  # the longest circular run of empty sectors
+                if bits[t % nsec]:
+                    run = 0
+                else:
+                    run += 1
+                    longest = max(longest, run)
+            hidden = longest < nsec // 2
+        out[a] = hidden
+    return out
+
+
 def footprint_radii(rows, cols, disp, shape, k=ZBUFFER_K, tolerance=ZBUFFER_TOLERANCE,
                     largest=ZBUFFER_MAX_RADIUS):
     """Per-point splat radius (px): image distance to the ``k``-th nearest point of its surface or nearer.
@@ -135,7 +189,8 @@ def footprint_radii(rows, cols, disp, shape, k=ZBUFFER_K, tolerance=ZBUFFER_TOLE
     return _radii_kernel(img, rows, cols, disp, ody, odx, odist, int(k), float(tolerance), int(largest))
 
 
-def zbuffer_visible(rows, cols, disp, shape, radius="auto", tolerance=ZBUFFER_TOLERANCE, slope=ZBUFFER_SLOPE):
+def zbuffer_visible(rows, cols, disp, shape, radius="auto", tolerance=ZBUFFER_TOLERANCE, slope=ZBUFFER_SLOPE,
+                    edge_reach=ZBUFFER_EDGE_REACH):
     """Visibility by a z-buffer whose points are discs (``dy^2 + dx^2 <= r^2``), compared in disparity.
 
     Each point covers the pixels of its disc with ``d - slope * e`` (``e``: distance to its centre, px): a
@@ -144,6 +199,15 @@ def zbuffer_visible(rows, cols, disp, shape, radius="auto", tolerance=ZBUFFER_TO
     its scale does not depend on the flying height (a 10 m building seen from 1000 m changes the depth by 1 %
     but the disparity by tens of pixels). ``slope`` spares slanted surfaces, whose disparity changes along
     the image (a road seen from a car: about 0.3 px per px).
+
+    ``edge_reach < 1`` narrows what a splat hides on its own: a covered point stays hidden when a covering
+    point (``d - slope * e`` above its own disparity by more than ``tolerance``) lies within ``edge_reach``
+    times that point's radius, or when covering points within ``SURROUND_RADIUS`` px surround it (their
+    directions, in ``SURROUND_SECTORS`` sectors, leave no empty half-plane). A point in a gap of a sparsely
+    sampled surface is surrounded; the background beside a depth edge is covered from one side only and is
+    kept. Right for LiDAR seen from (about) the camera's viewpoint; LiDAR from elsewhere (an aerial flight
+    strip) also sees ground beside walls that the camera does not, and that is covered from one side only too
+    (docs/projection.md: measured on Cones and the sample block).
 
     Parameters
     ----------
@@ -158,6 +222,8 @@ def zbuffer_visible(rows, cols, disp, shape, radius="auto", tolerance=ZBUFFER_TO
         Disparity margin (px).
     slope : float
         Disparity decrease of a splat per pixel from its centre.
+    edge_reach : float
+        One-sided reach of a splat as a fraction of its radius, in [0, 1]; 1 (default): the whole disc hides.
 
     Returns
     -------
@@ -170,7 +236,16 @@ def zbuffer_visible(rows, cols, disp, shape, radius="auto", tolerance=ZBUFFER_TO
         radius = footprint_radii(rows, cols, disp, shape, tolerance=tolerance)
     radius = np.ascontiguousarray(np.broadcast_to(np.asarray(radius, np.int64), disp.shape))
     cover = _splat_kernel(rows, cols, disp, radius, float(slope), int(shape[0]), int(shape[1]))
-    return cover[rows, cols] - disp <= tolerance
+    visible = cover[rows, cols] - disp <= tolerance
+    if edge_reach >= 1.0:
+        return visible
+    cand = np.flatnonzero(~visible)
+    img = _index_image(rows, cols, disp, int(shape[0]), int(shape[1]))
+    ody, odx, odist = disc_offsets(SURROUND_RADIUS)
+    hidden = _surround_kernel(cand, img, rows, cols, disp, radius, ody, odx, odist, float(slope), float(tolerance),
+                              float(edge_reach), SURROUND_SECTORS)
+    visible[cand[~hidden]] = True
+    return visible
 
 
 def hpr_visible(xyz, viewpoint, gamma=HPR_GAMMA):
