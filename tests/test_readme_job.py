@@ -1,0 +1,115 @@
+"""The README's main job, ``bash sample_data/run.sh OUTDIR``, run as the README runs it: the installed ``riverbed`` on
+PATH, the bundled sample block, outputs in a temporary folder; the accuracy lines it prints must show riverbed-guided
+matching beating unguided matching by the measured margins.
+
+The full sample takes about 20 s on two cores once the Numba kernels are cached (about 70 s with the first-run JIT
+compile), so the test runs the README's command itself, unchanged.
+"""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SCRIPT = REPO / "sample_data" / "run.sh"
+
+#: The headings run.sh prints before each ``riverbed evaluate`` table.
+SECTIONS = {
+    "disparity, riverbed-guided:": "guided",
+    "disparity, unguided:": "unguided",
+    "DSM, riverbed-guided (m):": "dsm_guided",
+    "DSM, unguided (m):": "dsm_unguided",
+}
+
+#: Measured on the bundled block (720x540, seed 0) with the current code, 2 cores:
+#:   disparity (px, % of the 365815 GT pixels without LiDAR)   guided   unguided
+#:     bad1 %                                                    5.395    16.613
+#:     bad2 %                                                    3.202     9.304
+#:     bad3 %                                                    1.917     6.782
+#:     avg px                                                    0.281     0.925
+#:     rmse px                                                   0.964     2.530
+#:   DSM against the ground-truth DSM (m, %)                   guided   unguided
+#:     rmse m                                                    1.505     3.106
+#:     nmad m                                                    0.112     0.516
+#:     over_0.5 %                                               12.508    37.540
+#:     over_1 %                                                  7.560    20.526
+#:     over_2 %                                                  4.849    11.612
+#:     over_3res %                                              10.752    31.810
+#:     completeness % (higher is better)                        97.557    96.975
+MEASURED = {
+    "guided": {"bad1": 5.395, "bad2": 3.202, "bad3": 1.917, "avg": 0.281, "rmse": 0.964},
+    "unguided": {"bad1": 16.613, "bad2": 9.304, "bad3": 6.782, "avg": 0.925, "rmse": 2.530},
+    "dsm_guided": {"rmse": 1.505, "nmad": 0.112, "over_0.5": 12.508, "over_1": 7.560, "over_2": 4.849,
+                   "over_3res": 10.752, "completeness": 97.557},
+    "dsm_unguided": {"rmse": 3.106, "nmad": 0.516, "over_0.5": 37.540, "over_1": 20.526, "over_2": 11.612,
+                     "over_3res": 31.810, "completeness": 96.975},
+}
+RELATIVE = 0.10
+#: Files run.sh's last line promises in OUTDIR (and the unguided ones beside them).
+OUTPUTS = ("sparse.tif", "disparity.tif", "disparity.png", "points.laz", "dsm.tif", "dsm_hillshade.png",
+           "accuracy.txt", "disparity_unguided.tif", "dsm_unguided.tif", "disparity_errors.png", "dsm_errors.png")
+
+
+def parse_accuracy(text):
+    """The ``riverbed evaluate`` tables run.sh prints, by heading: ``{"guided": {"bad1": 5.395, ...}, ...}``."""
+    tables, current = {}, None
+    for line in text.splitlines():
+        if line.strip() in SECTIONS:
+            current = tables.setdefault(SECTIONS[line.strip()], {})
+        elif line.startswith("== "):
+            current = None
+        elif current is not None and line.strip():
+            name, value = line.split()[:2]
+            current[name] = int(value) if name == "n" else float(value)
+    return tables
+
+
+def test_parse_accuracy():
+    text = ("== evaluate: ...\ndisparity, riverbed-guided:\nbad1           5.395 %   error > 1 px or no prediction\n"
+            "n             365815 px  ground-truth pixels evaluated\n\nDSM, unguided (m):\n"
+            "over_0.5           37.540 %\nn                  378086 \n\n== done: out/ holds ...\n")
+    assert parse_accuracy(text) == {"guided": {"bad1": 5.395, "n": 365815},
+                                    "dsm_unguided": {"over_0.5": 37.54, "n": 378086}}
+
+
+@pytest.fixture(scope="module")
+def job(tmp_path_factory):
+    """Run the README's main job once: ``bash sample_data/run.sh OUTDIR`` with the installed riverbed on PATH."""
+    bin_dir = Path(sys.executable).parent
+    assert (bin_dir / "riverbed").is_file(), f"riverbed is not installed beside {sys.executable}"
+    out = tmp_path_factory.mktemp("readme_job") / "out"
+    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}"}
+    run = subprocess.run(["bash", str(SCRIPT), str(out)], cwd=REPO, env=env, capture_output=True, text=True,
+                         timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:]
+    return out, run.stdout
+
+
+def test_readme_job_writes_its_outputs(job):
+    out, stdout = job
+    assert sorted(p.name for p in out.iterdir() if p.name in OUTPUTS) == sorted(OUTPUTS)
+    assert stdout.rstrip().endswith(f"== done: {out}/ holds sparse.tif, disparity.tif + .png, points.laz, dsm.tif, "
+                                    "dsm_hillshade.png, accuracy.txt")
+    # accuracy.txt is the tee of the printed tables.
+    assert parse_accuracy((out / "accuracy.txt").read_text()) == parse_accuracy(stdout)
+
+
+def test_readme_job_guided_beats_unguided(job):
+    _, stdout = job
+    got = parse_accuracy(stdout)
+    assert set(got) == set(SECTIONS.values())
+    # Every table covers the same pixels: the GT pixels without LiDAR, the GT DSM's cells (counts are exact).
+    assert got["guided"]["n"] == got["unguided"]["n"] == 365815
+    assert (got["dsm_guided"]["n"], got["dsm_unguided"]["n"]) == (380355, 378086)
+    assert got["guided"]["density"] == got["unguided"]["density"] == 100.0
+    for a, b in (("guided", "unguided"), ("dsm_guided", "dsm_unguided")):
+        for metric, expected in MEASURED[a].items():
+            assert got[a][metric] == pytest.approx(expected, rel=RELATIVE), (a, metric)
+            assert got[b][metric] == pytest.approx(MEASURED[b][metric], rel=RELATIVE), (b, metric)
+            # The margin by which guided matching wins (completeness: guided covers more; the rest: lower errors).
+            margin = MEASURED[b][metric] - expected
+            assert got[b][metric] - got[a][metric] == pytest.approx(margin, rel=RELATIVE), (metric, margin)
+            assert (got[a][metric] > got[b][metric]) if metric == "completeness" else (got[a][metric] < got[b][metric])
