@@ -9,7 +9,8 @@ import rasterio
 from rasterio.transform import RPCTransformer
 
 from riverbed_cli.errors import RiverbedError
-from riverbed_cli.geometry.rpc import DEM, RPCModel, geoid_to_ellipsoid_transformer, read_dem, read_rpc
+from riverbed_cli.geometry.rpc import RPCModel, read_rpc
+from riverbed_cli.geometry.rpc_dem import DEM, geoid_to_ellipsoid_transformer, read_dem
 
 RPC_DIR = Path(__file__).parent / "data" / "rpc"
 LEFT_GEOM = RPC_DIR / "left_image.geom"
