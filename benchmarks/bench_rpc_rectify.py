@@ -24,6 +24,7 @@ import numpy as np
 import rasterio
 from affine import Affine
 
+from riverbed_cli.errors import RiverbedError
 from riverbed_cli.geometry.rpc import read_rpc
 from riverbed_cli.geometry.rpc_dem import read_dem
 from riverbed_cli.geometry.rpc_rectify import (apply_h, estimate_row_offset, heights_over_roi, rectify_rpc_pair,
@@ -129,7 +130,13 @@ def run(data):
     roi = (0, 0, left.shape[1], left.shape[0])
     lon, lat = rpc_l.localize([0, roi[2], 0, roi[2]], [0, 0, roi[3], roi[3]], [rpc_l.height_off] * 4)
     bounds = (lon.min() - 0.01, lat.min() - 0.01, lon.max() + 0.01, lat.max() + 0.01)
-    dem = read_dem(hgt, bounds=bounds)
+    try:
+        dem = read_dem(hgt, bounds=bounds)
+    except RiverbedError as e:
+        # no EGM96 grid on this machine (Debian's proj-data): SRTM read as ellipsoidal, ~51 m low here; the
+        # rectification's rows do not depend on it (the height range only sets the disparity range)
+        print(f"warning: {e}; SRTM heights used as ellipsoidal", file=sys.stderr)
+        dem = read_dem(hgt, bounds=bounds, vertical="ellipsoid")
     heights = heights_over_roi(rpc_l, roi, dem)
     rect = rectify_rpc_pair(rpc_l, rpc_r, roi, heights)
     rl = resample(left, rect.H_left, rect.size)
