@@ -10,6 +10,12 @@ assigned (pids from ``client.run(os.getpid)``) and kills it with SIGKILL. The na
 scheduler reruns the tasks that were running there and recomputes the results that died with it (``retries`` and
 ``distributed.scheduler.allowed-failures``). The script prints what happened and whether the merged DSM equals the
 sequential one, as JSON.
+
+The claim is held by tests/test_block_cluster.py (``test_killed_worker_process_block_completes_equal_to_sequential``
+kills a worker of a process cluster mid-block through ``riverbed block --scheduler`` and asserts the kill landed
+while work remained and the products equal the sequential run's; ``test_settled_pair_is_released_...`` a death after
+a pair settled; ``test_killed_block_resumes_...`` a killed block resumed). This script stays as a demo at a size you
+choose.
 """
 
 import argparse

@@ -30,6 +30,7 @@ from riverbed_cli.io.images import read_image
 from riverbed_cli.io.lidar import read_lidar
 from riverbed_cli.io.pointcloud import write_points
 from riverbed_cli.products.visualize import write_png
+from riverbed_cli.scale.block import plan_block, run_block
 from riverbed_cli.scale.tiles import match_tiled
 from test_block import CRS, write_cones_block
 
@@ -212,6 +213,43 @@ def test_killed_worker_process_block_completes_equal_to_sequential(block, proces
     assert info["merged"]["status"] == "done" and info["merged"]["pairs"] == 4
     assert_equals_reference(base, out)
     print(f"\nkilled worker pid {pid} with {done_at_kill} finished; lost {sorted(lost)}")
+
+
+def test_settled_pair_is_released_and_a_later_worker_death_does_not_redo_it(block, process_cluster, tmp_path):
+    """Once a pair has settled no client wants its tasks' results: the scheduler forgets them, so a worker dying
+    later, with them in its memory, cannot make the scheduler recompute the pair behind the block's back (its
+    project would delete the pair's done.json and rewrite its outputs after the block reported it done)."""
+    base = block
+    cluster, client = process_cluster
+    client.wait_for_workers(2, timeout=WAIT)
+    pids = client.run(os.getpid)
+    out = tmp_path / "out"
+    seen = {}
+
+    def tasks_of(name):
+        pattern = rf"(project|tile|finish)-{re.escape(name)}-"
+        return client.run_on_scheduler(lambda dask_scheduler: sorted(
+            k for k in dask_scheduler.tasks if re.match(pattern, str(k))))
+
+    def progress(kind, name, n=1):
+        if kind != "pair" or seen:
+            return
+        deadline = time.monotonic() + 10  # releases reach the scheduler in milliseconds
+        while (left := tasks_of(name)) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        busy = [a for a, keys in client.processing().items() if keys and a in pids]
+        seen.update(name=name, left=left, mtimes={f: (out / "pairs" / name / f).stat().st_mtime_ns for f in OUTPUTS},
+                    pid=pids[(busy or sorted(pids))[0]])
+        os.kill(seen["pid"], signal.SIGKILL)
+
+    res = run_block(plan_block(base / "cluster.yaml", out), client=client, progress=progress)
+    assert seen and seen["left"] == [], seen  # every task of the settled pair forgotten
+    assert statuses(res.summary()) == dict.fromkeys(PAIRS, "done") and res.merged["status"] == "done"
+    name = seen["name"]
+    assert {f: (out / "pairs" / name / f).stat().st_mtime_ns for f in OUTPUTS} == seen["mtimes"]  # not redone
+    client.wait_for_workers(2, timeout=WAIT)
+    assert seen["pid"] not in client.run(os.getpid).values()
+    assert_equals_reference(base, out)
 
 
 # -- an interrupted block resumed -----------------------------------------------------------------------------------

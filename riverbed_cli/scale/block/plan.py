@@ -4,6 +4,7 @@ failed; the block's file names and the JSON records and hashes of its outputs.""
 import contextlib
 import hashlib
 import json
+import logging
 import os
 import re
 import shutil
@@ -21,6 +22,8 @@ from ...io.atomic import atomic_output
 from ...io.images import read_image
 from ...geometry.pairfile import load_pairfile
 from .manifest import RAW_KEYS, Manifest, load_manifest
+
+log = logging.getLogger(__name__)
 
 OUTPUTS = ("sparse.tif", "disparity.tif", "points.laz", "dsm.tif")
 DONE = "done.json"
@@ -268,6 +271,8 @@ def plan_block(manifest, outdir, overwrite=False):
         if record is not None:
             job.status, job.record = "skip", record
             cleaned += clean_pair_leftovers(job.folder, finished=True)
+    if cleaned:
+        log.info("removed %d leftovers of an interrupted run (temporary files, finished pairs' .work)", len(cleaned))
     return BlockPlan(manifest, outdir, jobs, time.perf_counter() - t0, cleaned)
 
 

@@ -225,7 +225,11 @@ def _connect(workers, threads_per_worker, scheduler, retries):
                                dashboard_address=":0", silence_logs=logging.ERROR)
     try:
         client = Client(cluster)
-        client.wait_for_workers(n, timeout="60s")  # every worker counted in the summary's cluster
+        try:
+            client.wait_for_workers(n, timeout="60s")  # every worker counted in the summary's cluster
+        except TimeoutError:
+            client.close()
+            raise RiverbedError(f"the local dask cluster's {n} workers did not all start within 60 s") from None
     except BaseException:
         cluster.close()
         raise
@@ -248,31 +252,42 @@ def _run_dask(client, jobs, retries, threads, progress):
         ac.add(fp)
     for fut in ac:
         kind, job = kinds[fut.key]
-        if kind == "tile":
-            if progress:
-                progress("tile", job.name)
-            continue
-        seconds = time.perf_counter() - started[job.name]
-        if fut.status != "finished":
-            exc = fut.exception() if fut.status == "error" else None
-            entries[job.name] = _pair_entry(job, "failed", seconds, error=_describe(exc) if exc is not None
-                                            else f"task {fut.status}", stage=kind if kind == "project" else None)
-        elif kind == "project" and not isinstance(proj := fut.result(), PairFailure):
-            n = n_tasks(proj)
-            if progress:
-                progress("plan", job.name, n)
-            fts = [client.submit(task_tile, job, fut, i, threads, key=f"tile-{job.name}-{i}-{run}", **opts)
-                   for i in range(n)]
-            ff = client.submit(task_finish, job, fut, fts, threads, key=f"finish-{job.name}-{run}", **opts)
-            kinds.update({f.key: ("tile", job) for f in fts})
-            kinds[ff.key] = ("finish", job)
-            ac.update([*fts, ff])
-            continue
-        else:
-            entries[job.name] = _entry_from(job, fut.result(), seconds)
-        if progress:
+        settled = _settle(client, fut, kind, job, threads, run, opts, kinds, ac, entries, started, progress)
+        # Release every future once handled: a result nobody waits for any more must not be recomputed when the
+        # worker holding it dies (a finished pair's project would delete its done.json and redo the pair behind
+        # the block's back); the scheduler still keeps what waiting tasks depend on.
+        fut.release()
+        if settled and progress:
             progress("pair", job.name)
     return entries
+
+
+def _settle(client, fut, kind, job, threads, run, opts, kinds, ac, entries, started, progress):
+    """Handle one finished future of ``_run_dask``: a project submits its pair's tiles and finish; a failure or a
+    finish settles the pair (returns True)."""
+    if kind == "tile":
+        if progress:
+            progress("tile", job.name)
+        return False
+    seconds = time.perf_counter() - started[job.name]
+    if fut.status != "finished":
+        exc = fut.exception() if fut.status == "error" else None
+        entries[job.name] = _pair_entry(job, "failed", seconds, error=_describe(exc) if exc is not None
+                                        else f"task {fut.status}", stage=kind if kind == "project" else None)
+    elif kind == "project" and not isinstance(proj := fut.result(), PairFailure):
+        n = n_tasks(proj)
+        if progress:
+            progress("plan", job.name, n)
+        fts = [client.submit(task_tile, job, fut, i, threads, key=f"tile-{job.name}-{i}-{run}", **opts)
+               for i in range(n)]
+        ff = client.submit(task_finish, job, fut, fts, threads, key=f"finish-{job.name}-{run}", **opts)
+        kinds.update({f.key: ("tile", job) for f in fts})
+        kinds[ff.key] = ("finish", job)
+        ac.update([*fts, ff])
+        return False
+    else:
+        entries[job.name] = _entry_from(job, fut.result(), seconds)
+    return True
 
 
 def _entry_from(job, result, seconds):
