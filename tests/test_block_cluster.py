@@ -22,6 +22,7 @@ import pytest
 import rasterio
 import yaml
 from click.testing import CliRunner
+from distributed import Client, LocalCluster
 
 from riverbed_cli.cli.main import cli
 from riverbed_cli.geometry.pairfile import load_pairfile
@@ -33,8 +34,6 @@ from riverbed_cli.products.visualize import write_png
 from riverbed_cli.scale.block import plan_block, run_block
 from riverbed_cli.scale.tiles import match_tiled
 from test_block import CRS, write_cones_block
-
-distributed = pytest.importorskip("distributed")  # the dask extra (README: pip install '.[test,dask]')
 
 OUTPUTS = ["disparity.tif", "done.json", "dsm.tif", "points.laz", "sparse.tif"]
 PAIRS = ["a", "b_pair", "c", "d_pair"]
@@ -71,8 +70,6 @@ def block(tmp_path_factory):
 def process_cluster():
     """A running process-based cluster, as a user would start one: 2 worker processes (nannies restart a killed
     one), 1 thread each; closed however the tests end."""
-    from distributed import Client, LocalCluster
-
     cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
                            silence_logs=40)
     try:
