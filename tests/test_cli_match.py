@@ -40,7 +40,9 @@ def test_match_guided_json_and_accuracy(work):
     assert r.exit_code == 0, r.output
     s = json.loads(r.output)
     assert s["guide"] == "riverbed" and s["window"] == 9
-    assert set(s["stages"]) == {"range", "cost", "guidance", "aggregation", "selection", "refinement"}
+    assert set(s["stages"]) == {"range", "cost", "guidance", "aggregation", "selection", "refinement", "fusion"}
+    assert s["fusion"] == "confidence" and set(s["fusion_stats"]) == {"stereo_sigma", "agree", "lidar", "stereo",
+                                                                      "mean_confidence"}
     assert s["range"] == "tube" and s["tubes"]["nominal"] == s["d_max"] - s["d_min"] + 1
     assert 0 < s["seconds"] and abs(s["lidar_share"] - 0.05) < 0.002
     assert s["d_min"] <= 9 and s["d_max"] >= 55  # derived from the sparse map (9.25 .. 55) with a margin

@@ -22,8 +22,9 @@ BORDER = 4  # census half-height/width: the image border where crops and the who
 def test_tiling_is_invisible(cones, guide):
     left, right, gt = cones
     sparse = simulate_lidar(gt, 0.05, seed=0)
-    full = match_pair(left, right, sparse, 0, 59, guide=guide).disparity
-    tiled = match_tiled(left, right, sparse, 0, 59, guide=guide, tile=128, overlap=160, lidar_range=False)
+    full = match_pair(left, right, sparse, 0, 59, guide=guide, fusion="none").disparity
+    tiled = match_tiled(left, right, sparse, 0, 59, guide=guide, tile=128, overlap=160, lidar_range=False,
+                        fusion="none")
     assert tiled.info["tiles"] == 12
     inner = (slice(BORDER, -BORDER), slice(BORDER, -BORDER))
     agree = np.abs(tiled.disparity[inner] - full[inner]) <= 0.01
@@ -88,8 +89,8 @@ def test_16_bit_tiles_share_one_scale(cones):
     # 12-bit data in 16-bit containers: tiles whose own maximum is lower must not be scaled differently
     l16, r16 = ((img.astype(np.uint16) * 16) for img in (left, right))
     sparse = simulate_lidar(gt, 0.05, seed=0)
-    full = match_pair(l16, r16, sparse, 0, 59).disparity
-    tiled = match_tiled(l16, r16, sparse, 0, 59, tile=128, overlap=160, lidar_range=False).disparity
+    full = match_pair(l16, r16, sparse, 0, 59, fusion="none").disparity
+    tiled = match_tiled(l16, r16, sparse, 0, 59, tile=128, overlap=160, lidar_range=False, fusion="none").disparity
     inner = (slice(BORDER, -BORDER), slice(BORDER, -BORDER))
     assert (np.abs(tiled[inner] - full[inner]) <= 0.01).mean() >= 0.999
 
@@ -114,7 +115,7 @@ def test_match_command_tiles_tiff_inputs(cones, tmp_path):
     sparse = simulate_lidar(gt, 0.05, seed=0)
     write_disparity(tmp_path / "s.tif", sparse)
     common = [str(tmp_path / "l.tif"), str(tmp_path / "r.tif"), "--sparse", str(tmp_path / "s.tif"),
-              "--min-disp", "0", "--max-disp", "59", "--global-range"]
+              "--min-disp", "0", "--max-disp", "59", "--global-range", "--fusion", "none"]  # the matcher's tiles
     r = CliRunner().invoke(cli, ["match", *common, "--tile", "128", "--overlap", "160", "-o", str(tmp_path / "t.tif"),
                                  "--json", "--color", str(tmp_path / "t.png")])
     assert r.exit_code == 0, r.output
@@ -137,7 +138,7 @@ def test_tile_auto_tiles_under_a_small_budget(tmp_path, cones, monkeypatch):
     sparse = simulate_lidar(gt, 0.05, seed=0)
     write_disparity(tmp_path / "s.tif", sparse)
     common = ["tests/data/cones/im2.png", "tests/data/cones/im6.png", "--sparse", str(tmp_path / "s.tif"),
-              "--min-disp", "0", "--max-disp", "59", "--global-range", "--json"]
+              "--min-disp", "0", "--max-disp", "59", "--global-range", "--json", "--fusion", "none"]
     r = CliRunner().invoke(cli, ["match", *common, "--tile", "0", "-o", str(tmp_path / "whole.tif")])
     assert r.exit_code == 0, r.output
     # with tubes (~11 disparities a pixel on Cones) the whole image's volumes take ~12 MiB: 4 MiB do not hold them

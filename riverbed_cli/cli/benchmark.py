@@ -7,7 +7,7 @@ import click
 from tqdm import tqdm
 
 from ..errors import RiverbedError
-from ..matching.config import GUIDE_NAMES as GUIDES, MATCHER_NAMES as MATCHERS, RANGES
+from ..matching.config import FUSION_CHOICES, GUIDE_NAMES as GUIDES, MATCHER_NAMES as MATCHERS, RANGES
 from ..products.densify import METHODS as DENSIFY_METHODS
 from ..products import benchmark as bm
 from .options import json_opt, print_json, progress_enabled
@@ -49,6 +49,9 @@ def _ints(value, name):
 @click.option("--ranges", default="auto", show_default=True,
               help="Comma-separated search-range modes (auto, tube, tile, full; riverbed match --range): each guide "
                    "runs once per mode, labelled GUIDE@MODE (auto: plain GUIDE).")
+@click.option("--fusions", default="auto", show_default=True,
+              help="Comma-separated fusions (auto, confidence, none; riverbed match --fusion): each guided case runs "
+                   "once per fusion, labelled GUIDE:FUSION (auto: plain GUIDE).")
 @click.option("--shares", default="0.05,0.0123,0.0016", show_default=True, help="LiDAR shares of the pixels.")
 @click.option("--share-of", type=click.Choice(["image", "gt"]), default="image", show_default=True,
               help="The shares are of the image's pixels or of its ground-truth pixels (a sensor's density).")
@@ -65,8 +68,8 @@ def _ints(value, name):
 @click.option("--write-expected", type=click.Path(dir_okay=False), default=None,
               help="Store these results as expectations (for a later --check).")
 @json_opt
-def benchmark_cmd(dataset, layout, outdir, matchers, guides, ranges, shares, share_of, baselines, windows, seeds,
-                  scenes, gt_scale, figure_scene, expected, write_expected, as_json):
+def benchmark_cmd(dataset, layout, outdir, matchers, guides, ranges, fusions, shares, share_of, baselines, windows,
+                  seeds, scenes, gt_scale, figure_scene, expected, write_expected, as_json):
     """Run the paper's protocol on DATASET: seeded LiDAR sampled from the ground truth at each share, every
     matcher x guide, evaluated on the GT pixels not sampled. Cases are cached in OUTPUT/cache, so an interrupted run
     resumes; --check makes it a regression gate for CI."""
@@ -82,6 +85,9 @@ def benchmark_cmd(dataset, layout, outdir, matchers, guides, ranges, shares, sha
     gs = _names(guides, "guides", GUIDES)
     rs = _names(ranges, "ranges", RANGES)
     gs = tuple(g if r == "auto" else f"{g}@{r}" for g in gs for r in rs)
+    fs = _names(fusions, "fusions", FUSION_CHOICES)
+    # unguided matching has nothing to fuse with: it runs once
+    gs = tuple(dict.fromkeys(g if f == "auto" or g.startswith("none") else f"{g}:{f}" for g in gs for f in fs))
     sh = _floats(shares, "shares")
     ws = tuple(int(w) for w in _floats(windows, "windows"))
     se = _ints(seeds, "seeds")

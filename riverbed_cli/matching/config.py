@@ -38,6 +38,9 @@ FORMS = ("additive", "product")
 CONFIDENCES = ("lr", "none")
 GUIDE_STAGES = ("aggregated", "initial")
 RANGES = ("auto", "tube", "tile", "full")
+#: fusions of the matched disparity with the LiDAR (``matching/fusion.py``); ``auto`` is not one of them: it picks
+FUSION_NAMES = ("none", "confidence")
+FUSION_CHOICES = ("auto",) + FUSION_NAMES
 
 # Defaults of the run settings (tiling, range, input size), shared by match_tiled and the command line.
 TILE_DEFAULT = "auto"
@@ -132,10 +135,23 @@ class TubeConfig:
     levels: int = 3  # levels (radius doubling each) before a pixel falls back to the nominal range
     level_margin: float = 4.0  # margin added per level (px): farther LiDAR, wider tube
     cell: int = 4  # cell side (px) in which LiDAR extrema are gathered
+    max_spacing: float = 40.0  # LiDAR sparser than this (mean spacing, px) bounds no pixel: the nominal range
+
+
+@dataclass(frozen=True)
+class FuseConfig:
+    """The confidence fusion (:mod:`..fusion`, docs/fusion.md)."""
+
+    gate: float = 4.0  # stereo and LiDAR agree within this many standard deviations
+    neighbours: int = 6  # LiDAR points of the leave-one-out plane fit
+    support: int = 4  # LiDAR points whose residual RMS is a point's sigma
+    floor: float = 0.25  # smallest LiDAR sigma (px)
+    stereo_sigma: object = "auto"  # the stereo's error (px), or auto: estimated on the image
 
 
 _GROUPS = {"sgm": SGMConfig, "guidance": GuidanceConfig, "diffusion": DiffusionConfig, "plus": PlusConfig,
-           "adcensus": ADCensusConfig, "tube": TubeConfig}
+           "adcensus": ADCensusConfig, "tube": TubeConfig,
+           "fuse": FuseConfig}
 
 
 @dataclass(frozen=True)
@@ -148,12 +164,14 @@ class MatchConfig:
     subpixel: bool = True
     median: int = 3
     range: str = "auto"  # disparity search range: auto (tube with LiDAR guidance, else full), tube, tile, full
+    fusion: str = "auto"  # auto (confidence with LiDAR guidance, else none), confidence, none
     sgm: SGMConfig = field(default_factory=SGMConfig)
     guidance: GuidanceConfig = field(default_factory=GuidanceConfig)
     diffusion: DiffusionConfig = field(default_factory=DiffusionConfig)
     plus: PlusConfig = field(default_factory=PlusConfig)
     adcensus: ADCensusConfig = field(default_factory=ADCensusConfig)
     tube: TubeConfig = field(default_factory=TubeConfig)
+    fuse: FuseConfig = field(default_factory=FuseConfig)
 
     def replace(self, **changes):
         """A copy with flat settings (``p2=150``, names of :data:`MATCH_SETTINGS`) or whole groups replaced.
@@ -280,9 +298,18 @@ _TUBE_HELP = {"reach": "Tube: radius of the first level, in mean LiDAR spacings.
               "margin": "Tube: disparity margin around the LiDAR extrema at the first level (px).",
               "levels": "Tube: levels (radius doubling) before a pixel falls back to the nominal range.",
               "level_margin": "Tube: margin added per level (px).",
-              "cell": "Tube: cell side (px) in which LiDAR extrema are gathered."}
+              "cell": "Tube: cell side (px) in which LiDAR extrema are gathered.",
+              "max_spacing": "Tube: LiDAR sparser than this mean spacing (px) bounds no pixel (nominal range)."}
 _TUBE_CHECKS = {"reach": _POS, "margin": number(0), "levels": integer(1, 12), "level_margin": number(0),
-                "cell": integer(1, 64)}
+                "cell": integer(1, 64), "max_spacing": _POS}
+
+_FUSE_HELP = {"gate": "Fusion: stereo and LiDAR agree within this many standard deviations.",
+              "neighbours": "Fusion: LiDAR points of the leave-one-out plane fit that measures the LiDAR's error.",
+              "support": "Fusion: LiDAR points whose residual RMS is a point's error.",
+              "floor": "Fusion: smallest LiDAR error (px).",
+              "stereo_sigma": "Fusion: the stereo's error (px), or auto: estimated where the LiDAR is planar."}
+_FUSE_CHECKS = {"gate": _POS, "neighbours": integer(3, 64), "support": integer(1, 64), "floor": _POS,
+                "stereo_sigma": auto_or(_POS, "a positive number")}
 
 _ADC_HELP = {
     "lambda_ad": "AD cost scale lambda_AD.", "lambda_census": "Census cost scale lambda_census.",
@@ -333,6 +360,10 @@ MATCH_SETTINGS = (
             "Disparity search range per pixel: tube (from the LiDAR around each pixel, docs/tubes.md), tile (one "
             "range per tile, from its LiDAR), full (the nominal range everywhere); auto: tube for LiDAR-guided "
             "sgm, else full.", "match", "range"),
+    Setting("fusion", "auto", choice(FUSION_CHOICES),
+            "Combine the matched disparity with the LiDAR's interpolation per pixel: confidence (docs/fusion.md), "
+            "none (the matcher's output: the paper's method); auto: confidence with LiDAR guidance, else none.",
+            "match", "fusion"),
     # census + SGM
     *_group_rows("sgm", SGMConfig, "", "sgm", _SGM_HELP, {"paths": "choice-int", "outside_cost": "auto-int"},
                  _SGM_CHECKS),
@@ -343,6 +374,8 @@ MATCH_SETTINGS = (
     *_group_rows("plus", PlusConfig, "plus_", "riverbed+", _PLUS_HELP, {"hops": "auto-int"}, _PLUS_CHECKS),
     *_group_rows("adcensus", ADCensusConfig, "adcensus_", "adcensus", _ADC_HELP, {}, _ADC_CHECKS),
     *_group_rows("tube", TubeConfig, "tube_", "range tube", _TUBE_HELP, {}, _TUBE_CHECKS),
+    *_group_rows("fuse", FuseConfig, "fusion_", "fusion confidence", _FUSE_HELP, {"stereo_sigma": "auto-float"},
+                 _FUSE_CHECKS),
     # the run: disparity range, input size, tiling (not part of MatchConfig)
     Setting("min_disp", None, integer(-100_000, 100_000, none=True),
             "Smallest disparity searched (px, inclusive; default: from the sparse LiDAR, else 0).", kind="int"),

@@ -41,17 +41,22 @@ def _vote_right(s, D, x, o, d_min, W, right_cost, right_best):
 
 
 @njit(cache=True, inline="always")
-def _lr_reject(disp_row, best_left, right_best, d_min, W, lr_threshold):
+def _lr_reject(disp_row, best_left, right_best, d_min, W, lr_threshold, keep, status_row):
+    # keep: record the failure in status_row (1) and leave the disparity; else invalidate it
     for x in range(W):
         xr = x - (d_min + best_left[x])
         if xr < 0 or xr >= W or abs(best_left[x] - right_best[xr]) > lr_threshold:
-            disp_row[x] = np.nan
+            if keep:
+                status_row[x] = 1
+            else:
+                disp_row[x] = np.nan
 
 
 @njit(cache=True, parallel=True)
-def _select_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold):
+def _select_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold, keep):
     H, W, D = fwd.shape
     disp = np.empty((H, W), dtype=np.float32)
+    status = np.zeros((H, W if keep else 1), dtype=np.int8)  # keep: 1 where the check fails
     for y in prange(H):
         s = np.empty(D, dtype=np.int32)
         best_left = np.empty(W, dtype=np.int64)
@@ -65,12 +70,12 @@ def _select_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold):
             if lr_check:
                 _vote_right(s, D, x, 0, d_min, W, right_cost, right_best)
         if lr_check:
-            _lr_reject(disp[y], best_left, right_best, d_min, W, lr_threshold)
-    return disp
+            _lr_reject(disp[y], best_left, right_best, d_min, W, lr_threshold, keep, status[y])
+    return disp, status
 
 
 @njit(cache=True, parallel=True)
-def _select_tube_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold, start, width, offset):
+def _select_tube_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold, keep, start, width, offset):
     # _select_kernel on a tube volume: pixel (y, x) holds width[y, x] disparities from d_min + offset[y, x]
     H, W = start.shape
     dmax = 0
@@ -78,6 +83,7 @@ def _select_tube_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold, start
         for x in range(W):
             dmax = max(dmax, np.int64(width[y, x]))
     disp = np.empty((H, W), dtype=np.float32)
+    status = np.zeros((H, W if keep else 1), dtype=np.int8)  # keep: 1 where the check fails
     for y in prange(H):
         s = np.empty(dmax, dtype=np.int32)
         best_left = np.empty(W, dtype=np.int64)  # winner as d - d_min
@@ -94,12 +100,12 @@ def _select_tube_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold, start
             if lr_check:
                 _vote_right(s, D, x, o, d_min, W, right_cost, right_best)
         if lr_check:
-            _lr_reject(disp[y], best_left, right_best, d_min, W, lr_threshold)
-    return disp
+            _lr_reject(disp[y], best_left, right_best, d_min, W, lr_threshold, keep, status[y])
+    return disp, status
 
 
 def select_disparity(aggregated, d_min, subpixel=True, lr_check=False, lr_threshold=1, aggregated2=None,
-                     tubes=None):
+                     tubes=None, return_status=False):
     """Winner-takes-all disparity with optional sub-pixel fit and left-right consistency check.
 
     Parameters
@@ -118,6 +124,11 @@ def select_disparity(aggregated, d_min, subpixel=True, lr_check=False, lr_thresh
         Per-pixel tubes (:class:`~riverbed_cli.matching.volume.TubeLayout`; the volumes are flat): a right pixel's
         winner is taken over the left pixels whose tube holds the disparity.
 
+    return_status : bool
+        Check left-right consistency and return the outcome instead of invalidating: ``(disparity, status)`` with
+        ``status`` (H, W) int8, 0 consistent, 1 failing (the disparity is kept). With ``lr_check`` as well, failing
+        pixels are both marked and NaN.
+
     Returns
     -------
     (H, W) float32
@@ -130,9 +141,17 @@ def select_disparity(aggregated, d_min, subpixel=True, lr_check=False, lr_thresh
     if tubes is not None:
         if aggregated.size != tubes.size:
             raise RiverbedError(f"tube volume of {aggregated.size} costs does not match its layout ({tubes.size})")
-        return _select_tube_kernel(aggregated, aggregated2, int(d_min), bool(subpixel), bool(lr_check),
-                                   int(lr_threshold), tubes.start, tubes.width, tubes.offset)
-    return _select_kernel(aggregated, aggregated2, int(d_min), bool(subpixel), bool(lr_check), int(lr_threshold))
+        disp, status = _select_tube_kernel(aggregated, aggregated2, int(d_min), bool(subpixel),
+                                           bool(lr_check or return_status), int(lr_threshold), bool(return_status),
+                                           tubes.start, tubes.width, tubes.offset)
+    else:
+        disp, status = _select_kernel(aggregated, aggregated2, int(d_min), bool(subpixel),
+                                      bool(lr_check or return_status), int(lr_threshold), bool(return_status))
+    if not return_status:
+        return disp
+    if lr_check:
+        disp[status > 0] = np.nan
+    return disp, status
 
 
 @njit(cache=True, parallel=True)

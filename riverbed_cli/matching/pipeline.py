@@ -13,10 +13,10 @@ from dataclasses import asdict
 import numpy as np
 
 from ..errors import RiverbedError
-from . import guides, matchers  # noqa: F401  (importing them fills the registries)
+from . import fusion, guides, matchers  # noqa: F401  (importing them fills the registries)
 from .config import MatchConfig
 from .guidance import lidar_share
-from .registry import get_guide, get_matcher
+from .registry import get_fusion, get_guide, get_matcher
 from .results import MatchInfo, MatchResult
 from .tubes import lidar_tubes, tube_stats
 from .volume import TubeLayout
@@ -101,6 +101,16 @@ def resolve_range(config, guide, matcher, have_lidar, have_map):
             raise RiverbedError("--range tube needs --sparse or --range-map")
         return "tube"
     return "full"
+
+
+def resolve_fusion(config, guide, have_lidar):
+    """The fusion a match applies: ``auto`` is ``confidence`` for a LiDAR-guided match, else ``none``."""
+    name = config.fusion
+    if name == "auto":
+        return "confidence" if guide.needs_sparse and have_lidar else "none"
+    if name != "none" and not have_lidar:
+        raise RiverbedError(f"--fusion {name} needs --sparse (it combines the stereo with the LiDAR)")
+    return name
 
 
 def check_range_map(range_map, shape, d_min, d_max):
@@ -188,12 +198,19 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
     first_pass = guide.prepare(left, right, sparse, d_min, d_max, config, matcher, tubes)
     if guide.has_first_pass:
         stages["first_pass"] = round(time.perf_counter() - t0, 4)
-    out = matcher.match(left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages, tubes)
+    fuser = get_fusion(resolve_fusion(config, guide, sparse is not None))
+    out = matcher.match(left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages, tubes,
+                        return_status=fuser.needs_status)
+    t0 = time.perf_counter()
+    fused = fuser.fuse(out.disparity, out.status, sparse, config)
+    if fuser.name != "none":
+        stages["fusion"] = round(time.perf_counter() - t0, 4)
     info = MatchInfo(round(time.perf_counter() - t_all, 4), stages, config.guide, config.matcher, share,
                      int(np.isfinite(sparse).sum()) if sparse is not None else 0, out.window, d_min, d_max,
                      [int(shape[1]), int(shape[0])], out.refinement, mode,
-                     stats.to_dict() if stats is not None else None)
-    return MatchResult(out.disparity, info)
+                     stats.to_dict() if stats is not None else None, fuser.name,
+                     fused.stats.to_dict() if fused.stats is not None else None)
+    return MatchResult(fused.disparity, info, fused.confidence)
 
 
 def warm_up(matcher="sgm", guide_names=("none", "gauss", "riverbed"), config=None):

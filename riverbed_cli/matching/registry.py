@@ -1,5 +1,5 @@
-"""Registries of matchers and guides: plain dicts, filled by the ``register_*`` decorators of
-``matching/matchers/`` and ``matching/guides/``.
+"""Registries of matchers, guides and fusions: plain dicts, filled by the ``register_*`` decorators of
+``matching/matchers/``, ``matching/guides/`` and ``matching/fusion.py``.
 
 A new guide is one module in ``matching/guides/`` with a :class:`~.guides.base.Guide` subclass decorated by
 :func:`register_guide`, its import in ``guides/__init__.py``, and its name and settings in :mod:`.config` (where
@@ -7,10 +7,11 @@ the command line and the manifest read them without loading any kernel).
 """
 
 from ..errors import RiverbedError
-from .config import GUIDE_NAMES, MATCHER_NAMES
+from .config import FUSION_NAMES, GUIDE_NAMES, MATCHER_NAMES
 
 MATCHERS = {}
 GUIDES = {}
+FUSIONS = {}
 
 
 def _register(table, names, kind):
@@ -24,6 +25,7 @@ def _register(table, names, kind):
 
 register_matcher = _register(MATCHERS, MATCHER_NAMES, "matcher")
 register_guide = _register(GUIDES, GUIDE_NAMES, "guide")
+register_fusion = _register(FUSIONS, FUSION_NAMES, "fusion")
 
 
 def get_matcher(name):
@@ -38,3 +40,10 @@ def get_guide(name):
     if name not in GUIDES:
         raise RiverbedError(f"unknown guide '{name}' (use one of {', '.join(GUIDE_NAMES)})")
     return GUIDES[name]
+
+
+def get_fusion(name):
+    """The registered fusion ``name``; :class:`RiverbedError` naming the valid ones otherwise."""
+    if name not in FUSIONS:
+        raise RiverbedError(f"unknown fusion '{name}' (use one of {', '.join(FUSION_NAMES)})")
+    return FUSIONS[name]

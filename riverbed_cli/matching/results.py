@@ -36,8 +36,10 @@ class MatchInfo(RecordMapping):
     refinement: dict = None
     range: str = "full"
     tubes: dict = None
+    fusion: str = "none"
+    fusion_stats: dict = None
 
-    _optional = ("refinement", "tubes")
+    _optional = ("refinement", "tubes", "fusion_stats")
 
 
 @dataclass
@@ -64,7 +66,10 @@ class TiledMatchInfo(RecordMapping):
 
 @dataclass
 class MatchResult:
-    """A dense disparity map (``(H, W)`` float32, NaN invalid, ``d = x_left - x_right``) and its info."""
+    """A dense disparity map (``(H, W)`` float32, NaN invalid, ``d = x_left - x_right``), its info, and with a
+    fusion the per-pixel ``confidence`` ((H, W) float32 in [0, 1]: the estimated probability of an error below 1 px;
+    :mod:`~riverbed_cli.matching.fusion`)."""
 
     disparity: np.ndarray
     info: RecordMapping
+    confidence: np.ndarray = None

@@ -152,11 +152,14 @@ def run_benchmark(scenes, matchers=("sgm",), guides=("none", "gauss", "riverbed"
                         row = json.loads(f.read_text())
                         row["cached"] = True
                     else:
-                        # a guide label GUIDE@MODE runs GUIDE with --range MODE
-                        name, _, rng = guide.partition("@")
+                        # a guide label GUIDE[@MODE][:FUSION] runs GUIDE with --range MODE and --fusion FUSION
+                        label, _, fus = guide.partition(":")
+                        name, _, rng = label.partition("@")
                         kw = {"guide": name}
                         if rng:
                             kw["range"] = rng
+                        if fus:
+                            kw["fusion"] = fus
                         if matcher != "sgm":
                             kw["matcher"] = matcher
                         if window is not None:
@@ -167,7 +170,8 @@ def run_benchmark(scenes, matchers=("sgm",), guides=("none", "gauss", "riverbed"
                                "window": res.info.get("window") if window is None else window,
                                "window_set": window, "share": share, "seed": seed, **m,
                                "seconds": res.info["seconds"], "range": res.info.get("range", "full"),
-                               "tube_width": (res.info.get("tubes") or {}).get("mean_width")}
+                               "tube_width": (res.info.get("tubes") or {}).get("mean_width"),
+                               "fusion": res.info.get("fusion", "none")}
                         if f is not None:
                             tmp = f.with_suffix(".tmp")
                             tmp.write_text(json.dumps(row))

@@ -20,50 +20,12 @@ import math
 
 import numpy as np
 from numba import njit, prange
-from scipy import ndimage
-from scipy.interpolate import LinearNDInterpolator
 
 from ..errors import RiverbedError
 from ..geometry.coverage import lidar_rows, lidar_share
+from ..geometry.interpolation import checked_points, interpolate_linear, interpolate_nearest
 
 METHODS = ("nearest", "linear", "guided")
-
-
-def _points(sparse):
-    sparse = np.asarray(sparse, dtype=np.float32)
-    if sparse.ndim != 2:
-        raise RiverbedError(f"sparse map must be 2-D (H, W), got shape {sparse.shape}")
-    valid = np.isfinite(sparse)
-    if not valid.any():
-        raise RiverbedError("sparse map has no valid disparities")
-    return sparse, valid
-
-
-def densify_nearest(sparse):
-    """Every pixel takes the disparity of its nearest LiDAR pixel. (H, W) float32."""
-    sparse, valid = _points(sparse)
-    _, (iy, ix) = ndimage.distance_transform_edt(~valid, return_indices=True)
-    return sparse[iy, ix].astype(np.float32)
-
-
-def densify_linear(sparse):
-    """Linear interpolation over the Delaunay triangulation of the LiDAR pixels; nearest outside their hull."""
-    sparse, valid = _points(sparse)
-    rows, cols = np.nonzero(valid)
-    if rows.size < 3:
-        return densify_nearest(sparse)
-    out = densify_nearest(sparse)
-    try:
-        interp = LinearNDInterpolator(np.stack([cols, rows], axis=1).astype(np.float64),
-                                      sparse[rows, cols].astype(np.float64))
-    except Exception:  # noqa: BLE001 - Qhull refuses degenerate (collinear) point sets: nearest is all there is
-        return out
-    H, W = sparse.shape
-    ys, xs = np.mgrid[0:H, 0:W]
-    lin = interp(xs.ravel().astype(np.float64), ys.ravel().astype(np.float64)).reshape(H, W)
-    inside = np.isfinite(lin)
-    out[inside] = lin[inside].astype(np.float32)
-    return out
 
 
 @njit(cache=True, parallel=True)
@@ -107,7 +69,7 @@ def densify_guided(sparse, image, radius=None, sigma_s=None, sigma_i=8.0, min_we
     min_weight : float
         Pixels whose summed weight is below this take the nearest LiDAR disparity.
     """
-    sparse, valid = _points(sparse)
+    sparse, valid = checked_points(sparse)
     guide = np.asarray(image, dtype=np.float32)
     if guide.ndim == 2:
         guide = guide[:, :, None]
@@ -128,7 +90,7 @@ def densify_guided(sparse, image, radius=None, sigma_s=None, sigma_i=8.0, min_we
                    1.0 / (2.0 * sigma_i * sigma_i * guide.shape[2]), out, wsum)
     weak = ~(wsum >= min_weight)
     if weak.any():
-        out[weak] = densify_nearest(sparse)[weak]
+        out[weak] = interpolate_nearest(sparse)[weak]
     return out
 
 
@@ -143,4 +105,9 @@ def densify(sparse, method="linear", image=None, **kwargs):
         return densify_guided(sparse, image, **kwargs)
     if kwargs:
         raise RiverbedError(f"densify method {method} takes no settings ({', '.join(kwargs)})")
-    return densify_nearest(sparse) if method == "nearest" else densify_linear(sparse)
+    return interpolate_nearest(sparse) if method == "nearest" else interpolate_linear(sparse)
+
+
+#: the LiDAR-only baselines by their ``densify`` names (:mod:`..geometry.interpolation`)
+densify_nearest = interpolate_nearest
+densify_linear = interpolate_linear

@@ -76,13 +76,15 @@ def _range_for_plan(vals, min_disp, max_disp):
 
 def match_files(left, right, output, config, sparse=None, sparse_scale=None, min_disp=None, max_disp=None,
                 max_pixels=None, tile="auto", overlap=128, lidar_range=True, color_png=None, overwrite=False,
-                progress=None, range_map=None):
+                progress=None, range_map=None, confidence=None):
     """Match the files ``left`` (reference) and ``right`` into the disparity file ``output``.
 
     ``config`` is a :class:`~riverbed_cli.matching.config.MatchConfig`; ``tile`` ``"auto"``, 0 (never) or a side
     in px (:func:`~riverbed_cli.scale.tiles.plan_tiles`); ``progress(n_total)`` is called once with the number of
     steps and returns a callable advanced after each (or None); ``range_map`` a 2-band TIFF of per-pixel min and
-    max disparity (:func:`~riverbed_cli.io.disparity.read_range_map`), searched instead of the LiDAR's tubes.
+    max disparity (:func:`~riverbed_cli.io.disparity.read_range_map`), searched instead of the LiDAR's tubes;
+    ``confidence`` a ``.tif`` path for the fusion's per-pixel confidence (float32 in [0, 1]: the estimated
+    probability that the disparity is within 1 px of the truth; :mod:`~riverbed_cli.matching.fusion`).
     Returns the ``--json`` summary (a dict).
     """
     disparity_format(output)  # refuse what cannot be written, or would clobber, before any work
@@ -91,6 +93,10 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
         if not color_png.lower().endswith(".png"):
             raise RiverbedError("colour preview must be a .png file", color_png)
         check_output(color_png, overwrite)
+    if confidence:
+        if not confidence.lower().endswith((".tif", ".tiff")):
+            raise RiverbedError("confidence must be written to a .tif file", confidence)
+        check_output(confidence, overwrite)
     guide = get_guide(config.guide)
     if guide.needs_sparse and not sparse:
         raise RiverbedError(f"--guide {config.guide} needs --sparse")
@@ -128,6 +134,8 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     if plan is not None and plan.tiled:
         if rmap is not None:
             raise RiverbedError("--range-map works on an untiled match for now; pass --tile 0", range_map)
+        if confidence:
+            raise RiverbedError("--confidence works on an untiled match for now; pass --tile 0", confidence)
         return _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, plan.size, overlap,
                             lidar_range, output, color_png, overwrite, progress)
 
@@ -151,7 +159,13 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     tags = {"riverbed_matcher": config.matcher, "riverbed_guide": config.guide, "riverbed_window": info["window"],
             "riverbed_d_min": info["d_min"], "riverbed_d_max": info["d_max"],
             "riverbed_lidar_share": f"{info['lidar_share']:.6f}"}
+    if confidence and result.confidence is None:
+        raise RiverbedError(f"no confidence with --fusion {info['fusion']} (it comes from --fusion confidence, the "
+                            "default with --sparse)", confidence)
     write_disparity(output, result.disparity, overwrite=overwrite, tags=tags)
+    if confidence:
+        write_disparity(confidence, result.confidence, overwrite=overwrite,
+                        tags={"riverbed_confidence": "probability that the disparity is within 1 px of the truth"})
     if color_png:
         write_picture(color_png, disparity_picture(result.disparity), overwrite=overwrite)
     if step:

@@ -9,7 +9,8 @@ import numpy as np
 class MatcherOutput:
     """A matcher's result: ``disparity`` (H, W) float32, NaN invalid; ``window`` the riverbed window its guide
     used (or None); ``refinement`` a matcher's own report (AD-Census's outlier counts) or None; ``status`` the
-    left-right outcome per pixel when asked for (AD-Census: 0 consistent, 1 mismatch, 2 occlusion)."""
+    left-right outcome per pixel when asked for (``return_status``: 0 consistent, > 0 failing; AD-Census: 1
+    mismatch, 2 occlusion)."""
 
     disparity: np.ndarray
     window: int = None
@@ -23,13 +24,15 @@ class Matcher:
     name = ""
     supports_tubes = False  # match() takes per-pixel tubes (tubes=(offset, width))
 
-    def match(self, left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages, tubes=None):
+    def match(self, left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages, tubes=None,
+              return_status=False):
         """Match a rectified pair (left image the reference) over ``[d_min, d_max]``.
 
         ``sparse`` is checked and inside the range (or None for ``guide`` ``none``), ``share`` its LiDAR share,
         ``first_pass`` what ``guide.prepare`` returned; ``stages`` is filled with seconds per stage; ``tubes``, for
         matchers with ``supports_tubes``, a :class:`~riverbed_cli.matching.volume.TubeLayout` (per-pixel ranges).
-        Returns a :class:`MatcherOutput`.
+        With ``return_status`` the output's ``status`` holds the left-right check per pixel (the fusion's stereo
+        confidence). Returns a :class:`MatcherOutput`.
         """
         raise NotImplementedError
 

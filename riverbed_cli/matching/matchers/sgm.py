@@ -27,7 +27,8 @@ class SGMMatcher(Matcher):
 
     supports_tubes = True
 
-    def match(self, left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages, tubes=None):
+    def match(self, left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages, tubes=None,
+              return_status=False):
         s = config.sgm
         t0 = time.perf_counter()
         win = census.parse_census_window(config.census)
@@ -67,14 +68,17 @@ class SGMMatcher(Matcher):
 
         t0 = time.perf_counter()
         disp = disparity.select_disparity(fwd, d_min, config.subpixel, s.lr_check, s.lr_threshold, aggregated2=bwd,
-                                          tubes=tubes)
+                                          tubes=tubes, return_status=return_status)
+        status = None
+        if return_status:
+            disp, status = disp
         del fwd, bwd
         _lap(stages, "selection", t0)
 
         t0 = time.perf_counter()
         disp = disparity.median_filter(disp, config.median)
         _lap(stages, "refinement", t0)
-        return MatcherOutput(disp, window)
+        return MatcherOutput(disp, window, status=status)
 
     def unreliable(self, left, right, sparse, d_min, d_max, config, lr_threshold, tubes=None):
         config = config.replace(lr_check=True, lr_threshold=lr_threshold, median=1)

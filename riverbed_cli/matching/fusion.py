@@ -1,0 +1,218 @@
+"""Fusion: the matched disparity and the LiDAR's own interpolation combined per pixel, with a confidence.
+
+Guided matching alone does not always beat interpolating the LiDAR (docs/benchmarks.md): on smooth surfaces a
+linear interpolation of dense airborne LiDAR is more precise than census stereo, while at depth edges and on
+structures the LiDAR missed the stereo is right and the interpolation wrong. The ``confidence`` fusion decides per
+pixel from an error estimate of each source:
+
+* **LiDAR**: ``l`` is the linear (Delaunay) interpolation of the sparse disparities
+  (:func:`~riverbed_cli.geometry.interpolation.interpolate_linear`). Its error ``sigma_l`` is measured on the LiDAR
+  itself: each point is predicted by a plane fitted to its ``neighbours`` nearest other points (leave-one-out); a
+  point's ``sigma`` is the RMS of that residual over itself and its ``support - 1`` nearest points, and every pixel
+  takes the ``sigma`` of its nearest LiDAR point (at least ``floor`` px), grown in proportion to its distance
+  ``r`` to that point beyond four typical spacings ``t`` (the median distance between nearest LiDAR points):
+  ``sigma_l = sigma_point * max(1, r / 4t)``. Planar roofs and roads give small ``sigma_l``; depth edges,
+  vegetation, thin structures and pixels far from any LiDAR (outside its hull) give large ones.
+* **Stereo**: ``s`` is the matcher's disparity, with its left-right check. Its error ``sigma_s`` is one number per
+  image, measured where the LiDAR is most reliable (the 30 % of the left-right consistent pixels with the smallest
+  ``sigma_l``) as the normalised median absolute deviation of ``s - l`` (at least 0.2 px), or set
+  (``fusion_stereo_sigma``).
+* **Decision**: where the two agree within ``gate`` standard deviations (``|s - l| <= gate sqrt(sigma_s^2 +
+  sigma_l^2)``) the output is their inverse-variance weighted mean (sub-pixel precision from both). Where they
+  disagree one of them is grossly wrong: the stereo is kept where it passed its left-right check or is the more
+  precise source (``sigma_s <= sigma_l``), else the interpolation. Where the stereo has no value, the interpolation.
+
+The **confidence** of a pixel is the probability that its disparity lies within 1 px of the truth under a Gaussian
+error of the estimated standard deviation ``sigma_f``: ``erf(1 / (sigma_f sqrt(2)))``, in [0, 1]. ``sigma_f`` is
+``1 / sqrt(1 / sigma_s^2 + 1 / sigma_l^2)`` where the sources agree, and the chosen source's sigma, at least half
+their disagreement ``|s - l| / 2``, where they do not.
+
+``fusion: none`` returns the matcher's output unchanged (the paper's method, ``--guide riverbed --range full
+--fusion none``). Conventions: the left image is the reference, ``d = x_left - x_right`` (px), NaN invalid.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+from scipy.spatial import cKDTree
+from scipy.special import erf
+
+from ..geometry.coverage import lidar_points
+from ..geometry.interpolation import interpolate_linear
+from ..records import RecordMapping
+from .registry import register_fusion
+
+#: pixels farther than this many typical LiDAR spacings from their nearest point have a proportionally larger sigma
+GROWTH = 4.0
+
+
+@dataclass
+class FusionStats(RecordMapping):
+    """What a fusion did: ``stereo_sigma`` (px, the stereo's estimated error), ``agree`` (share of pixels where the
+    sources agreed and were averaged), ``lidar`` (share taken from the interpolation), ``stereo`` (share kept from the
+    stereo against the interpolation), ``mean_confidence``."""
+
+    stereo_sigma: float
+    agree: float
+    lidar: float
+    stereo: float
+    mean_confidence: float
+
+
+@dataclass
+class FusionOutput:
+    """``disparity`` (H, W) float32 (NaN invalid), ``confidence`` (H, W) float32 in [0, 1] or None, ``stats``."""
+
+    disparity: np.ndarray
+    confidence: np.ndarray = None
+    stats: FusionStats = None
+
+
+def leave_one_out_residuals(rows, cols, values, neighbours=6):
+    """|value - prediction| of each LiDAR point by a plane through its ``neighbours`` nearest other points (px).
+
+    The plane ``d = a x + b y + c`` is fitted by least squares centred on the point (a tiny ridge on the slopes keeps
+    collinear neighbours solvable); the prediction is ``c``. Returns ``(residuals, tree)`` (float64, cKDTree).
+    """
+    pts = np.stack([rows, cols], axis=1).astype(np.float64)
+    tree = cKDTree(pts)
+    k = min(int(neighbours), len(values) - 1)
+    _, idx = tree.query(pts, k=k + 1)
+    nb = idx[:, 1:]
+    X = np.stack([cols[nb] - cols[:, None], rows[nb] - rows[:, None], np.ones(nb.shape)], axis=-1).astype(np.float64)
+    V = values[nb].astype(np.float64)
+    A = np.einsum("nki,nkj->nij", X, X) + np.diag([1e-3, 1e-3, 0.0])
+    b = np.einsum("nki,nk->ni", X, V)
+    coef = np.linalg.solve(A, b[..., None])[..., 0]
+    return np.abs(coef[:, 2] - values), tree
+
+
+def lidar_sigma(sparse, neighbours=6, support=4, floor=0.25):
+    """Per-pixel error estimate (px) of the linear interpolation of ``sparse`` (module docstring).
+
+    Returns ``(sigma, distance)``: (H, W) float32 sigma (px of disparity) and each pixel's distance (px) to its
+    nearest LiDAR pixel. With fewer than ``neighbours + 1`` LiDAR pixels nothing can be measured: every pixel gets
+    the span of the LiDAR disparities plus 1 px (the interpolation is taken to know little).
+    """
+    rows, cols, values = lidar_points(sparse)
+    shape = sparse.shape
+    index = np.full(shape, -1, np.int64)
+    index[rows, cols] = np.arange(len(values))
+    # every pixel takes its nearest LiDAR point's sigma (Euclidean distance transform, as the nearest fill)
+    dist, (iy, ix) = ndimage.distance_transform_edt(index < 0, return_indices=True)
+    if len(values) < int(neighbours) + 1:
+        span = float(values.max() - values.min()) + 1.0 if len(values) else 1.0
+        return np.full(shape, max(span, floor), np.float32), dist.astype(np.float32)
+    res, tree = leave_one_out_residuals(rows, cols, values, neighbours)
+    pts = np.stack([rows, cols], axis=1).astype(np.float64)
+    k = min(int(support), len(values))
+    nn, idx = tree.query(pts, k=max(k, 2))
+    point_sigma = np.sqrt(np.mean(res[idx[:, :k]] ** 2, axis=1)) if k > 1 else res
+    typical = max(1.0, float(np.median(nn[:, 1])))
+    sigma = np.maximum(point_sigma[index[iy, ix]], floor) * np.maximum(1.0, dist / (GROWTH * typical))
+    return sigma.astype(np.float32), dist.astype(np.float32)
+
+
+def estimate_stereo_sigma(stereo, lidar, sigma_l, consistent=None, share=0.3, smallest=0.2):
+    """The stereo's error (px, one number): NMAD of ``stereo - lidar`` over the ``share`` of the left-right
+    ``consistent`` pixels (default: those with a stereo value) that have the smallest ``sigma_l``; at least
+    ``smallest``. Infinite when no pixel qualifies."""
+    fin = np.isfinite(stereo) if consistent is None else consistent
+    if not fin.any():
+        return float("inf")
+    m = fin & (sigma_l <= np.percentile(sigma_l[fin], 100.0 * share))
+    r = np.abs(stereo[m] - lidar[m])
+    return max(smallest, 1.4826 * float(np.median(r))) if r.size else float("inf")
+
+
+def fuse_disparity(stereo, status, sparse, gate=4.0, neighbours=6, support=4, floor=0.25, stereo_sigma="auto"):
+    """The ``confidence`` fusion of a matched disparity with the LiDAR (module docstring).
+
+    Parameters
+    ----------
+    stereo : (H, W) float32
+        The matcher's disparity of the left image (px, NaN invalid).
+    status : (H, W) int array or None
+        The matcher's left-right check (0 consistent, > 0 failing); None: every valid pixel counts as consistent.
+    sparse : (H, W) float
+        LiDAR disparities of the left image, NaN elsewhere (at least one).
+    gate : float
+        Agreement gate in standard deviations.
+    neighbours, support : int
+        LiDAR points of the leave-one-out plane fit, and of the RMS that gives a point's sigma.
+    floor : float
+        Smallest LiDAR sigma (px).
+    stereo_sigma : float or "auto"
+        The stereo's error (px), or estimated from the image (:func:`estimate_stereo_sigma`).
+
+    Returns
+    -------
+    FusionOutput
+    """
+    stereo = np.asarray(stereo, np.float32)
+    lidar = interpolate_linear(sparse)
+    sig_l, distance = lidar_sigma(sparse, neighbours, support, floor)
+    sig_l = sig_l.astype(np.float64)
+    fin = np.isfinite(stereo)
+    consistent = fin if status is None else fin & (np.asarray(status) == 0)
+    if stereo_sigma == "auto":
+        sig_s = estimate_stereo_sigma(stereo, lidar, sig_l, consistent)
+    else:
+        sig_s = float(stereo_sigma)
+    s = np.where(fin, stereo, 0.0).astype(np.float64)
+    diff = np.abs(s - lidar)
+    if math.isfinite(sig_s):
+        agree = fin & (diff <= gate * np.sqrt(sig_s * sig_s + sig_l * sig_l))
+        ws, wl = 1.0 / (sig_s * sig_s), 1.0 / (sig_l * sig_l)
+        mean = (s * ws + lidar * wl) / (ws + wl)
+        sig_mean = 1.0 / np.sqrt(ws + wl)
+    else:
+        agree = np.zeros(stereo.shape, bool)
+        mean, sig_mean = s, sig_l
+    keep_stereo = fin & ~agree & (consistent | (sig_s <= sig_l))
+    out = np.where(agree, mean, np.where(keep_stereo, s, lidar)).astype(np.float32)
+    sig_pick = np.where(keep_stereo, sig_s, sig_l)
+    sig_f = np.where(agree, sig_mean, np.maximum(sig_pick, np.where(fin, diff / 2.0, 0.0)))
+    confidence = erf(1.0 / (np.maximum(sig_f, 1e-6) * math.sqrt(2.0))).astype(np.float32)
+    n = float(stereo.size)
+    from_lidar = ~agree & ~keep_stereo
+    stats = FusionStats(round(sig_s, 4) if math.isfinite(sig_s) else None, round(int(agree.sum()) / n, 4),
+                        round(int(from_lidar.sum()) / n, 4), round(int(keep_stereo.sum()) / n, 4),
+                        round(float(confidence.mean()), 4))
+    return FusionOutput(out, confidence, stats)
+
+
+class Fusion:
+    """A way of combining the matcher's output with the LiDAR. ``needs_status``: it asks the matcher for its
+    left-right check."""
+
+    name = ""
+    needs_status = False
+
+    def fuse(self, disparity, status, sparse, config):
+        """A :class:`FusionOutput` from the matcher's ``disparity`` and ``status`` and the ``sparse`` LiDAR."""
+        raise NotImplementedError
+
+
+@register_fusion
+class NoFusion(Fusion):
+    """The matcher's output as it is (the paper's method)."""
+
+    name = "none"
+
+    def fuse(self, disparity, status, sparse, config):
+        return FusionOutput(disparity)
+
+
+@register_fusion
+class ConfidenceFusion(Fusion):
+    """:func:`fuse_disparity` with the ``fusion_*`` settings."""
+
+    name = "confidence"
+    needs_status = True
+
+    def fuse(self, disparity, status, sparse, config):
+        f = config.fuse
+        return fuse_disparity(disparity, status, sparse, f.gate, f.neighbours, f.support, f.floor, f.stereo_sigma)

@@ -1,0 +1,111 @@
+"""The confidence fusion (riverbed_cli.matching.fusion): per pixel the better of stereo and LiDAR interpolation."""
+
+import math
+
+import numpy as np
+from scipy.special import erf
+
+from riverbed_cli.matching.fusion import fuse_disparity, leave_one_out_residuals, lidar_sigma
+from riverbed_cli.matching.pipeline import match_pair
+from riverbed_cli.products.densify import densify_linear
+from riverbed_cli.products.evaluate import evaluate_disparity
+from riverbed_cli.products.simulate import simulate_lidar
+
+H, W = 96, 192
+
+
+def half_textured_scene(seed=0):
+    """Truth, a stereo result right in the left (textured) half and wrong in the right (blank) half, and coarse LiDAR.
+
+    Left half: 8 px checker steps of 4 px disparity (finer than the 16 px LiDAR grid: its interpolation is wrong
+    there), stereo = truth + 0.5 px noise, left-right consistent. Right half: a plane (the interpolation is exact),
+    stereo off by 7 px and failing its left-right check, as matches on a blank surface do.
+    """
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:H, 0:W].astype(np.float64)
+    textured = x < W // 2
+    truth = np.where(textured, 12 + 4 * (((x // 8) + (y // 8)) % 2), 10 + 0.03 * x + 0.02 * y)
+    stereo = np.where(textured, truth + rng.normal(0, 0.5, truth.shape), truth + 7).astype(np.float32)
+    status = np.where(textured, 0, 1).astype(np.int8)
+    sparse = np.full((H, W), np.nan, np.float32)
+    sparse[3::13, 2::13] = truth[3::13, 2::13]
+    return truth, stereo, status, sparse, textured
+
+
+def test_fusion_takes_the_better_source_in_each_half():
+    truth, stereo, status, sparse, textured = half_textured_scene()
+    # the stereo's error given (0.5 px, as constructed): estimated here it would absorb the LiDAR's own error on the
+    # checker, which no LiDAR point resolves (docs/fusion.md, limits)
+    out = fuse_disparity(stereo, status, sparse, stereo_sigma=0.5)
+    lin = densify_linear(sparse)
+    err = np.abs(out.disparity - truth)
+    err_stereo, err_lidar = np.abs(stereo - truth), np.abs(lin - truth)
+    inner = np.zeros_like(textured)
+    inner[:, 8:-8] = True
+    inner[:, W // 2 - 16:W // 2 + 16] = False  # the checker's border with the plane: neither source is sure there
+    tex, blank = textured & inner, ~textured & inner
+    # textured half: the stereo's precision, not the interpolation's errors at the steps
+    assert err[tex].mean() <= 1.25 * err_stereo[tex].mean()
+    assert err[tex].mean() < 0.25 * err_lidar[tex].mean()
+    assert (err[tex] > 1).mean() <= 1.5 * (err_stereo[tex] > 1).mean() and (err_lidar[tex] > 1).mean() > 0.4
+    # blank half: the interpolation (exact on a plane), not the stereo's 7 px error
+    assert err[blank].max() < 1e-3
+    assert np.isfinite(out.disparity).all()
+    # confidence: high where the stereo is kept with its small error, and the textured half's steps the least sure
+    assert out.confidence.dtype == np.float32 and 0 <= out.confidence.min() and out.confidence.max() <= 1
+    assert out.stats.stereo_sigma == 0.5
+    assert out.confidence[blank].mean() > 0.9
+
+
+def test_agreeing_sources_average_by_inverse_variance():
+    # a plane: the interpolation is exact, the stereo noisy; where they agree the output is their weighted mean
+    rng = np.random.default_rng(1)
+    y, x = np.mgrid[0:H, 0:W].astype(np.float64)
+    truth = 20 + 0.05 * x - 0.03 * y
+    stereo = (truth + rng.normal(0, 0.5, truth.shape)).astype(np.float32)
+    sparse = np.full((H, W), np.nan, np.float32)
+    sparse[2::6, 2::6] = truth[2::6, 2::6]
+    out = fuse_disparity(stereo, None, sparse, stereo_sigma=0.5, floor=0.25)
+    # sigma_l is the floor (planar LiDAR) times the distance growth, 1 within the spacing: weights 1/0.25^2, 1/0.5^2
+    lin = densify_linear(sparse).astype(np.float64)
+    sig_l, dist = lidar_sigma(sparse, floor=0.25)
+    ws, wl = 1 / 0.25, 1 / sig_l.astype(np.float64) ** 2
+    expect = (stereo * ws + lin * wl) / (ws + wl)
+    np.testing.assert_allclose(out.disparity, expect.astype(np.float32), atol=1e-4)
+    assert np.abs(out.disparity - truth).mean() < 0.5 * np.abs(stereo - truth).mean()
+    assert out.stats.agree == 1.0
+    # the confidence is erf(1 / (sigma sqrt 2)) of the combined sigma
+    sig = 1 / np.sqrt(ws + wl)
+    np.testing.assert_allclose(out.confidence, erf(1 / (sig * math.sqrt(2))).astype(np.float32), rtol=1e-5)
+
+
+def test_leave_one_out_residuals_are_exact_on_a_plane_and_see_a_step():
+    ys, xs = np.mgrid[0:10, 0:10]
+    rows, cols = ys.ravel() * 5, xs.ravel() * 5
+    plane = 3.0 + 0.1 * cols - 0.2 * rows
+    res, _ = leave_one_out_residuals(rows, cols, plane)
+    assert res.max() < 1e-2  # the tiny ridge on the slopes only
+    step = plane + np.where(cols >= 25, 10.0, 0.0)
+    res, _ = leave_one_out_residuals(rows, cols, step)
+    near = (cols == 20) | (cols == 25)
+    assert res[near].min() > 1.0 and np.median(res[cols <= 10]) < 1e-2
+
+
+def test_fusion_is_the_default_with_lidar_and_none_reproduces_the_paper(cones):
+    left, right, gt = cones
+    sparse = simulate_lidar(gt, 0.05, seed=0)
+    fused = match_pair(left, right, sparse, 0, 63)
+    plain = match_pair(left, right, sparse, 0, 63, fusion="none")
+    assert fused.info["fusion"] == "confidence" and plain.info["fusion"] == "none"
+    assert plain.confidence is None and fused.confidence.shape == gt.shape
+    mf = evaluate_disparity(fused.disparity, gt, exclude=sparse)
+    mp = evaluate_disparity(plain.disparity, gt, exclude=sparse)
+    # measured: fused bad1 / bad3 / avg 3.02 / 1.29 / 0.244, the matcher alone 3.05 / 1.33 / 0.263
+    assert mf["bad3"] <= mp["bad3"] and mf["avg"] <= mp["avg"] and mf["bad1"] <= mp["bad1"] * 1.02
+    # the confidence ranks the errors: the surest half of the pixels has fewer bad pixels than the least sure half
+    g = np.isfinite(gt) & ~np.isfinite(sparse)
+    err = np.abs(fused.disparity - gt)[g]
+    c = fused.confidence[g]
+    assert (err[c >= np.median(c)] > 1).mean() < 0.5 * (err[c < np.median(c)] > 1).mean()
+    unguided = match_pair(left, right, None, 0, 63, guide="none")
+    assert unguided.info["fusion"] == "none"
