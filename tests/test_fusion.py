@@ -102,12 +102,13 @@ def test_fusion_is_the_default_with_lidar_and_none_reproduces_the_paper(cones):
     assert plain.confidence is None and fused.confidence.shape == gt.shape
     mf = evaluate_disparity(fused.disparity, gt, exclude=sparse)
     mp = evaluate_disparity(plain.disparity, gt, exclude=sparse)
-    # measured: fused bad1 / bad3 / avg 3.02 / 1.29 / 0.244, the matcher alone 3.05 / 1.33 / 0.263
+    # measured: fused bad1 / bad3 / avg 3.183 / 1.499 / 0.269, the matcher alone 3.203 / 1.510 / 0.278
+    # (bad1 of the surer half of the pixels by confidence 0.26 %, of the less sure half 10.4 %)
     assert mf["bad3"] <= mp["bad3"] and mf["avg"] <= mp["avg"] and mf["bad1"] <= mp["bad1"] * 1.02
     # the confidence ranks the errors: the surest half of the pixels has fewer bad pixels than the least sure half
     g = np.isfinite(gt) & ~np.isfinite(sparse)
     err = np.abs(fused.disparity - gt)[g]
     c = fused.confidence[g]
-    assert (err[c >= np.median(c)] > 1).mean() < 0.5 * (err[c < np.median(c)] > 1).mean()
+    assert (err[c >= np.median(c)] > 1).mean() < 0.1 * (err[c < np.median(c)] > 1).mean()
     unguided = match_pair(left, right, None, 0, 63, guide="none")
     assert unguided.info["fusion"] == "none"

@@ -24,8 +24,9 @@ pixel from an error estimate of each source:
 
 The **confidence** of a pixel is the probability that its disparity lies within 1 px of the truth under a Gaussian
 error of the estimated standard deviation ``sigma_f``: ``erf(1 / (sigma_f sqrt(2)))``, in [0, 1]. ``sigma_f`` is
-``1 / sqrt(1 / sigma_s^2 + 1 / sigma_l^2)`` where the sources agree, and the chosen source's sigma, at least half
-their disagreement ``|s - l| / 2``, where they do not.
+``1 / sqrt(1 / sigma_s^2 + 1 / sigma_l^2)`` where the sources agree; where they do not, the chosen source's sigma,
+at least half their disagreement ``|s - l| / 2`` when the other was credible (a consistent stereo, or the LiDAR),
+and ``sigma_l`` alone where the interpolation replaced a stereo that failed its left-right check.
 
 ``fusion: none`` returns the matcher's output unchanged (the paper's method, ``--guide riverbed --range full
 --fusion none``). Conventions: the left image is the reference, ``d = x_left - x_right`` (px), NaN invalid.
@@ -173,8 +174,11 @@ def fuse_disparity(stereo, status, sparse, gate=4.0, neighbours=6, support=4, fl
         mean, sig_mean = s, sig_l
     keep_stereo = fin & ~agree & (consistent | (sig_s <= sig_l))
     out = np.where(agree, mean, np.where(keep_stereo, s, lidar)).astype(np.float32)
-    sig_pick = np.where(keep_stereo, sig_s, sig_l)
-    sig_f = np.where(agree, sig_mean, np.maximum(sig_pick, np.where(fin, diff / 2.0, 0.0)))
+    # against a credible rival (a consistent stereo, or the LiDAR) the choice is unsure by half their disagreement;
+    # over a stereo that failed its left-right check the LiDAR is as sure as its own sigma
+    half = np.where(fin, diff / 2.0, 0.0)
+    sig_f = np.where(agree, sig_mean, np.where(keep_stereo, np.maximum(sig_s, half),
+                                               np.where(consistent, np.maximum(sig_l, half), sig_l)))
     confidence = erf(1.0 / (np.maximum(sig_f, 1e-6) * math.sqrt(2.0))).astype(np.float32)
     n = float(stereo.size)
     from_lidar = ~agree & ~keep_stereo
