@@ -14,9 +14,26 @@ from ..io.lidar import lidar_info, resolve_crs
 from ..geometry.pairfile import load_pairfile, load_registration
 from ..io.pointcloud import check_pointcloud_path, write_points
 from ..io.raster import parse_creation_options, write_geotiff
-from ..products.dsm import AGGREGATIONS, build_dsm, hillshade
+from ..products.dsm import (AGGREGATIONS, build_dsm, check_bounds, check_creation_options, check_min_confidence,
+                             hillshade, read_confidence)
 from ..products.visualize import hillshade_picture, write_picture
 from .options import json_opt, overwrite_opt, print_json, progress_enabled
+
+
+class Number(click.ParamType):
+    """A number of ``option``: text that is none is a one-line ``riverbed: error:`` (exit code 1), not a usage
+    error."""
+
+    name = "float"
+
+    def __init__(self, option, hint=""):
+        self.option, self.hint = option, hint
+
+    def convert(self, value, param, ctx):
+        try:
+            return float(value)
+        except (TypeError, ValueError):
+            raise RiverbedError(f"{self.option}: '{value}' is not a number{self.hint}") from None
 
 
 @click.command("dsm")
@@ -29,8 +46,8 @@ from .options import json_opt, overwrite_opt, print_json, progress_enabled
                    "LiDAR alone: twice the mean point spacing].")
 @click.option("--agg", type=click.Choice(AGGREGATIONS), default="max", show_default=True,
               help="Per-cell aggregation of the heights.")
-@click.option("--bounds", nargs=4, type=float, default=None, metavar="XMIN YMIN XMAX YMAX",
-              help="DSM extent [default: all points].")
+@click.option("--bounds", nargs=4, type=Number("--bounds", " (give XMIN YMIN XMAX YMAX)"), default=None,
+              metavar="XMIN YMIN XMAX YMAX", help="DSM extent [default: all points].")
 @click.option("--nodata", type=float, default=float("nan"), show_default=True, help="Value of empty cells.")
 @click.option("--fill-holes", type=int, default=0, show_default=True,
               help="Fill enclosed gaps up to N cells across (GDAL inverse-distance); filled cells are flagged in a "
@@ -38,25 +55,34 @@ from .options import json_opt, overwrite_opt, print_json, progress_enabled
 @click.option("--crs", default=None,
               help="CRS of the output [default: the pair's, else the LiDAR file's]; assigned, not reprojected.")
 @click.option("--co", "creation", multiple=True, metavar="KEY=VALUE",
-              help="GDAL COG creation option (repeatable) [default: COMPRESS=DEFLATE, BLOCKSIZE=256, OVERVIEWS=AUTO].")
+              help="GDAL COG creation option (repeatable; BLOCKSIZE a multiple of 16 from 128 to 4096; tried before "
+                   "the work) [default: COMPRESS=DEFLATE, BLOCKSIZE=256, OVERVIEWS=AUTO].")
 @click.option("--lidar", "clouds", multiple=True, type=click.Path(dir_okay=False),
               help="LAS/LAZ cloud merged into the DSM (repeatable; LiDAR wins where both have points).")
 @click.option("--registration", type=click.Path(dir_okay=False), default=None,
               help="4x4 LiDAR -> world transform for --lidar (YAML/JSON/text) [default: the first pair's].")
 @click.option("--hillshade", "hillshade_png", type=click.Path(dir_okay=False), default=None,
               help="Also write a hillshade PNG of the DSM.")
+@click.option("--confidence", "confidences", multiple=True, type=click.Path(dir_okay=False), metavar="CONF.tif",
+              help="Per-pixel confidence of a DISP (single-band float32 TIFF of its size, 0..1, NaN none), one per "
+                   "DISP PAIR couple in their order (repeatable); needs --min-confidence.")
+@click.option("--min-confidence", type=Number("--min-confidence"), default=None, metavar="X",
+              help="Drop the points whose pixel's --confidence is below X (0..1) or NaN.")
 @json_opt
 @overwrite_opt
 def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill_holes, crs, creation, clouds,
-            registration, hillshade_png, as_json, overwrite):
+            registration, hillshade_png, confidences, min_confidence, as_json, overwrite):
     """Triangulate DISP PAIR couples (disparity map of the left image, pair file) into a DSM.
 
     Every valid disparity is triangulated exactly (float64) with the pair's cameras, the pair's origin added back;
     the points of all couples (and of --lidar clouds) are merged into one north-up DSM, a cloud-optimised GeoTIFF.
+    With --confidence and --min-confidence, the points of pixels whose confidence is below X (or NaN) are dropped
+    before the point cloud and the DSM (--json: confidence_dropped).
     """
     t0 = time.perf_counter()
     if len(disp_pair) % 2:
         raise RiverbedError("give DISP PAIR couples: a disparity map and its pair file each")
+    # Every check that needs no input read comes first: a bad option never costs the work, nor leaves a file.
     if not output.lower().endswith((".tif", ".tiff")):
         raise RiverbedError("DSM output must be a .tif file", output)
     check_output(output, overwrite)
@@ -64,22 +90,50 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
         check_pointcloud_path(points_out)
         check_output(points_out, overwrite)
     if hillshade_png:
+        if not hillshade_png.lower().endswith(".png"):
+            raise RiverbedError("hillshade must be a .png file", hillshade_png)
         check_output(hillshade_png, overwrite)
+    if bounds is not None:
+        bounds = check_bounds(bounds)
+    if fill_holes < 0:
+        raise RiverbedError(f"--fill-holes must be 0 or more cells, got {fill_holes}")
+    if fill_holes and nodata in (0.0, 1.0):
+        raise RiverbedError(f"--nodata {nodata:g} is a value of the 'filled' band (0 or 1) that --fill-holes writes; "
+                            "choose another (e.g. -9999)")
+    if np.isfinite(nodata) and abs(nodata) > float(np.finfo(np.float32).max):
+        raise RiverbedError(f"--nodata {nodata:g} does not fit in the DSM's float32")
+    if crs is not None:
+        try:
+            resolve_crs(None, crs)  # an unknown CRS is refused now, not after the work
+        except RiverbedError as e:
+            raise RiverbedError(f"--crs: {e}") from None
+    n_couples = len(disp_pair) // 2
+    if min_confidence is not None:
+        min_confidence = check_min_confidence(min_confidence, "--min-confidence")
+        if not confidences:
+            raise RiverbedError("--min-confidence needs --confidence CONF.tif (the disparity's per-pixel confidence)")
+    elif confidences:
+        raise RiverbedError("--confidence needs --min-confidence X (the lowest confidence kept, 0 to 1)")
+    if confidences and len(confidences) != n_couples:
+        raise RiverbedError(f"give one --confidence per DISP PAIR couple ({n_couples} couples, "
+                            f"{len(confidences)} --confidence)")
     co = parse_creation_options(creation)
+    check_creation_options(co, bands=2 if fill_holes else 1, nodata=nodata)
 
-    sources = []
-    for disp_path, pair_path in zip(disp_pair[::2], disp_pair[1::2]):
+    sources, confs = [], []
+    for i, (disp_path, pair_path) in enumerate(zip(disp_pair[::2], disp_pair[1::2])):
         pair = load_pairfile(pair_path)
         disp = read_disparity(disp_path)
         if pair.image_size is not None and pair.image_size != disp.shape:
-            raise RiverbedError(f"disparity map is {disp.shape[1]}x{disp.shape[0]} but the pair's images are "
-                                f"{pair.width}x{pair.height} (WxH) ({pair_path})", disp_path)
+            raise RiverbedError(f"disparity map is {disp.shape[1]}x{disp.shape[0]} but the images of {pair_path} "
+                                f"are {pair.width}x{pair.height} (W x H)", disp_path)
         image = None
         if pair.left is not None and pair.left.exists():
             image = read_image(pair.left)
             if image.shape[:2] != disp.shape:
                 raise RiverbedError(f"left image {pair.left} is not the size of the disparity map", disp_path)
         sources.append((disp, pair, image))
+        confs.append(read_confidence(confidences[i], disp.shape) if confidences else None)
     reg = load_registration(registration) if registration else None
 
     if crs is None:
@@ -97,7 +151,8 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
     total = sum(d.shape[0] for d, _, _ in sources)
     with tqdm(total=total, desc="dsm", unit="row", disable=not progress_enabled() or not total, leave=False) as bar:
         result = build_dsm(sources, clouds, resolution, agg, bounds, fill_holes, point_sink=sink,
-                           lidar_registration=reg, progress=bar.update)
+                           lidar_registration=reg, progress=bar.update, confidence=confs if confidences else None,
+                           min_confidence=min_confidence)
 
     dsm = result.dsm
     if not np.isnan(nodata):

@@ -2,21 +2,28 @@
 
 Grid convention: cell ``(row, col)`` covers ``[xmin + col * r, xmin + (col + 1) * r) x (ymax - (row + 1) * r, ymax - row
 * r]``; the GeoTIFF transform is ``Affine(r, 0, xmin, 0, -r, ymax)`` (pixel corners, as GDAL). Heights are float32
-in the
-units of the CRS; empty cells are ``nodata`` (NaN by default).
+in the units of the CRS; empty cells are ``nodata`` (NaN by default).
 """
 
+import logging
 import math
+import re
+import tempfile
+import warnings
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
+import rasterio
 from affine import Affine
 from numba import njit
 from rasterio.fill import fillnodata
 
 from ..errors import RiverbedError
 from ..io.lidar import iter_lidar, lidar_info
+from ..io.paths import require_file
+from ..io.raster import write_geotiff
 
 AGGREGATIONS = ("max", "mean", "median", "idw")
 
@@ -63,6 +70,26 @@ class Grid:
         if w * h > max_cells:
             raise RiverbedError(f"DSM grid {w}x{h} at {r} is too large; raise --resolution or give --bounds")
         return cls(x0, y1, r, w, h)
+
+
+def _text(values):
+    return " ".join(f"{float(v):.12g}" for v in values)
+
+
+def check_bounds(bounds):
+    """``(xmin, ymin, xmax, ymax)`` as floats, or a one-line :class:`RiverbedError`: four finite numbers with
+    ``xmin < xmax`` and ``ymin < ymax``."""
+    try:
+        out = tuple(float(v) for v in bounds)
+    except (TypeError, ValueError):
+        raise RiverbedError(f"bounds must be four numbers XMIN YMIN XMAX YMAX, got {bounds!r}") from None
+    if len(out) != 4:
+        raise RiverbedError(f"bounds must be four numbers XMIN YMIN XMAX YMAX, got {len(out)}")
+    if not all(math.isfinite(v) for v in out):
+        raise RiverbedError(f"bounds {_text(out)} are not all finite numbers")
+    if not (out[0] < out[2] and out[1] < out[3]):
+        raise RiverbedError(f"bounds {_text(out)} are empty (XMIN YMIN XMAX YMAX with XMIN < XMAX and YMIN < YMAX)")
+    return out
 
 
 def grid_indices(grid, x, y):
@@ -240,7 +267,7 @@ def hillshade(dsm, resolution, azimuth=315.0, altitude=45.0, z_factor=1.0):
 NOISE_CLASSES = (7, 18)  # ASPRS low and high noise
 
 
-def disparity_points(disp, pair, rows=None, image=None):
+def disparity_points(disp, pair, rows=None, image=None, confidence=None, min_confidence=None):
     """Triangulate the valid disparities of a left-image disparity map (or a block of its rows).
 
     Parameters
@@ -253,6 +280,11 @@ def disparity_points(disp, pair, rows=None, image=None):
         Only these rows (row indices are image rows; used to stream large maps in blocks).
     image : (H, W) or (H, W, 3) array, optional
         Left image whose colours go with the points.
+    confidence : (H, W) float array, optional
+        Per-pixel confidence (NaN: none); with ``min_confidence``, the pixels whose confidence is below it or NaN
+        are left out.
+    min_confidence : float, optional
+        The lowest confidence kept (see :func:`check_min_confidence`).
 
     Returns
     -------
@@ -265,7 +297,10 @@ def disparity_points(disp, pair, rows=None, image=None):
     """
     rows = rows or slice(0, disp.shape[0])
     block = np.asarray(disp[rows], np.float64)
-    r, c = np.nonzero(np.isfinite(block))
+    valid = np.isfinite(block)
+    if confidence is not None and min_confidence is not None:
+        valid &= np.asarray(confidence[rows]) >= min_confidence  # NaN compares False: dropped
+    r, c = np.nonzero(valid)
     r_img = r + (rows.start or 0)
     local = pair.triangulate(c.astype(np.float64), r_img.astype(np.float64), block[r, c])
     depth = pair.project(local)[3]
@@ -284,6 +319,114 @@ def default_resolution(depths, focal):
     return float(f"{gsd:.3g}")
 
 
+def check_min_confidence(value, name="min_confidence"):
+    """``value`` as a float in [0, 1], or a one-line :class:`RiverbedError` naming ``name`` (e.g. the option)."""
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise RiverbedError(f"{name} must be a number from 0 to 1, got {value!r}") from None
+    if not 0.0 <= x <= 1.0:  # also False for NaN
+        raise RiverbedError(f"{name} must be a number from 0 to 1, got {x:g}")
+    return x
+
+
+def read_confidence(path, shape=None):
+    """A per-pixel confidence map: band 1 of a single-band float TIFF/GeoTIFF, values in [0, 1], NaN (or the
+    nodata value) where there is none; ``riverbed match --confidence`` writes them.
+
+    Parameters
+    ----------
+    path : str or path-like
+        ``.tif`` / ``.tiff``, one band, float32 (float64 is read too).
+    shape : (H, W), optional
+        The disparity map's shape, which the confidence map must have.
+
+    Returns
+    -------
+    conf : (H, W) float32, NaN where there is no confidence
+    """
+    path = require_file(path)
+    if path.suffix.lower() not in (".tif", ".tiff"):
+        raise RiverbedError("confidence map must be a single-band float32 TIFF/GeoTIFF (.tif)", path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+        try:
+            ds = rasterio.open(path)
+        except Exception:  # noqa: BLE001 - GDAL drivers raise many types; any of them means "cannot read"
+            raise RiverbedError("cannot read confidence map (not a TIFF rasterio reads)", path) from None
+        with ds:
+            if ds.count != 1:
+                raise RiverbedError(f"confidence map must have one band, has {ds.count}", path)
+            if not ds.dtypes[0].startswith("float"):
+                raise RiverbedError(f"confidence map must be float32 (values 0 to 1), got {ds.dtypes[0]}", path)
+            if shape is not None and tuple(ds.shape) != tuple(shape):
+                raise RiverbedError(f"confidence map is {ds.width}x{ds.height} but the disparity map is "
+                                    f"{shape[1]}x{shape[0]} (W x H)", path)
+            try:
+                conf = ds.read(1).astype(np.float32)
+            except Exception:  # noqa: BLE001 - as above
+                raise RiverbedError("cannot read confidence map (corrupt or truncated data)", path) from None
+            nodata = ds.nodata
+    if nodata is not None and not np.isnan(nodata):
+        conf[conf == np.float32(nodata)] = np.nan
+    outside = ~np.isnan(conf) & ~((conf >= 0) & (conf <= 1))
+    if outside.any():
+        n = int(outside.sum())
+        raise RiverbedError(f"confidence values must lie in [0, 1] (NaN: none), found {float(conf[outside][0]):g} "
+                            f"({n} pixel{'s' if n > 1 else ''} outside)", path)
+    return conf
+
+
+class _GdalMessages(logging.Handler):
+    # rasterio logs GDAL's warnings on "rasterio._env" as ("%s in %s", code, message)
+    def __init__(self):
+        super().__init__(logging.WARNING)
+        self.messages = []
+
+    def emit(self, record):
+        args = record.args if isinstance(record.args, tuple) else ()
+        self.messages.append(str(args[1]) if len(args) == 2 else record.getMessage())
+
+
+def check_creation_options(options, bands=1, nodata=float("nan")):
+    """Refuse GDAL COG creation options that GDAL would not honour, before any work: ``BLOCKSIZE`` must be a
+    multiple of 16 from 128 to 4096 (other values hang or crash GDAL's COG driver), then a trial write of a small
+    float32 raster with the options (in 128 px tiles, so that it has an overview), whose GDAL warnings (an unknown
+    option or value, which GDAL would otherwise ignore) and errors become a one-line :class:`RiverbedError`
+    (``--co: <GDAL's message>``)."""
+    co = {str(k).upper(): str(v) for k, v in (options or {}).items()}
+    if not co:
+        return
+    if "BLOCKSIZE" in co:
+        size = co["BLOCKSIZE"]
+        if not (size.isdigit() and 128 <= int(size) <= 4096 and int(size) % 16 == 0):
+            raise RiverbedError(f"--co BLOCKSIZE={size}: the tile size must be a multiple of 16 from 128 to 4096")
+    gdal_log = logging.getLogger("rasterio._env")
+    collect = _GdalMessages()
+    propagate = gdal_log.propagate
+    gdal_log.addHandler(collect)
+    gdal_log.propagate = False  # the messages become the error below, not log lines
+    failure = None
+    try:
+        with tempfile.TemporaryDirectory(prefix="riverbed-co-") as tmp:
+            write_geotiff(Path(tmp) / "trial.tif", np.zeros((bands, 144, 144), np.float32),
+                          Affine(1.0, 0.0, 0.0, 0.0, -1.0, 144.0), None, nodata, {**co, "BLOCKSIZE": "128"})
+    except RiverbedError as e:
+        failure = str(e)[len(e.path) + 2:] if e.path else str(e)
+    except Exception as e:  # noqa: BLE001 - GDAL raises its own error types (CPLE_*), not only RasterioError
+        failure = str(e)
+    finally:
+        gdal_log.removeHandler(collect)
+        gdal_log.propagate = propagate
+    # GDAL's word on an option first (the error it leads to may be vague), then the error; other warnings pass
+    about = [m for m in collect.messages if re.search(r"option|not recognised|invalid value", m, re.IGNORECASE)]
+    found = about + ([failure] if failure is not None else [])
+    if found:
+        message = re.sub(r"^\S*trial\S*: ", "", (found[0] or "GDAL error").splitlines()[0])
+        message = re.sub(r",\s*ignoring\.?$", "", message).rstrip(". ")
+        raise RiverbedError(f"--co: {message}")
+
+
 @dataclass
 class DsmResult:
     dsm: np.ndarray  # (H, W) float32, NaN empty
@@ -292,8 +435,14 @@ class DsmResult:
     stats: dict
 
 
+def _no_points(bounds, lo, hi):
+    return RiverbedError(f"bounds {_text(bounds)} hold none of the points (they span {_text(lo[:2])} to "
+                         f"{_text(hi[:2])})")
+
+
 def build_dsm(sources=(), lidar=(), resolution=None, agg="max", bounds=None, fill=0, block_rows=256,
-              point_sink=None, lidar_registration=None, drop_classes=NOISE_CLASSES, progress=None):
+              point_sink=None, lidar_registration=None, drop_classes=NOISE_CLASSES, progress=None,
+              confidence=None, min_confidence=None):
     """Merge the points of several disparity maps (and optionally LiDAR clouds) into one DSM.
 
     Parameters
@@ -314,6 +463,11 @@ def build_dsm(sources=(), lidar=(), resolution=None, agg="max", bounds=None, fil
         Fill enclosed gaps up to this many cells across (:func:`fill_holes`).
     point_sink : callable, optional
         Called as ``point_sink(xyz, rgb)`` with every block of image points (to write a point cloud).
+    confidence : sequence of (H, W) float arrays (or None), optional
+        One per source: the per-pixel confidence of its disparity map in [0, 1], NaN none (:func:`read_confidence`).
+    min_confidence : float, optional
+        With ``confidence``: the points whose pixel's confidence is below this (or NaN) are dropped before they
+        reach the point sink and the DSM; ``stats["confidence_dropped"]`` counts them (valid disparities dropped).
 
     Notes
     -----
@@ -324,6 +478,24 @@ def build_dsm(sources=(), lidar=(), resolution=None, agg="max", bounds=None, fil
     lidar = list(lidar)
     if not sources and not lidar:
         raise RiverbedError("nothing to rasterise: give DISP PAIR couples or --lidar clouds")
+    if bounds is not None:
+        bounds = check_bounds(bounds)
+    if fill < 0:
+        raise RiverbedError(f"hole filling size must be 0 or more cells, got {fill}")
+    confs = [None] * len(sources) if confidence is None else list(confidence)
+    if len(confs) != len(sources):
+        raise RiverbedError(f"give one confidence map per disparity map ({len(sources)} disparity maps, "
+                            f"{len(confs)} confidence maps)")
+    if min_confidence is None and any(c is not None for c in confs):
+        raise RiverbedError("confidence maps need a minimum confidence (min_confidence)")
+    if min_confidence is not None:
+        min_confidence = check_min_confidence(min_confidence)
+        if all(c is None for c in confs):
+            raise RiverbedError("a minimum confidence needs confidence maps")
+    for i, ((disp, _, _), conf) in enumerate(zip(sources, confs)):
+        if conf is not None and np.shape(conf) != np.shape(disp):
+            raise RiverbedError(f"confidence map {i + 1} is {np.shape(conf)[1]}x{np.shape(conf)[0]} but its "
+                                f"disparity map is {disp.shape[1]}x{disp.shape[0]} (W x H)")
     reg = lidar_registration
     if reg is None:
         reg = sources[0][1].registration if sources else np.eye(4)
@@ -338,10 +510,13 @@ def build_dsm(sources=(), lidar=(), resolution=None, agg="max", bounds=None, fil
     lo = np.full(3, np.inf)
     hi = np.full(3, -np.inf)
     depths = []
-    n_img = 0
-    for disp, pair, _ in sources:
+    n_img = n_dropped = 0
+    for (disp, pair, _), conf in zip(sources, confs):
         for r0 in range(0, disp.shape[0], block_rows):
-            xyz, depth, _ = disparity_points(disp, pair, slice(r0, r0 + block_rows))
+            rows = slice(r0, r0 + block_rows)
+            xyz, depth, _ = disparity_points(disp, pair, rows, None, conf, min_confidence)
+            if conf is not None:
+                n_dropped += int(np.count_nonzero(np.isfinite(disp[rows]) & ~(conf[rows] >= min_confidence)))
             xyz = xyz[np.isfinite(xyz).all(axis=1)]
             if len(xyz):
                 lo, hi = np.minimum(lo, xyz.min(axis=0)), np.maximum(hi, xyz.max(axis=0))
@@ -356,7 +531,8 @@ def build_dsm(sources=(), lidar=(), resolution=None, agg="max", bounds=None, fil
             w = corners @ reg[:3, :3].T + reg[:3, 3]
             lo, hi = np.minimum(lo, w.min(axis=0)), np.maximum(hi, w.max(axis=0))
     if not np.isfinite(lo).all():
-        raise RiverbedError("no valid points to rasterise (all disparities invalid and no LiDAR points)")
+        why = "invalid or below the minimum confidence" if n_dropped else "invalid"
+        raise RiverbedError(f"no valid points to rasterise (all disparities {why} and no LiDAR points)")
     if resolution is None:
         if depths:
             resolution = default_resolution(np.concatenate(depths), sources[0][1].focal)
@@ -364,15 +540,17 @@ def build_dsm(sources=(), lidar=(), resolution=None, agg="max", bounds=None, fil
             area = max((hi[0] - lo[0]) * (hi[1] - lo[1]), 1e-12)
             resolution = float(f"{2 * math.sqrt(area / max(n_lidar_total, 1)):.2g}")
     if bounds is not None:
+        if bounds[0] > hi[0] or bounds[2] < lo[0] or bounds[1] > hi[1] or bounds[3] < lo[1]:
+            raise _no_points(bounds, lo, hi)  # early: off the extent (the count after pass 2 catches the rest)
         grid = Grid.from_bounds(*bounds, resolution, exact=True)
     else:
         grid = Grid.from_bounds(lo[0], lo[1], hi[0], hi[1], resolution)
 
     # Pass 2: rasterise image points, then LiDAR points, each into its own accumulator.
     img_acc = Accumulator(grid, agg)
-    for disp, pair, image in sources:
+    for (disp, pair, image), conf in zip(sources, confs):
         for r0 in range(0, disp.shape[0], block_rows):
-            xyz, _, rgb = disparity_points(disp, pair, slice(r0, r0 + block_rows), image)
+            xyz, _, rgb = disparity_points(disp, pair, slice(r0, r0 + block_rows), image, conf, min_confidence)
             ok = np.isfinite(xyz).all(axis=1)
             xyz = xyz[ok]
             img_acc.add(xyz[:, 0], xyz[:, 1], xyz[:, 2])
@@ -382,20 +560,24 @@ def build_dsm(sources=(), lidar=(), resolution=None, agg="max", bounds=None, fil
                 progress(min(block_rows, disp.shape[0] - r0))
     dsm = img_acc.result() if sources else np.full((grid.height, grid.width), np.nan, np.float32)
     n_lidar = 0
+    in_grid = int(img_acc.counts.sum())
     if lidar:
         lid_acc = Accumulator(grid, agg)
         for path in lidar:
             for xyz in lidar_chunks(path):
                 lid_acc.add(xyz[:, 0], xyz[:, 1], xyz[:, 2])
                 n_lidar += len(xyz)
+        in_grid += int(lid_acc.counts.sum())
         lid = lid_acc.result()
         has = np.isfinite(lid)
         dsm = np.where(has, lid, dsm)  # LiDAR wins where both exist
+    if bounds is not None and not in_grid:
+        raise _no_points(bounds, lo, hi)
     filled = np.zeros(dsm.shape, np.uint8)
     if fill:
         dsm, filled = fill_holes(dsm, fill)
     stats = {"resolution": grid.resolution, "width": grid.width, "height": grid.height,
              "bounds": list(grid.bounds), "image_points": int(n_img), "lidar_points": int(n_lidar),
              "cells_with_data": float(100.0 * np.isfinite(dsm).mean()), "cells_filled": int(filled.sum()),
-             "aggregation": agg}
+             "aggregation": agg, "confidence_dropped": None if min_confidence is None else n_dropped}
     return DsmResult(dsm.astype(np.float32), grid, filled, stats)

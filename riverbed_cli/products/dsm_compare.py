@@ -1,13 +1,46 @@
 """Compare two DSMs on a common grid: height-difference statistics and a difference map."""
 
+import warnings
+
 import numpy as np
 import rasterio
-from rasterio.warp import Resampling, reproject
+from rasterio.warp import Resampling, reproject, transform_bounds
 
 from ..errors import RiverbedError
+from ..io.paths import require_file
 
 #: Absolute thresholds (CRS height units, usually metres) for the shares of large differences.
 DEFAULT_THRESHOLDS = (0.5, 1.0, 2.0)
+
+
+def _crs_name(crs):
+    if crs is None:
+        return "no CRS"
+    epsg = crs.to_epsg()
+    return f"EPSG:{epsg}" if epsg else "a CRS without an EPSG code"
+
+
+def _bounds_text(b):
+    return " ".join(f"{float(v):.10g}" for v in b)
+
+
+def _open_dsm(path):
+    path = require_file(path)
+    try:
+        return rasterio.open(path)
+    except MemoryError:
+        raise
+    except Exception:  # noqa: BLE001 - GDAL drivers raise many types; any of them means "cannot read"
+        raise RiverbedError("cannot read DSM (not a raster GDAL reads)", path) from None
+
+
+def _read_heights(ds, path):
+    try:
+        return ds.read(1, masked=True).astype(np.float64).filled(np.nan)
+    except MemoryError:
+        raise
+    except Exception:  # noqa: BLE001 - as in _open_dsm
+        raise RiverbedError("cannot read DSM (corrupt or truncated data)", path) from None
 
 
 def read_dsm_on_grid(path, ref_path):
@@ -16,28 +49,42 @@ def read_dsm_on_grid(path, ref_path):
     Both are float64 with NaN for nodata; ``ref_resolution`` is None for a geographic CRS. When the grids differ
     (CRS, transform or size) the DSM is reprojected with
     rasterio (bilinear; nodata honoured, so no height is averaged with a nodata value).
-    """
-    def _open(p):
-        try:
-            return rasterio.open(p)
-        except rasterio.errors.RasterioError as e:
-            raise RiverbedError(f"cannot read DSM ({str(e).splitlines()[0]})", p) from None
 
-    with _open(ref_path) as ref_ds, _open(path) as ds:
-        ref = ref_ds.read(1, masked=True).astype(np.float64).filled(np.nan)
-        if ref_ds.crs is None and ds.crs is not None or ds.crs is None and ref_ds.crs is not None:
-            raise RiverbedError(f"one DSM has a CRS and the other has none ({ref_path})", path)
-        same = (ds.crs == ref_ds.crs and ds.transform == ref_ds.transform and ds.shape == ref_ds.shape)
-        if same:
-            dsm = ds.read(1, masked=True).astype(np.float64).filled(np.nan)
-        else:
-            src = ds.read(1, masked=True).astype(np.float64).filled(np.nan)
-            dsm = np.full(ref.shape, np.nan)
-            reproject(src, dsm, src_transform=ds.transform, src_crs=ds.crs or ref_ds.crs, src_nodata=np.nan,
-                      dst_transform=ref_ds.transform, dst_crs=ref_ds.crs or ds.crs, dst_nodata=np.nan,
-                      resampling=Resampling.bilinear)
-        # A cell size in degrees is no height threshold: only projected grids get the 3-cell share.
-        res = abs(ref_ds.transform.a) if ref_ds.crs is None or ref_ds.crs.is_projected else None
+    Raises :class:`RiverbedError` (one line, naming the file) for a missing or unreadable file, a CRS on one side
+    only, and a DSM whose extent (in the reference's CRS) does not overlap the reference's.
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+        with _open_dsm(ref_path) as ref_ds, _open_dsm(path) as ds:
+            if (ref_ds.crs is None) != (ds.crs is None):
+                raise RiverbedError(f"one DSM has a CRS and the other has none ({ref_path})", path)
+            b = ds.bounds
+            if ds.crs != ref_ds.crs:
+                try:
+                    b = transform_bounds(ds.crs, ref_ds.crs, *b, densify_pts=21)
+                except Exception:  # noqa: BLE001 - PROJ errors come as several types
+                    raise RiverbedError(f"cannot transform the DSM's extent from {_crs_name(ds.crs)} to the "
+                                        f"reference's {_crs_name(ref_ds.crs)} ({ref_path})", path) from None
+            rb = ref_ds.bounds
+            if not (b[0] < rb.right and b[2] > rb.left and b[1] < rb.top and b[3] > rb.bottom):
+                raise RiverbedError(f"does not overlap the reference DSM {ref_path} (DSM {_bounds_text(b)}, reference "
+                                    f"{_bounds_text(rb)}: XMIN YMIN XMAX YMAX in {_crs_name(ref_ds.crs)})", path)
+            ref = _read_heights(ref_ds, ref_path)
+            src = _read_heights(ds, path)
+            same = (ds.crs == ref_ds.crs and ds.transform == ref_ds.transform and ds.shape == ref_ds.shape)
+            if same:
+                dsm = src
+            else:
+                dsm = np.full(ref.shape, np.nan)
+                try:
+                    reproject(src, dsm, src_transform=ds.transform, src_crs=ds.crs or ref_ds.crs, src_nodata=np.nan,
+                              dst_transform=ref_ds.transform, dst_crs=ref_ds.crs or ds.crs, dst_nodata=np.nan,
+                              resampling=Resampling.bilinear)
+                except Exception as e:  # noqa: BLE001 - GDAL's warper raises its own error types
+                    raise RiverbedError(f"cannot resample the DSM onto the grid of {ref_path} "
+                                        f"({str(e).splitlines()[0] if str(e) else type(e).__name__})", path) from None
+            # A cell size in degrees is no height threshold: only projected grids get the 3-cell share.
+            res = abs(ref_ds.transform.a) if ref_ds.crs is None or ref_ds.crs.is_projected else None
     return dsm, ref, res
 
 
