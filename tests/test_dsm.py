@@ -1,5 +1,6 @@
 import json
 
+import math
 import laspy
 import numpy as np
 import pytest
@@ -190,3 +191,17 @@ def test_compare_dsm_statistics():
     assert m["median"] == pytest.approx(0.2) and m["nmad"] == pytest.approx(0.0)
     assert m["over_0.5"] == pytest.approx(100 * 5 / 90) and m["over_3res"] == pytest.approx(100 * 5 / 90)
     assert m["mean"] == pytest.approx((85 * 0.2 + 5 * 3.0) / 90)
+
+
+def test_hillshade_is_lit_from_the_sun_side():
+    # default sun in the north-west (azimuth 315, altitude 45): a slope facing west (rising eastwards) and one facing
+    # north (rising southwards, down the rows) are lit, their opposites shaded; a flat cell gives sin(45 deg)
+    from riverbed_cli.products.dsm import hillshade
+
+    x = np.tile(np.arange(16, dtype=np.float64), (16, 1))
+    facing_west, facing_east = hillshade(x, 1.0)[8, 8], hillshade(-x, 1.0)[8, 8]
+    facing_north, facing_south = hillshade(x.T, 1.0)[8, 8], hillshade(-x.T, 1.0)[8, 8]
+    # 45 deg slopes: the lit side cos(45) cos(45) + sin(45) sin(45) cos(45), the shaded one the same minus
+    lit, shaded = int(255 * (0.5 + 0.5 * math.cos(math.pi / 4))), int(255 * (0.5 - 0.5 * math.cos(math.pi / 4)))
+    assert (facing_west, facing_north) == (lit, lit) and (facing_east, facing_south) == (shaded, shaded)
+    assert hillshade(np.zeros((4, 4)), 1.0)[1, 1] == int(255 * math.sin(math.pi / 4))

@@ -253,7 +253,8 @@ def hillshade(dsm, resolution, azimuth=315.0, altitude=45.0, z_factor=1.0):
     zf = np.where(np.isnan(z), np.nanmean(z) if np.isfinite(z).any() else 0.0, z)
     gy, gx = np.gradient(zf * z_factor, resolution)
     slope = np.arctan(np.hypot(gx, gy))
-    aspect = np.arctan2(-gx, gy)  # gy is along rows (south), so north-up aspect from -dz/dx and dz/dy
+    # GDAL / ESRI: aspect = atan2(dz/dy, -dz/dx) with dz/dy along the rows (southwards), dz/dx eastwards
+    aspect = np.arctan2(gy, -gx)
     az = math.radians(360.0 - azimuth + 90.0)
     alt = math.radians(altitude)
     shade = np.sin(alt) * np.cos(slope) + np.cos(alt) * np.sin(slope) * np.cos(az - aspect)
