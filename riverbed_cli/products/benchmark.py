@@ -36,6 +36,7 @@ MIDDLEBURY_PATTERNS = (
     ("im0.png", "im1.png", "disp0.pfm", None),
     ("view1.png", "view5.png", "disp1.png", 2.0),  # 2005/2006 half size: d = value / 2
     ("im2.png", "im6.png", "disp2.png", 4.0),  # 2003 quarter size: d = value / 4
+    ("left.png", "right.png", "gt.png", 256.0),  # 16-bit PNG ground truth, d = value / 256, 0 unknown (aerial pair)
 )
 
 
@@ -207,6 +208,41 @@ def winners(rows):
     return out
 
 
+def beats_inputs_table(rows):
+    """Markdown lines: per scene and share, does each fused guided method (a guide label without ``:none``) beat
+    both of its inputs — unguided matching (guide ``none``) and every LiDAR-only interpolation — on bad1, bad3 and
+    mean error (means over seeds)? Empty when the rows hold no such comparison."""
+    per = {}
+    for r in rows:
+        per.setdefault((r["scene"], r["share"]), {}).setdefault((r["matcher"], _label(r)), []).append(r)
+    lines = []
+    for (scene, share), methods in per.items():
+        inputs = {f"{m} {g}": rs for (m, g), rs in methods.items() if m == "lidar" or g == "none"}
+        fused = {f"{m} {g}": rs for (m, g), rs in methods.items()
+                 if m != "lidar" and g != "none" and not g.endswith(":none") and rows_fused(rs)}
+        if not inputs or not fused:
+            continue
+        for label, rs in fused.items():
+            cells = []
+            for metric in ("bad1", "bad3", "avg"):
+                mine = float(np.mean([r[metric] for r in rs]))
+                best_in, best_v = min(((n, float(np.mean([r[metric] for r in v]))) for n, v in inputs.items()),
+                                      key=lambda t: t[1])
+                mark = "yes" if mine < best_v else "**no**"
+                cells.append(f"{mine:.3g} vs {best_v:.3g} ({best_in}): {mark}")
+            lines.append(f"| {scene} | {share * 100:.2f} % | {label} | " + " | ".join(cells) + " |")
+    if not lines:
+        return []
+    return ["", "Does the fused output beat both its inputs (unguided matching and the best LiDAR-only interpolation "
+            "of each metric; mean over seeds)?", "",
+            "| scene | LiDAR | method | bad1 % | bad3 % | avg px |", "|---|---:|---|---|---|---|", *lines]
+
+
+def rows_fused(rows):
+    """Whether benchmark rows were fused (``fusion`` recorded and not ``none``)."""
+    return all(r.get("fusion", "none") not in (None, "none") for r in rows)
+
+
 def write_tables(rows, outdir, share_of="image"):
     """results.md (paper-style: mean over scenes per share, then per scene), results.csv, results.json.
 
@@ -245,6 +281,7 @@ def write_tables(rows, outdir, share_of="image"):
             lines.append(f"| {scene} | {share * 100:.2f} % | {matcher} | {label} | "
                          f"{np.mean([r['bad1'] for r in rs]):.2f} | {np.mean([r['bad3'] for r in rs]):.2f} | "
                          f"{np.mean([r['avg'] for r in rs]):.3f} | {max(r['avg'] for r in rs):.3f} |")
+    lines += beats_inputs_table(rows)
     win = winners(rows)
     lines += ["", "Best method per scene and LiDAR share (mean over seeds):", "",
               "| scene | LiDAR | bad1 % | bad3 % | avg px |", "|---|---:|---|---|---|"]
