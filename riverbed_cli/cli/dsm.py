@@ -122,7 +122,7 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
 
     sources, confs = [], []
     for i, (disp_path, pair_path) in enumerate(zip(disp_pair[::2], disp_pair[1::2])):
-        pair = load_pairfile(pair_path)
+        pair = load_pairfile(pair_path, command="riverbed dsm")
         disp = read_disparity(disp_path)
         if pair.image_size is not None and pair.image_size != disp.shape:
             raise RiverbedError(f"disparity map is {disp.shape[1]}x{disp.shape[0]} but the images of {pair_path} "

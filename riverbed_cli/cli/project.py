@@ -87,7 +87,7 @@ def project_cmd(cloud, pair, output, registration, classes, drop_classes, outlie
     """
     disparity_format(output)
     check_output(output, overwrite)
-    geometry = load_pairfile(pair)
+    geometry = load_pairfile(pair, command="riverbed project")
     try:
         shape = image_shape(geometry)
     except RiverbedError as e:

@@ -1,11 +1,14 @@
-"""``riverbed rectify``: a rectified pair and its pair file from two raw frames and their orientations."""
+"""``riverbed rectify``: a rectified pair and its pair file from two raw frames and their orientations, or (``--rpc``)
+from two satellite images and their RPC models."""
 
 import logging
 
 import click
+from click.core import ParameterSource
 
 from ..errors import RiverbedError
 from ..geometry.rectify import check_alpha, parse_size, rectify_files
+from ..geometry.rpc_pair import parse_heights, parse_roi
 from ..io.images import MAX_PIXELS
 from .options import input_path, json_opt, overwrite_opt, print_json
 
@@ -28,13 +31,46 @@ def _alpha(ctx, param, value):
         raise click.BadParameter(str(e)) from None
 
 
+def _parsed(parser, option):
+    def callback(ctx, param, value):
+        if value is None:
+            return None
+        try:
+            return parser(value)
+        except ValueError as e:
+            raise RiverbedError(f"{option}: {e}") from None
+    return callback
+
+
+#: Options of one mode only: (parameter, option, mode it belongs to).
+PINHOLE_ONLY = (("alpha", "--alpha"), ("size", "--size"))
+RPC_ONLY = (("roi", "--roi"), ("dem", "--dem"), ("heights", "--heights"), ("vertical", "--vertical"),
+            ("pointing", "--no-pointing-correction"))
+
+
 @click.command("rectify")
 @click.argument("left_img", type=input_path())
 @click.argument("left_orient", type=input_path())
 @click.argument("right_img", type=input_path())
 @click.argument("right_orient", type=input_path())
 @click.option("-o", "--outdir", required=True, type=click.Path(file_okay=False),
-              help="Output folder (created if missing): left.png, right.png, pair.yaml.")
+              help="Output folder (created if missing): left.png, right.png, pair.yaml (with --rpc: left.tif, "
+                   "right.tif, pair.yaml).")
+@click.option("--rpc", "rpc", is_flag=True, default=False,
+              help="Satellite images: LEFT_ORIENT and RIGHT_ORIENT are RPC models (any format; the image itself "
+                   "for GeoTIFF RPC tags); docs/rpc.md.")
+@click.option("--roi", default=None, metavar="COL,ROW,W,H", callback=_parsed(parse_roi, "--roi"),
+              help="[--rpc] Region of the left image to rectify (px; default the whole image).")
+@click.option("--dem", type=input_path(), default=None,
+              help="[--rpc] DEM over the ROI (geographic CRS, e.g. SRTM .hgt): the height range is its range "
+                   "under the ROI +- 20 m.")
+@click.option("--heights", default=None, metavar="LO,HI", callback=_parsed(parse_heights, "--heights"),
+              help="[--rpc] The terrain's height range instead of a DEM (m, ellipsoidal unless --vertical).")
+@click.option("--vertical", default=None, metavar="DATUM",
+              help="[--rpc] Vertical datum of --dem when its file does not say, or of --heights: ellipsoid or a "
+                   "vertical CRS (EPSG:5773 = EGM96).")
+@click.option("--no-pointing-correction", "pointing", flag_value=False, default=True,
+              help="[--rpc] Do not measure and remove the RPCs' relative pointing error (tie points).")
 @click.option("--alpha", type=float, default=0.0, show_default=True, callback=_alpha,
               help="stereoRectify's free scaling: 0 only pixels valid in both images (no black border), "
                    "1 every source pixel kept, -1 OpenCV's default.")
@@ -44,8 +80,9 @@ def _alpha(ctx, param, value):
               help="Refuse images larger than this (width x height).")
 @overwrite_opt
 @json_opt
-def rectify_cmd(left_img, left_orient, right_img, right_orient, outdir, alpha, size, max_pixels, overwrite,
-                as_json):
+@click.pass_context
+def rectify_cmd(ctx, left_img, left_orient, right_img, right_orient, outdir, rpc, roi, dem, heights, vertical,
+                pointing, alpha, size, max_pixels, overwrite, as_json):
     """Rectify raw frames LEFT_IMG and RIGHT_IMG with their orientation files (YAML; docs/rectify.md).
 
     Writes OUTDIR/left.png and OUTDIR/right.png (rows shared, d = x_left - x_right = f B / depth >= 0) and
@@ -54,9 +91,32 @@ def rectify_cmd(left_img, left_orient, right_img, right_orient, outdir, alpha, s
     optical axis (by 0, 90, 180 deg) so that the baseline runs along the rows with the right camera to the
     right (d >= 0): e.g. both by 180 deg when RIGHT_IMG was taken behind LEFT_IMG. LEFT_IMG always gives
     left.png.
+
+    With --rpc: LEFT_ORIENT and RIGHT_ORIENT are the images' RPC models; a region of interest (--roi) of
+    LEFT_IMG is rectified the s2p way (affine epipolar geometry, the RPCs' pointing error removed on tie points)
+    into OUTDIR/left.tif, OUTDIR/right.tif and OUTDIR/pair.yaml (both RPCs, the rectification, ROI, heights,
+    disparity range). The height range comes from --dem or --heights.
     """
     if max_pixels is not None and max_pixels < 1:
         raise RiverbedError("--max-pixels must be positive")
+    given = {name for name in ctx.params if ctx.get_parameter_source(name) is not ParameterSource.DEFAULT}
+    wrong = PINHOLE_ONLY if rpc else RPC_ONLY
+    for name, option in wrong:
+        if name in given:
+            raise RiverbedError(f"{option} {'does not apply with' if rpc else 'needs'} --rpc")
+    if rpc:
+        from ..geometry.rpc_pair import rectify_rpc_files
+
+        summary = rectify_rpc_files(left_img, left_orient, right_img, right_orient, outdir, roi=roi, dem=dem,
+                                    heights=heights, vertical=vertical, pointing=pointing, overwrite=overwrite,
+                                    max_pixels=max_pixels)
+        if as_json:
+            print_json(summary)
+        else:
+            log.info("%s: %dx%d, d in %.1f..%.1f px, heights %.1f..%.1f m, pointing %s px of rows, virtual rows "
+                     "within %.4f px", outdir, summary["width"], summary["height"], *summary["disparity"],
+                     *summary["heights"], summary["pointing_row_offset_px"], summary["virtual_row_residual_max_px"])
+        return
     summary = rectify_files(left_img, left_orient, right_img, right_orient, outdir, overwrite=overwrite,
                             alpha=alpha, size=size, max_pixels=max_pixels)
     if as_json:

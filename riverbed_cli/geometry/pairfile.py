@@ -12,6 +12,11 @@ crs: EPSG:32632          # optional: CRS of world coordinates
 registration: [[...4...], [...4...], [...4...], [0, 0, 0, 1]]   # optional LiDAR -> world (default identity)
 ```
 
+A pair file with an ``rpc:`` key is an *RPC pair* (``riverbed rectify --rpc``; its keys in
+:mod:`riverbed_cli.geometry.rpc_pair`): :func:`load_pairfile` reads it into an
+:class:`~riverbed_cli.geometry.rpc_pair.RPCPair` (``kind == "rpc"``) only when asked (``accept_rpc=True``); the
+commands that take a pinhole pair refuse it in one line.
+
 Both formats go through :func:`load_pairfile`: ``.json`` files (or text starting with ``{``) with :mod:`json`,
 everything else with ``yaml.safe_load`` (never the unsafe loader: pair files come from strangers). Errors are
 one line naming the file and the key. See :mod:`riverbed_cli.geometry.cameras` for the rectified-pair rule.
@@ -34,6 +39,8 @@ from .cameras import PairGeometry, as_matrix, check_registration
 #: Pair files and registration files larger than this are refused before parsing.
 MAX_BYTES = 1_000_000
 KEYS = ("left", "right", "width", "height", "P_left", "P_right", "origin", "crs", "registration")
+#: The commands that read pinhole pair files only (named when an RPC pair file reaches them).
+RPC_REFUSERS = "riverbed project, dsm or block"
 
 
 def _parse(path, what):
@@ -54,17 +61,33 @@ def _check_crs(crs, path):
         raise RiverbedError(f"crs: unknown CRS '{crs}'", path) from None
 
 
-def load_pairfile(path):
-    """Read a pair file (YAML or JSON) into a validated :class:`PairGeometry`.
+def load_pairfile(path, accept_rpc=False, command=None):
+    """Read a pair file (YAML or JSON) into a validated :class:`PairGeometry` (or an RPC pair).
 
     Image paths are resolved relative to the pair file's folder. Raises :class:`RiverbedError` (``PATH: KEY:
     problem``) for a missing or unreadable file, unknown keys, wrong shapes, non-finite numbers, a pair that
     is not rectified, or a singular registration.
+
+    Parameters
+    ----------
+    path : str or Path
+        The pair file.
+    accept_rpc : bool
+        Return an :class:`~riverbed_cli.geometry.rpc_pair.RPCPair` for a file with an ``rpc:`` key; otherwise
+        such a file is a one-line error ("RPC pair files are not supported by COMMAND yet").
+    command : str, optional
+        The command named in that error (default: every command that reads pair files but rectify).
     """
     path = Path(path)
     data, _ = _parse(path, "pair file")
     if not isinstance(data, dict):
         raise RiverbedError("not a pair file (expected a mapping with P_left and P_right)", path)
+    if "rpc" in data:
+        if not accept_rpc:
+            raise RiverbedError(f"RPC pair files are not supported by {command or RPC_REFUSERS} yet", path)
+        from .rpc_pair import rpc_pair_from_dict
+
+        return rpc_pair_from_dict(data, path)
     unknown = [str(k) for k in data if k not in KEYS]
     if unknown:
         raise RiverbedError(f"unknown key '{unknown[0]}' (pair file keys: {', '.join(KEYS)})", path)
@@ -125,7 +148,8 @@ def load_registration(path):
     return reg
 
 
-def _relative(target, folder):
+def relative_path(target, folder):
+    """``target`` relative to ``folder`` as a POSIX string (absolute when on another drive)."""
     target = Path(target).absolute()
     try:
         return Path(os.path.relpath(target, Path(folder).absolute())).as_posix()
@@ -139,7 +163,7 @@ def pair_to_dict(pair, folder=None):
     for key in ("left", "right"):
         value = getattr(pair, key)
         if value is not None:
-            out[key] = _relative(value, folder) if folder is not None else str(value)
+            out[key] = relative_path(value, folder) if folder is not None else str(value)
     if pair.width is not None:
         out["width"] = pair.width
     if pair.height is not None:
