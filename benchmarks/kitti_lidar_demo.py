@@ -8,8 +8,10 @@ match``) and prints:
 
 - the projection counts and the photometric check: median |I_left(x, y) - I_right(x - d, y)| at the LiDAR
   pixels, against the same with the disparity off by +-3 px;
-- held-out accuracy: half of the LiDAR pixels (seeded) guide ``match``; both maps are scored on the other half
-  (LiDAR as sparse ground truth), against unguided matching on the same range;
+- held-out accuracy: half of the LiDAR pixels (seeded) guide ``match``; every map is scored on the other half
+  (LiDAR as sparse ground truth): unguided matching on the same range, riverbed with the default fusion and
+  without it (``--fusion none``), and the LiDAR-only interpolations of the guiding half (``riverbed densify``
+  nearest, linear, guided);
 - writes OUT/kitti_guided.png and OUT/kitti_unguided.png: colourised maps guided by *all* LiDAR pixels and
   unguided, on one colour scale.
 """
@@ -95,23 +97,32 @@ def main():
     write_disparity(work / "half.tif", guide_half, overwrite=True)
     rows = []
     common = [paths["left"], paths["right"], "--min-disp", lo, "--max-disp", hi, "--overwrite"]
-    runs = (("unguided", ["--guide", "none"]), ("riverbed, half the LiDAR", ["--sparse", work / "half.tif"]),
+    runs = (("unguided", ["--guide", "none"]),
+            ("riverbed + fusion (default), half the LiDAR", ["--sparse", work / "half.tif"]),
+            ("riverbed, no fusion, half the LiDAR", ["--sparse", work / "half.tif", "--fusion", "none"]),
             ("riverbed, all LiDAR", ["--sparse", paths["sparse"]]))
     for name, extra in runs:
-        out = work / f"{name.split(',')[0]}_{len(rows)}.tif"
+        out = work / f"run_{len(rows)}.tif"
         info = json.loads(run(["match", *common, *extra, "-o", out, "--json"]))
         disp = read_disparity(out)
         m = evaluate_disparity(disp, truth) if "all" not in name else None
         rows.append((name, info, m, disp))
+    for method in ("nearest", "linear", "guided"):
+        out = work / f"densify_{method}.tif"
+        info = json.loads(run(["densify", work / "half.tif", "-o", out, "--method", method, "--image",
+                               paths["left"], "--json", "--overwrite"]))
+        disp = read_disparity(out)
+        rows.append((f"LiDAR only: {method} interpolation of half the LiDAR", info, evaluate_disparity(disp, truth),
+                     disp))
     print("\n| matching | window | >1 px | >3 px | mean abs (px) | seconds |\n|---|---:|---:|---:|---:|---:|")
     for name, info, m, _ in rows:
         if m is None:
             continue
-        print(f"| {name} | {info.get('window', '-')} | {m['bad1']:.1f} % | {m['bad3']:.1f} % | "
+        print(f"| {name} | {info.get('window') or '-'} | {m['bad1']:.1f} % | {m['bad3']:.1f} % | "
               f"{m['avg']:.2f} | {info['seconds']:.1f} |")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    unguided, guided = rows[0][3], rows[2][3]
+    unguided, guided = rows[0][3], rows[3][3]
     for name, disp in (("kitti_unguided.png", unguided), ("kitti_guided.png", guided)):
         write_png(out / name, colorize_disparity(disp, lo, hi), overwrite=True)
         print(f"wrote {out / name}")
