@@ -1,11 +1,15 @@
 """Accuracy beyond the development scenes: the KITTI 2015 frame (real outdoor scene, sparse LiDAR-derived GT).
 
-KITTI may not be copied into the repository; it is read from RIVERBED_DATA (CI sets ../shared/data).
+KITTI may not be copied into the repository; it is read from RIVERBED_DATA (CI sets ../shared/data). Every figure is
+gated within 10 % (small absolute floors: tests/gates.py) of the value measured with the current code and committed
+below, for the three LiDAR shares, none / Gauss / riverbed, the default output (confidence fusion) and the matcher
+alone (``fusion="none"``); one LiDAR sampling (seed 0; tests/test_accuracy.py gates three on Cones).
 """
 
 import numpy as np
 import pytest
 
+from gates import assert_catches, assert_within
 from riverbed_cli.io.disparity import read_disparity
 from riverbed_cli.io.images import read_image
 from riverbed_cli.matching.pipeline import match_pair
@@ -13,6 +17,30 @@ from riverbed_cli.products.evaluate import evaluate_disparity
 from riverbed_cli.products.simulate import simulate_lidar
 
 KITTI = "kitti2015_stereo_sttr/sample_data/KITTI_2015/training"
+SHARES = (0.05, 0.0123, 0.0016)
+CASES = (("none", "none"), ("gauss", "confidence"), ("gauss", "none"), ("riverbed", "confidence"),
+         ("riverbed", "none"))
+
+#: Measured with the current code (seed 0, 2 cores): bad1 %, bad3 %, avg px over the GT pixels not used as LiDAR.
+#: Over seeds 1 and 2 the figures move by up to 0.15 points of bad3 at 5 % and 0.55 at 0.16 % (riverbed): this test
+#: runs seed 0 only.
+EXPECTED = {
+    (0.05, "none", "none"): {"bad1": 20.116, "bad3": 4.440, "avg": 1.0542},
+    (0.05, "gauss", "confidence"): {"bad1": 3.137, "bad3": 0.692, "avg": 0.2476},
+    (0.05, "gauss", "none"): {"bad1": 7.860, "bad3": 0.812, "avg": 0.4504},
+    (0.05, "riverbed", "confidence"): {"bad1": 1.724, "bad3": 0.324, "avg": 0.1550},
+    (0.05, "riverbed", "none"): {"bad1": 2.209, "bad3": 0.227, "avg": 0.1762},
+    (0.0123, "none", "none"): {"bad1": 20.140, "bad3": 4.471, "avg": 1.0559},
+    (0.0123, "gauss", "confidence"): {"bad1": 6.664, "bad3": 1.767, "avg": 0.4105},
+    (0.0123, "gauss", "none"): {"bad1": 14.143, "bad3": 2.252, "avg": 0.6937},
+    (0.0123, "riverbed", "confidence"): {"bad1": 4.224, "bad3": 0.750, "avg": 0.2869},
+    (0.0123, "riverbed", "none"): {"bad1": 7.153, "bad3": 0.677, "avg": 0.3892},
+    (0.0016, "none", "none"): {"bad1": 20.240, "bad3": 4.492, "avg": 1.0552},
+    (0.0016, "gauss", "confidence"): {"bad1": 11.124, "bad3": 3.452, "avg": 0.6625},
+    (0.0016, "gauss", "none"): {"bad1": 19.110, "bad3": 4.135, "avg": 0.9704},
+    (0.0016, "riverbed", "confidence"): {"bad1": 9.574, "bad3": 2.389, "avg": 0.5212},
+    (0.0016, "riverbed", "none"): {"bad1": 15.435, "bad3": 2.441, "avg": 0.6899},
+}
 
 
 @pytest.fixture(scope="module")
@@ -27,20 +55,35 @@ def results(kitti):
     left, right, gt = kitti
     d_max = int(np.ceil(np.nanmax(gt))) + 4
     out = {}
-    for share in (0.05, 0.0016):
+    for share in SHARES:
         sparse = simulate_lidar(gt, share, seed=0)
-        for guide in ("none", "gauss", "riverbed"):
-            disp = match_pair(left, right, sparse, 0, d_max, guide=guide).disparity
-            out[share, guide] = evaluate_disparity(disp, gt, exclude=sparse)
+        for guide, fusion in CASES:
+            kwargs = {} if fusion == "confidence" else {"fusion": fusion}  # confidence: the default
+            r = match_pair(left, right, sparse, 0, d_max, guide=guide, **kwargs)
+            assert r.info.fusion == fusion
+            out[share, guide, fusion] = evaluate_disparity(r.disparity, gt, exclude=sparse)
     return out
 
 
-def test_kitti_riverbed_at_5_percent(results):
-    none, gauss, rb = results[0.05, "none"], results[0.05, "gauss"], results[0.05, "riverbed"]
-    assert rb["bad3"] <= 0.3 * none["bad3"] and rb["avg"] <= 0.5
-    assert rb["bad3"] < gauss["bad3"] < none["bad3"] and rb["avg"] < gauss["avg"] < none["avg"]
+def test_kitti_gates_catch_a_20_percent_regression():
+    assert sorted(EXPECTED) == sorted((share, *case) for share in SHARES for case in CASES)
+    assert_catches(EXPECTED)
 
 
-def test_kitti_riverbed_beats_unguided_at_0_16_percent(results):
-    none, rb = results[0.0016, "none"], results[0.0016, "riverbed"]
-    assert rb["bad3"] < none["bad3"] and rb["avg"] < none["avg"]
+@pytest.mark.parametrize("guide, fusion", CASES)
+def test_kitti_accuracy_holds_its_expectation(results, guide, fusion):
+    assert_within(results, {k: v for k, v in EXPECTED.items() if k[1:] == (guide, fusion)})
+    assert all(results[share, guide, fusion]["density"] == 100.0 for share in SHARES)
+
+
+def test_kitti_riverbed_ahead_of_gauss_ahead_of_none_at_5_percent(results):
+    for fusion in ("confidence", "none"):
+        none, gauss, rb = (results[0.05, g, f] for g, f in (("none", "none"), ("gauss", fusion), ("riverbed", fusion)))
+        assert rb["bad3"] < gauss["bad3"] < none["bad3"] and rb["avg"] < gauss["avg"] < none["avg"], fusion
+
+
+def test_kitti_riverbed_beats_unguided_at_every_share(results):
+    for share in SHARES:
+        for fusion in ("confidence", "none"):
+            none, rb = results[share, "none", "none"], results[share, "riverbed", fusion]
+            assert rb["bad3"] < none["bad3"] and rb["avg"] < none["avg"], (share, fusion)

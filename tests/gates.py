@@ -1,0 +1,49 @@
+"""Accuracy gates of the tests: each measured figure against its reviewed expectation, committed in the test.
+
+A figure passes when it lies within :data:`RELATIVE` (10 %) of its expectation, or within a small absolute floor
+where 10 % of the value is less than that floor (0.03 percentage points for shares of pixels or cells, 0.005 px or m
+for errors). The gate is two-sided: a figure that got much better is a change to review too (update the
+expectation with the new measurement). The floors are small enough that a 20 % regression of every committed figure
+fails (:func:`assert_catches`).
+"""
+
+RELATIVE = 0.10
+#: metrics given in percent (of the evaluated pixels or cells); every other metric is a length (px or m)
+PERCENT = ("bad1", "bad2", "bad3", "d1", "density", "over_3res", "over_0.5", "over_1", "over_2", "completeness")
+FLOOR_PERCENT = 0.03  # percentage points
+FLOOR_LENGTH = 0.005  # px or m
+
+
+def tolerance(metric, expected):
+    """The largest accepted distance of a ``metric`` figure from its ``expected`` value."""
+    return max(RELATIVE * abs(expected), FLOOR_PERCENT if metric in PERCENT else FLOOR_LENGTH)
+
+
+def off_gate(got, expected):
+    """Lines naming each ``(case, metric)`` of ``expected`` (``{case: {metric: value}}``) whose figure in ``got``
+    (same layout) lies outside its tolerance; empty when all pass."""
+    lines = []
+    for case, metrics in expected.items():
+        for metric, value in metrics.items():
+            measured = got[case][metric]
+            tol = tolerance(metric, value)
+            if not abs(measured - value) <= tol:
+                lines.append(f"{case} {metric}: measured {measured:.4f}, expected {value} +- {tol:.4f} "
+                             f"({100 * (measured - value) / value:+.1f} %)" if value else
+                             f"{case} {metric}: measured {measured:.4f}, expected {value} +- {tol:.4f}")
+    return lines
+
+
+def assert_within(got, expected):
+    """Every figure of ``expected`` within its tolerance in ``got``; the message lists every one that is not."""
+    lines = off_gate(got, expected)
+    assert not lines, f"{len(lines)} figure(s) off their committed expectation:\n" + "\n".join(lines)
+
+
+def assert_catches(expected, regression=0.20):
+    """A ``regression`` (20 %) of any figure of ``expected``, up or down, falls outside its gate."""
+    for case, metrics in expected.items():
+        for metric, value in metrics.items():
+            for factor in (1 + regression, 1 - regression):
+                moved = {case: {metric: value * factor}}
+                assert off_gate(moved, {case: {metric: value}}), (case, metric, value, factor)
