@@ -18,6 +18,7 @@ ALLOWED_LOCAL_IMPORTS = {
     "riverbed_cli.cli.match": "the matching stack loads when the command runs, so `riverbed match --help` stays fast",
     "riverbed_cli.scale.block.runner": "dask.distributed is an optional dependency (the dask extra)",
     "riverbed_cli.products.visualize": "matplotlib loads only when a picture is drawn: commands writing none skip it",
+    "riverbed_cli.geometry.rpc": "shareloc (numba, 1.3 s) loads only to read OSSIM .geom and DIMAP v1 RPC files",
 }
 
 

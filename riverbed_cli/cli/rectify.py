@@ -8,7 +8,7 @@ from click.core import ParameterSource
 
 from ..errors import RiverbedError
 from ..geometry.rectify import check_alpha, parse_size, rectify_files
-from ..geometry.rpc_pair import parse_heights, parse_roi
+from ..geometry.rpc_pair import parse_heights, parse_roi, rectify_rpc_files
 from ..io.images import MAX_PIXELS
 from .options import input_path, json_opt, overwrite_opt, print_json
 
@@ -105,8 +105,6 @@ def rectify_cmd(ctx, left_img, left_orient, right_img, right_orient, outdir, rpc
         if name in given:
             raise RiverbedError(f"{option} {'does not apply with' if rpc else 'needs'} --rpc")
     if rpc:
-        from ..geometry.rpc_pair import rectify_rpc_files
-
         summary = rectify_rpc_files(left_img, left_orient, right_img, right_orient, outdir, roi=roi, dem=dem,
                                     heights=heights, vertical=vertical, pointing=pointing, overwrite=overwrite,
                                     max_pixels=max_pixels)

@@ -35,6 +35,7 @@ from ..errors import RiverbedError
 from ..io.atomic import atomic_output
 from ..io.textfiles import parse_yaml, read_text
 from .cameras import PairGeometry, as_matrix, check_registration
+from .rpc_pair import relative_path, rpc_pair_from_dict
 
 #: Pair files and registration files larger than this are refused before parsing.
 MAX_BYTES = 1_000_000
@@ -85,8 +86,6 @@ def load_pairfile(path, accept_rpc=False, command=None):
     if "rpc" in data:
         if not accept_rpc:
             raise RiverbedError(f"RPC pair files are not supported by {command or RPC_REFUSERS} yet", path)
-        from .rpc_pair import rpc_pair_from_dict
-
         return rpc_pair_from_dict(data, path)
     unknown = [str(k) for k in data if k not in KEYS]
     if unknown:
@@ -146,15 +145,6 @@ def load_registration(path):
     except RiverbedError as e:
         raise RiverbedError(str(e), path) from None
     return reg
-
-
-def relative_path(target, folder):
-    """``target`` relative to ``folder`` as a POSIX string (absolute when on another drive)."""
-    target = Path(target).absolute()
-    try:
-        return Path(os.path.relpath(target, Path(folder).absolute())).as_posix()
-    except ValueError:  # another drive (Windows)
-        return target.as_posix()
 
 
 def pair_to_dict(pair, folder=None):

@@ -38,7 +38,6 @@ import numpy as np
 import rasterio
 from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
 from rasterio.rpc import RPC
-from shareloc.geomodels.rpc_readers import rpc_reader_dimap_v1, rpc_reader_ossim_kwl
 
 from ..errors import RiverbedError
 from ..io.paths import require_file
@@ -352,6 +351,9 @@ def _dimap_version(root):
 
 
 def _read_shareloc(path, what):
+    # shareloc (numba, its C++ bindings: 1.3 s) loads only for the two formats GDAL does not read
+    from shareloc.geomodels.rpc_readers import rpc_reader_dimap_v1, rpc_reader_ossim_kwl
+
     reader = rpc_reader_ossim_kwl if what == "ossim" else rpc_reader_dimap_v1
     try:
         params = reader(str(path), topleftconvention=False)

@@ -53,8 +53,10 @@ from ..io.atomic import atomic_output, check_output, check_output_folder
 from ..io.images import MAX_PIXELS
 from ..io.paths import require_file
 from .cameras import as_matrix, parse_number
-from .pairfile import relative_path
-from .rpc_rectify import RPCRectification, apply_h
+from .rpc import RPCModel, read_rpc
+from .rpc_dem import geoid_to_ellipsoid_transformer, read_dem
+from .rpc_rectify import (RPCRectification, apply_h, estimate_row_offset, heights_over_roi, rectify_rpc_pair,
+                          resample, virtual_matches, with_row_offset)
 
 log = logging.getLogger(__name__)
 
@@ -117,6 +119,15 @@ def _open(path):
             return rasterio.open(path)
     except RasterioIOError as e:
         raise RiverbedError(f"cannot read the image ({str(e).splitlines()[0]})", path) from None
+
+
+def relative_path(target, folder):
+    """``target`` relative to ``folder`` as a POSIX string (absolute when on another drive)."""
+    target = Path(target).absolute()
+    try:
+        return Path(os.path.relpath(target, Path(folder).absolute())).as_posix()
+    except ValueError:  # another drive (Windows)
+        return target.as_posix()
 
 
 @dataclass
@@ -209,8 +220,6 @@ def rpc_pair_from_dict(data, path):
     Raises :class:`RiverbedError` (``PATH: KEY: problem``) for unknown keys, an incomplete RPC model, matrices that
     are not invertible affinities, or sizes and ranges that are not numbers.
     """
-    from .rpc import RPCModel     # shareloc loads with rpc.py (2 s): only for RPC pair files
-
     path = Path(path)
     unknown = [str(k) for k in data if k not in RPC_PAIR_KEYS]
     if unknown:
@@ -273,7 +282,7 @@ def rpc_pair_from_dict(data, path):
 # rectify_rpc_files
 
 
-def _footprint_bounds(rpc, roi, h):
+def footprint_bounds(rpc, roi, h):
     """(lon_min, lat_min, lon_max, lat_max) of the ROI's border localised at height ``h`` (degrees)."""
     x, y, w, hh = roi
     t = np.linspace(0, 1, 9)
@@ -291,10 +300,7 @@ def heights_from_dem(rpc_left, roi, dem_path, vertical=None, margin_m=20.0):
     The DEM must cover the ROI's footprint at the model's mean height (checked before reading: a one-line error
     naming the DEM) and the footprint on the terrain (:func:`~riverbed_cli.geometry.rpc_rectify.heights_over_roi`).
     """
-    from .rpc_dem import read_dem
-    from .rpc_rectify import heights_over_roi
-
-    bounds = _footprint_bounds(rpc_left, roi, rpc_left.height_off)
+    bounds = footprint_bounds(rpc_left, roi, rpc_left.height_off)
     dem = read_dem(dem_path, bounds=bounds, vertical=vertical, margin_deg=0.01)
     try:
         lo, hi = heights_over_roi(rpc_left, roi, dem, margin_m=margin_m)
@@ -307,8 +313,6 @@ def heights_to_ellipsoid(heights, rpc_left, roi, vertical):
     """``--heights`` in a vertical datum -> ellipsoidal heights (m) at the ROI's centre; unchanged for ellipsoid."""
     if vertical is None or str(vertical).lower() in ("ellipsoid", "ellipsoidal", "epsg:4979"):
         return tuple(float(v) for v in heights)
-    from .rpc_dem import geoid_to_ellipsoid_transformer
-
     try:
         tr = geoid_to_ellipsoid_transformer(vertical)
     except RiverbedError as e:
@@ -336,8 +340,6 @@ def _window_of(H, size, ds):
 
 def _resample_window(ds, H, size, path):
     """The image of ``ds`` resampled into the rectified frame of ``H`` (bands last when more than one)."""
-    from .rpc_rectify import resample
-
     window = _window_of(H, size, ds)
     if window is None:
         shape = (size[1], size[0]) if ds.count == 1 else (size[1], size[0], ds.count)
@@ -411,9 +413,6 @@ def rectify_rpc_files(left_image, left_rpc, right_image, right_rpc, outdir, roi=
         The summary ``--json`` prints: files and sizes, rectified size, ROI, heights, disparity range, pointing
         row offset, virtual row residuals (px), seconds.
     """
-    from .rpc import read_rpc
-    from .rpc_rectify import estimate_row_offset, rectify_rpc_pair, virtual_matches, with_row_offset
-
     t0 = time.perf_counter()
     outdir = Path(outdir)
     check_output_folder(outdir)
@@ -467,9 +466,8 @@ def rectify_rpc_files(left_image, left_rpc, right_image, right_rpc, outdir, roi=
             try:
                 offset, n_tie = estimate_row_offset(_grey(rect_left), _grey(rect_right), rect.disparity)
             except RiverbedError as e:
-                raise RiverbedError(f"{e} in the rectified images of {Path(left_image).name} and "
-                                    f"{Path(right_image).name} (--no-pointing-correction rectifies without it)"
-                                    ) from None
+                raise RiverbedError(f"{e} (with {right_image}; --no-pointing-correction rectifies without it)",
+                                    left_image) from None
             rect = with_row_offset(rect, offset)
             rect_right = _resample_window(ds_right, rect.H_right, rect.size, right_image)
     # the pointing correction as a shift of the right model: H_right(rpc_r'(X)) has the row of H_left(rpc_l(X))
