@@ -77,7 +77,7 @@ RPC_ONLY = (("roi", "--roi"), ("dem", "--dem"), ("heights", "--heights"), ("vert
 @click.option("--size", default=None, callback=_size, metavar="WxH",
               help="Rectified image size in pixels (default: the raw frame size).")
 @click.option("--max-pixels", type=int, default=MAX_PIXELS, show_default=True,
-              help="Refuse images larger than this (width x height).")
+              help="Refuse images larger than this (width x height; with --rpc: the rectified frame).")
 @overwrite_opt
 @json_opt
 @click.pass_context
