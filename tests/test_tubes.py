@@ -154,6 +154,16 @@ def test_tube_rule_hand_made_cases():
     assert hi1.max() <= 40 and lo1.min() >= 0  # clipped to the nominal range
 
 
+def test_lidar_sparser_than_max_spacing_bounds_no_pixel():
+    # 9 points 180 px apart: share 9 / 361^2 (their hull), mean spacing 120 px > 40
+    sparse = np.full((400, 400), np.nan, np.float32)
+    sparse[20:400:180, 20:400:180] = 30.0
+    lo, hi = lidar_tubes(sparse, 0, 63)
+    assert (lo == 0).all() and (hi == 63).all()
+    lo, hi = lidar_tubes(sparse, 0, 63, max_spacing=200.0)  # allowed: a narrow tube on the points
+    assert lo[20, 20] == 28 and hi[20, 20] == 32
+
+
 def test_range_tube_on_a_real_pair_is_as_accurate_and_searches_less(cones):
     from riverbed_cli.products.evaluate import evaluate_disparity
     from riverbed_cli.products.simulate import simulate_lidar
