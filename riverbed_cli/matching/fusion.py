@@ -84,10 +84,22 @@ def leave_one_out_residuals(rows, cols, values, neighbours=6):
     nb = idx[:, 1:]
     X = np.stack([cols[nb] - cols[:, None], rows[nb] - rows[:, None], np.ones(nb.shape)], axis=-1).astype(np.float64)
     V = values[nb].astype(np.float64)
-    A = np.einsum("nki,nkj->nij", X, X) + np.diag([1e-3, 1e-3, 0.0])
-    b = np.einsum("nki,nk->ni", X, V)
-    coef = np.linalg.solve(A, b[..., None])[..., 0]
-    return np.abs(coef[:, 2] - values), tree
+    A = (X[:, :, :, None] * X[:, :, None, :]).sum(axis=1) + np.diag([1e-3, 1e-3, 0.0])
+    b = (X * V[:, :, None]).sum(axis=1)
+    # the intercept by Cramer's rule, in plain numpy: thousands of 3 x 3 solves through LAPACK spawn BLAS threads that
+    # fight Numba's for the cores (10-30 s on a loaded machine)
+    det = _det3(A)
+    Ac = A.copy()
+    Ac[:, :, 2] = b
+    c = np.divide(_det3(Ac), det, out=np.zeros(len(values)), where=det != 0)
+    return np.abs(c - values), tree
+
+
+def _det3(m):
+    # determinants of a stack of 3 x 3 matrices
+    return (m[:, 0, 0] * (m[:, 1, 1] * m[:, 2, 2] - m[:, 1, 2] * m[:, 2, 1])
+            - m[:, 0, 1] * (m[:, 1, 0] * m[:, 2, 2] - m[:, 1, 2] * m[:, 2, 0])
+            + m[:, 0, 2] * (m[:, 1, 0] * m[:, 2, 1] - m[:, 1, 1] * m[:, 2, 0]))
 
 
 def lidar_sigma(sparse, neighbours=6, support=4, floor=0.25):
