@@ -44,7 +44,7 @@ from .outliers import SOR_K, SOR_SIGMA, sor_inliers_image
 
 log = logging.getLogger(__name__)
 
-VISIBILITY = ("zbuffer", "hpr", "none")
+VISIBILITY = ("zbuffer", "surface", "surface+zbuffer", "hpr", "none")
 SIDES = ("left", "right", "both")
 OUTLIERS = ("sor", "none")
 #: Default ASPRS classes dropped: 7 (low noise) and 18 (high noise, LAS 1.4).
@@ -210,7 +210,9 @@ def image_shape(pair):
 def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classes=NOISE_CLASSES,
                   outliers="sor", side="both", visibility="zbuffer", footprint=vis.ZBUFFER_RADIUS,
                   tolerance=vis.ZBUFFER_TOLERANCE, slope=vis.ZBUFFER_SLOPE, hpr_gamma=vis.HPR_GAMMA, crs=None,
-                  shape=None, chunk_size=1_000_000, progress=None, edge_reach=vis.ZBUFFER_EDGE_REACH):
+                  shape=None, chunk_size=1_000_000, progress=None, edge_reach=vis.ZBUFFER_EDGE_REACH,
+                  surface_cell=vis.SURFACE_CELL, surface_closing=vis.SURFACE_CLOSING,
+                  surface_fill=vis.SURFACE_FILL, surface_margin=vis.SURFACE_MARGIN):
     """Project a LiDAR cloud into the pair's left image as sparse disparities.
 
     Parameters
@@ -351,17 +353,21 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
     rows, cols = pix // W, pix % W
     d = xl - xr
 
+    surface = None
+    if visibility.startswith("surface"):  # the height grid of all inlier candidates (both layers)
+        slots = np.concatenate([s0[inlier[s0]], s1[inlier[s1]]])
+        surface = vis.surface_grid(store_xyz[slots], surface_cell, surface_closing, surface_fill)
+    opts = (footprint, tolerance, slope, hpr_gamma, edge_reach, surface, surface_margin)
     visible = usable.copy()
     if visibility != "none" and side in ("left", "both"):
-        visible &= _visible(visibility, rows, cols, d, xyz, pair.centres[0], (H, W), footprint, tolerance,
-                            slope, hpr_gamma, edge_reach)
+        visible &= _visible(visibility, rows, cols, d, xyz, pair.centres[0], (H, W), *opts)
     n_occ_left = int(usable.sum() - visible.sum())
     if visibility != "none" and side in ("right", "both"):
         in_right = (code == 0) | (code == 3)  # points with a place in the right image hide others there
         vr = np.ones(win.size, bool)
         vr[in_right] = _visible(visibility, np.floor(yr[in_right] + 0.5).astype(np.int64),
                                 np.floor(xr[in_right] + 0.5).astype(np.int64), d[in_right], xyz[in_right],
-                                pair.centres[1], (H, W), footprint, tolerance, slope, hpr_gamma, edge_reach)
+                                pair.centres[1], (H, W), *opts)
         visible &= vr
     n_occ_right = int(usable.sum() - visible.sum()) - n_occ_left
     t_vis = time.perf_counter()
@@ -395,7 +401,14 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
     return sparse, stats
 
 
-def _visible(method, rows, cols, disp, xyz, centre, shape, footprint, tolerance, slope, gamma, edge_reach):
-    if method == "zbuffer":
-        return vis.zbuffer_visible(rows, cols, disp, shape, footprint, tolerance, slope, edge_reach)
-    return vis.hpr_visible(xyz, centre, gamma)
+def _visible(method, rows, cols, disp, xyz, centre, shape, footprint, tolerance, slope, gamma, edge_reach,
+             surface, margin):
+    if method == "hpr":
+        return vis.hpr_visible(xyz, centre, gamma)
+    visible = np.ones(disp.shape[0], bool)
+    if method.startswith("surface"):
+        visible = vis.surface_visible(xyz, centre, surface, margin)
+    if method.endswith("zbuffer"):  # among the points the surface test keeps
+        visible[visible] = vis.zbuffer_visible(rows[visible], cols[visible], disp[visible], shape, footprint,
+                                               tolerance, slope, edge_reach)
+    return visible

@@ -23,7 +23,8 @@ import logging
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
+from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError
 
 log = logging.getLogger(__name__)
@@ -271,3 +272,202 @@ def hpr_visible(xyz, viewpoint, gamma=HPR_GAMMA):
     v = hull.vertices
     visible[v[v < n]] = True
     return visible
+
+
+#: 2.5-D surface test (aerial / nadir frames), defaults chosen by measurement (docs/projection.md).
+SURFACE_CELL = "auto"  # m, or "auto": SURFACE_CELL_SHARE of the LiDAR point spacing (surface_cell)
+SURFACE_CELL_SHARE = 0.5
+SURFACE_FILL = 2.0  # point spacings: empty cells this close to a point take the nearest cell's height
+SURFACE_CLOSING = 1  # cells: radius of the grey closing that fills pits and gaps of the height grid
+SURFACE_MARGIN = 0.5  # m the ray must pass below the surface to hide the point
+#: Most cells of a surface grid (the cell grows beyond the point spacing to stay under it: bounded memory).
+SURFACE_MAX_CELLS = 1 << 25
+
+
+def surface_cell(xyz):
+    """LiDAR point spacing in the horizontal plane (m): ``1 / sqrt(density)`` over the occupied area.
+
+    The occupied area is the number of cells of side ``2 c0`` holding a point, ``c0`` the spacing over the
+    bounding box; so empty parts of the box (outside a flight strip, water) do not inflate the spacing.
+    """
+    xy = np.asarray(xyz, np.float64)[:, :2]
+    n = xy.shape[0]
+    if n < 2:
+        return 1.0
+    lo = xy.min(axis=0)
+    ext = np.maximum(xy.max(axis=0) - lo, 1e-9)
+    c0 = 2.0 * max(math.sqrt(ext[0] * ext[1] / n), 1e-6)
+    ij = np.floor((xy - lo) / c0).astype(np.int64)
+    occupied = np.unique(ij[:, 0] * (int(ext[1] / c0) + 2) + ij[:, 1]).size
+    return max(math.sqrt(occupied * c0 * c0 / n), 1e-6)
+
+
+@njit(cache=True)
+def _grid_max(xyz, x0, y0, cell, nx, ny):
+    grid = np.full((ny, nx), -np.inf, np.float64)
+    for i in range(xyz.shape[0]):
+        ix = int(math.floor((xyz[i, 0] - x0) / cell))
+        iy = int(math.floor((xyz[i, 1] - y0) / cell))
+        if 0 <= ix < nx and 0 <= iy < ny and xyz[i, 2] > grid[iy, ix]:
+            grid[iy, ix] = xyz[i, 2]
+    return grid
+
+
+@njit(cache=True)
+def _filter(grid, r, take_max):
+    """Max (``take_max``) or min filter over the (2r+1)^2 window, ignoring empty (-inf) cells."""
+    ny, nx = grid.shape
+    out = np.full((ny, nx), -np.inf, np.float64)
+    for y in range(ny):
+        for x in range(nx):
+            best = -np.inf if take_max else np.inf
+            for yy in range(max(y - r, 0), min(y + r + 1, ny)):
+                for xx in range(max(x - r, 0), min(x + r + 1, nx)):
+                    v = grid[yy, xx]
+                    if v == -np.inf:
+                        continue
+                    if take_max:
+                        best = max(best, v)
+                    else:
+                        best = min(best, v)
+            if best != np.inf:
+                out[y, x] = best
+    return out
+
+
+def surface_grid(xyz, cell=SURFACE_CELL, closing=SURFACE_CLOSING, fill=SURFACE_FILL):
+    """Height grid of a point cloud: per-cell maximum height, gaps filled by the nearest cell, a grey closing.
+
+    Parameters
+    ----------
+    xyz : (N, 3) float
+        Points (m) in a frame whose third axis is vertical (up).
+    cell : float or "auto"
+        Cell side (m); auto: ``SURFACE_CELL_SHARE`` of :func:`surface_cell` (the point spacing). Grown if the
+        grid would exceed ``SURFACE_MAX_CELLS`` cells.
+    closing : int
+        Radius (cells) of the grey closing (max filter, then min filter over the window ``2 closing + 1``):
+        fills pits narrower than the window (last returns under a crown) and leaves step edges in place.
+    fill : float
+        Empty cells within ``fill`` point spacings of a point take the height of the nearest non-empty cell
+        (a Voronoi surface: a wall lies halfway between the last roof and the first ground sample); farther
+        ones stay -inf (no surface).
+
+    Returns
+    -------
+    grid : (ny, nx) float64
+        Surface height (m), -inf: none.
+    origin : (2,) float64
+        ``(x0, y0)`` of the grid's corner (m).
+    cell : float
+        Cell side (m).
+    """
+    xyz = np.ascontiguousarray(xyz, np.float64)
+    spacing = surface_cell(xyz)
+    cell = SURFACE_CELL_SHARE * spacing if isinstance(cell, str) else float(cell)
+    lo = xyz[:, :2].min(axis=0) - cell
+    ext = xyz[:, :2].max(axis=0) + cell - lo
+    while (ext[0] / cell + 1) * (ext[1] / cell + 1) > SURFACE_MAX_CELLS:
+        cell *= 2.0
+    nx, ny = int(ext[0] / cell) + 1, int(ext[1] / cell) + 1
+    grid = _grid_max(xyz, float(lo[0]), float(lo[1]), cell, nx, ny)
+    empty = ~np.isfinite(grid)
+    if fill > 0 and empty.any() and not empty.all():
+        dist, (iy, ix) = ndimage.distance_transform_edt(empty, return_indices=True)
+        near = dist * cell <= fill * spacing
+        grid = np.where(near, grid[iy, ix], -np.inf)
+        del dist, iy, ix
+    if closing > 0:
+        grid = _filter(_filter(grid, int(closing), True), int(closing), False)
+    return grid, lo, cell
+
+
+@njit(cache=True, parallel=True)
+def _surface_kernel(xyz, centre, grid, x0, y0, cell, zmax, margin):
+    """Per point: does the segment to ``centre`` pass more than ``margin`` below the grid (cell by cell)?
+
+    An exact grid traversal (Amanatides & Woo 1987) of the segment's horizontal trace from the point's own
+    cell; in each cell the ray is lowest where it enters (it rises towards the camera), and that height is
+    compared with the cell's. The march ends where the ray is above ``zmax - margin`` (no surface can hide it
+    higher up) or at the camera.
+    """
+    n = xyz.shape[0]
+    ny, nx = grid.shape
+    out = np.ones(n, np.bool_)
+    for i in prange(n):
+        px = xyz[i, 0]
+        py = xyz[i, 1]
+        pz = xyz[i, 2]
+        dx = centre[0] - px
+        dy = centre[1] - py
+        dz = centre[2] - pz
+        if not dz > 0.0:
+            continue  # the camera is not above the point: the test does not apply
+        t_end = min(1.0, (zmax - margin - pz) / dz)
+        if not t_end > 0.0:
+            continue
+        fx = (px - x0) / cell
+        fy = (py - y0) / cell
+        ix = int(math.floor(fx))
+        iy = int(math.floor(fy))
+        gx = dx / cell
+        gy = dy / cell
+        sx = 1 if gx > 0 else -1
+        sy = 1 if gy > 0 else -1
+        if gx != 0.0:
+            tx = ((ix + 1 - fx) / gx) if gx > 0 else ((fx - ix) / -gx)
+            ddx = abs(1.0 / gx)
+        else:
+            tx = np.inf
+            ddx = np.inf
+        if gy != 0.0:
+            ty = ((iy + 1 - fy) / gy) if gy > 0 else ((fy - iy) / -gy)
+            ddy = abs(1.0 / gy)
+        else:
+            ty = np.inf
+            ddy = np.inf
+        t = 0.0
+        while t < t_end:
+            if 0 <= ix < nx and 0 <= iy < ny:
+                if grid[iy, ix] - (pz + t * dz) > margin:
+                    out[i] = False
+                    break
+            if tx < ty:
+                t = tx
+                tx += ddx
+                ix += sx
+            else:
+                t = ty
+                ty += ddy
+                iy += sy
+    return out
+
+
+def surface_visible(xyz, centre, surface, margin=SURFACE_MARGIN):
+    """2.5-D visibility: a point is hidden when its segment to the camera passes below the surface model.
+
+    Valid where the world has a vertical axis (the third coordinate, up) and the surface is a height field
+    seen from above: aerial / nadir frames. Points with the camera not above them are kept (not tested).
+
+    Parameters
+    ----------
+    xyz : (N, 3) float
+        Points (m), the frame of ``surface``.
+    centre : (3,) float
+        Camera centre (m).
+    surface : tuple
+        ``(grid, origin, cell)`` from :func:`surface_grid`.
+    margin : float
+        Height (m) by which the ray must pass below the surface to hide the point.
+
+    Returns
+    -------
+    visible : (N,) bool
+    """
+    grid, origin, cell = surface
+    xyz = np.ascontiguousarray(xyz, np.float64)
+    finite = grid[np.isfinite(grid)]
+    if xyz.shape[0] == 0 or finite.size == 0:
+        return np.ones(xyz.shape[0], bool)
+    return _surface_kernel(xyz, np.ascontiguousarray(centre, np.float64), grid, float(origin[0]),
+                           float(origin[1]), float(cell), float(finite.max()), float(margin))
