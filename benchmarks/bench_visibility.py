@@ -1,6 +1,7 @@
 """Hidden point removal against known visibility: Cones (round-trip scene) and the sample aerial block.
 
-Usage: python benchmarks/bench_visibility.py [--before REV] [--reach 1,0.25] [--shares 0.05,0.1,0.3] [--time]
+Usage: python benchmarks/bench_visibility.py [--before REV] [--reach 1,0.25] [--modes surface,surface+zbuffer:0.75]
+[--shares 0.05,0.1,0.3] [--time]
 
 Two scenes whose LiDAR points have a known visibility, each projected by ``project_cloud`` with the default
 options (SOR, z-buffer in both views):
@@ -188,14 +189,20 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--before", default=None, help="Also run visibility.py of this git revision (e.g. ac957d7).")
     ap.add_argument("--reach", default="1,0.25", help="edge_reach values for the working tree (comma-separated).")
+    ap.add_argument("--modes", default="surface,surface+zbuffer:1,surface+zbuffer:0.75",
+                    help="Other visibility modes, MODE or MODE:EDGE_REACH (comma-separated; '' for none).")
     ap.add_argument("--shares", default="0.05,0.1,0.3", help="Cones LiDAR shares (comma-separated).")
     ap.add_argument("--time", action="store_true", help="Best of 5 visibility-stage seconds on the block.")
     args = ap.parse_args()
     versions = [(f"after, edge_reach {r}", None, {"edge_reach": float(r)}) for r in args.reach.split(",")]
+    for item in filter(None, args.modes.split(",")):
+        mode, _, reach = item.partition(":")
+        kw = {"visibility": mode, **({"edge_reach": float(reach)} if reach else {})}
+        versions.append((f"{mode}" + (f", edge_reach {reach}" if reach else ""), None, kw))
     if args.before:
         versions.insert(0, (f"before ({args.before})", load_module(args.before), {}))
     rows = []
-    for share in (float(s) for s in args.shares.split(",")):
+    for share in (float(s) for s in filter(None, args.shares.split(","))):
         with tempfile.TemporaryDirectory(prefix="bench_vis_") as tmp:
             scene = cones_scene(share, tmp)
             for name, mod, kw in versions:

@@ -5,10 +5,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
+from riverbed_cli.cli.main import cli
 from riverbed_cli.errors import RiverbedError
 from riverbed_cli.geometry import projection as pj
-from riverbed_cli.geometry.visibility import zbuffer_visible
+from riverbed_cli.geometry.visibility import surface_cell, surface_grid, surface_visible, zbuffer_visible
+from riverbed_cli.io.disparity import read_disparity
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import bench_visibility as bv  # noqa: E402
@@ -101,3 +104,87 @@ def test_sample_block_visible_kept_and_hidden_removed():
                             truth["hidden"])
         assert miss_close(m["visible_kept"], kept) and miss_close(m["hidden_removed"], removed), (reach, m)
         assert abs(m["wrong"] - wrong) <= 0.1 * wrong, (reach, m)
+
+
+#: Sample block, 2.5-D surface test (docs/projection.md): (visible kept, hidden removed, wrong pixels) per
+#: (visibility, edge_reach).
+BLOCK_SURFACE = {("surface", 1.0): (0.9594, 0.8275, 184), ("surface+zbuffer", 1.0): (0.9174, 0.9033, 114),
+                 ("surface+zbuffer", 0.75): (0.9381, 0.8843, 133)}
+
+
+def test_sample_block_surface_visibility():
+    truth = bv.block_truth()
+    for (mode, reach), (kept, removed, wrong) in BLOCK_SURFACE.items():
+        sparse, st = pj.project_cloud(bv.BLOCK / "lidar.laz", truth["pair"], visibility=mode, edge_reach=reach)
+        m = bv.score_points(sparse, truth["gt"], truth["rows"], truth["cols"], truth["disp"], truth["visible"],
+                            truth["hidden"])
+        assert miss_close(m["visible_kept"], kept) and miss_close(m["hidden_removed"], removed), (mode, reach, m)
+        assert abs(m["wrong"] - wrong) <= 0.1 * wrong, (mode, reach, m)
+        occ = st["occluded"]
+        assert st["kept"] + occ["left"] + occ["right"] + occ["same_pixel"] < st["points_read"]
+
+
+def building_scene():
+    """Ground (z 0) sampled every 1 m on 40 x 30 m, a flat roof at 10 m on x 10..20, y 10..20 (walls unsampled)."""
+    gy, gx = np.mgrid[0:31, 0:41].astype(np.float64)
+    on_roof = (gx >= 10) & (gx <= 20) & (gy >= 10) & (gy <= 20)
+    xyz = np.column_stack([gx.ravel(), gy.ravel(), np.where(on_roof, 10.0, 0.0).ravel()])
+    return xyz
+
+
+def test_surface_grid_of_a_building():
+    xyz = building_scene()
+    assert surface_cell(xyz) == pytest.approx(1.0, abs=0.03)
+    grid, origin, cell = surface_grid(xyz)
+    assert cell == pytest.approx(0.5 * surface_cell(xyz))
+    # The wall lies halfway between the last roof sample (x 10) and the first ground sample (x 9), to a cell.
+    x = origin[0] + (np.arange(grid.shape[1]) + 0.5) * cell
+    row = grid[int((15 - origin[1]) / cell)]
+    assert (row[(x > 10.0) & (x < 20.0)] == 10.0).all() and (row[(x < 9.0) | (x > 21.0)] == 0.0).all()
+
+
+def test_surface_test_hides_ground_behind_a_wall_and_keeps_open_ground_and_roofs():
+    xyz = building_scene()
+    surface = surface_grid(xyz)
+    camera = np.array([300.0, 15.0, 600.0])  # east, 2 m up per m towards it: a wall of 10 m hides 5 m of ground
+    tests = np.array([[7.0, 15.0, 0.0],  # ground west of the wall, seen by the LiDAR: behind the wall
+                      [4.0, 15.0, 0.0],  # ground 6 m west of the wall: the ray clears it (12 m up at x 10)
+                      [30.0, 15.0, 0.0],  # ground east of the building, in the open
+                      [5.0, 28.0, 0.0],  # ground far from the building
+                      [15.0, 15.0, 10.0],  # roof
+                      [10.0, 12.0, 10.0],  # roof edge, on the hidden side
+                      [15.0, 15.0, 2.0]])  # inside the building (a last return under a roof)
+    vis = surface_visible(tests, camera, surface)
+    assert vis.tolist() == [False, True, True, True, True, True, False]
+    # From a camera straight above, nothing on the ground beside the walls is hidden.
+    assert surface_visible(tests, np.array([15.0, 15.0, 600.0]), surface).tolist() == [True] * 6 + [False]
+    # A camera below the points (not an aerial frame): the test does not apply, everything is kept.
+    assert surface_visible(tests, np.array([300.0, 15.0, -600.0]), surface).all()
+
+
+def test_surface_margin_keeps_points_just_below_the_surface():
+    xyz = building_scene()
+    surface = surface_grid(xyz)
+    p = np.array([[15.0, 15.0, 9.6], [15.0, 15.0, 9.4]])  # 0.4 m and 0.6 m under the roof
+    assert surface_visible(p, np.array([15.0, 15.0, 600.0]), surface, margin=0.5).tolist() == [True, False]
+
+
+def test_visibility_mode_is_checked(cones_scene):
+    folder, (sc, _) = cones_scene
+    with pytest.raises(RiverbedError, match=r"^visibility must be one of zbuffer, surface, surface\+zbuffer, "
+                                            r"hpr, none, got 'ground'$"):
+        pj.project_cloud(folder / "scene.las", sc["pair"], visibility="ground")
+
+
+def test_cli_surface_visibility_writes_the_library_map(tmp_path):
+    out = tmp_path / "sparse.tif"
+    r = CliRunner().invoke(cli, ["project", str(bv.BLOCK / "lidar.laz"), str(bv.BLOCK / "pair.yaml"), "-o",
+                                 str(out), "--visibility", "surface+zbuffer", "--edge-reach", "0.75"])
+    assert r.exit_code == 0, r.output
+    pair = bv.load_pairfile(bv.BLOCK / "pair.yaml")
+    ref, _ = pj.project_cloud(bv.BLOCK / "lidar.laz", pair, visibility="surface+zbuffer", edge_reach=0.75)
+    got = read_disparity(out)
+    assert np.array_equal(np.isfinite(got), np.isfinite(ref)) and np.array_equal(got[np.isfinite(got)],
+                                                                                 ref[np.isfinite(ref)])
+    base, _ = pj.project_cloud(bv.BLOCK / "lidar.laz", pair)
+    assert np.isfinite(base).sum() != np.isfinite(got).sum()  # the option reached the library

@@ -63,7 +63,9 @@ def _footprint(ctx, param, value):
 @click.option("--outliers", type=click.Choice(OUTLIERS), default="sor", show_default=True,
               help="Statistical outlier removal on the points that land in the image.")
 @click.option("--visibility", type=click.Choice(VISIBILITY), default="zbuffer", show_default=True,
-              help="Hidden point removal: z-buffer with a footprint, or Katz et al. 2007 HPR.")
+              help="Hidden point removal: z-buffer with a footprint; surface: the ray to the camera against a "
+                   "height grid of the LiDAR (aerial/nadir frames, z up); surface+zbuffer: both; or Katz et al. "
+                   "2007 HPR (docs/projection.md).")
 @click.option("--side", type=click.Choice(SIDES), default="both", show_default=True,
               help="Drop points hidden in the left view, the right view, or either.")
 @click.option("--footprint", default=str(vis.ZBUFFER_RADIUS), callback=_footprint, show_default=True,
