@@ -230,8 +230,10 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
         Statistical outlier removal on the points that land in the image.
     side : {"left", "right", "both"}
         Which views the hidden point test runs in (both: drop points hidden in either image).
-    visibility : {"zbuffer", "hpr", "none"}
-        Hidden point removal method (the nearest point per pixel is always kept, whatever the method).
+    visibility : {"zbuffer", "surface", "surface+zbuffer", "hpr", "none"}
+        Hidden point removal method (the nearest point per pixel is always kept, whatever the method). surface:
+        ``visibility.surface_visible`` against a height grid of the inlier candidates (aerial / nadir frames,
+        world z up); surface+zbuffer: then the z-buffer on the points it keeps.
     footprint : int or "auto"
         Z-buffer splat radius (px); auto: per point, from the density (``visibility.footprint_radii``).
     tolerance, slope : float
@@ -239,6 +241,11 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
     edge_reach : float
         Z-buffer one-sided splat reach, a fraction of the radius in [0, 1] (1: the whole disc hides), see
         ``visibility.zbuffer_visible``.
+    surface_cell, surface_closing, surface_fill : float or "auto", int, float
+        Height grid cell (m), closing radius (cells) and nearest fill (point spacings), see
+        ``visibility.surface_grid``.
+    surface_margin : float
+        Height (m) a ray must pass below the grid to hide its point.
     hpr_gamma : float
         HPR flipping radius exponent (``R = max|p| * 10**gamma``).
     crs : str, optional

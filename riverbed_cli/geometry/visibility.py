@@ -1,6 +1,6 @@
-"""Hidden point removal for projected LiDAR: a z-buffer with a small footprint, and Katz et al. 2007 HPR.
+"""Hidden point removal for projected LiDAR: a z-buffer with a small footprint, Katz et al. 2007 HPR, a 2.5-D test.
 
-Both take the points that already won their pixel (the nearest point per pixel, see
+The first two take the points that already won their pixel (the nearest point per pixel, see
 :func:`riverbed_cli.geometry.projection.project_cloud`) and tell which of them are visible from a camera.
 
 * :func:`zbuffer_visible`: every point is splatted as a disc of radius ``radius`` px; a point is hidden when
@@ -15,6 +15,10 @@ Both take the points that already won their pixel (the nearest point per pixel, 
 * :func:`hpr_visible`: Katz, Tal, Basri, "Direct visibility of point sets" (SIGGRAPH 2007): spherical flipping
   ``p' = p + 2 (R - |p|) p / |p|`` about the viewpoint with ``R = max|p| * 10**gamma``, then the convex hull
   of the flipped points and the viewpoint; the points on the hull are visible.
+
+* :func:`surface_visible` (with :func:`surface_grid`): a 2.5-D test for aerial / nadir frames (world z up): a
+  point is hidden when its segment to the camera passes more than a margin below a height grid built from the
+  LiDAR itself.
 
 docs/projection.md gives the measured comparison; the z-buffer is the default.
 """
