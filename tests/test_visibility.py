@@ -174,6 +174,8 @@ def test_visibility_mode_is_checked(cones_scene):
     with pytest.raises(RiverbedError, match=r"^visibility must be one of zbuffer, surface, surface\+zbuffer, "
                                             r"hpr, none, got 'ground'$"):
         pj.project_cloud(folder / "scene.las", sc["pair"], visibility="ground")
+    with pytest.raises(RiverbedError, match=r"^surface_margin must be at least 0 m, got -0.5$"):
+        pj.project_cloud(folder / "scene.las", sc["pair"], visibility="surface", surface_margin=-0.5)
 
 
 def test_cli_surface_visibility_writes_the_library_map(tmp_path):

@@ -273,6 +273,8 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
         raise RiverbedError(f"visibility must be one of {', '.join(VISIBILITY)}, got '{visibility}'")
     if not 0.0 <= edge_reach <= 1.0:
         raise RiverbedError(f"edge_reach must be between 0 and 1, got {edge_reach}")
+    if not surface_margin >= 0.0:
+        raise RiverbedError(f"surface_margin must be at least 0 m, got {surface_margin}")
     info = lidar_info(cloud_path)
     cloud_crs = resolve_crs(info, crs)
     _check_crs(pair, cloud_crs, cloud_path)

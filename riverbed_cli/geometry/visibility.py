@@ -1,6 +1,6 @@
 """Hidden point removal for projected LiDAR: a z-buffer with a small footprint, Katz et al. 2007 HPR, a 2.5-D test.
 
-The first two take the points that already won their pixel (the nearest point per pixel, see
+All three take the points that already won their pixel (the nearest point per pixel, see
 :func:`riverbed_cli.geometry.projection.project_cloud`) and tell which of them are visible from a camera.
 
 * :func:`zbuffer_visible`: every point is splatted as a disc of radius ``radius`` px; a point is hidden when
