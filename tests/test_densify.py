@@ -69,3 +69,31 @@ def test_bad_input_one_line_errors(tmp_path, cones):
         densify(read_disparity(small), "guided", left)
     with pytest.raises(RiverbedError, match="unknown densify method 'cubic'"):
         densify(read_disparity(small), "cubic")
+
+
+def test_linear_fill_is_exact_on_a_plane_and_agrees_with_scipy_where_the_triangulation_is_unique():
+    # any Delaunay triangulation reproduces a plane exactly inside the hull
+    from scipy.interpolate import LinearNDInterpolator
+
+    rng = np.random.default_rng(3)
+    H, W = 120, 160
+    sparse = np.full((H, W), np.nan, np.float32)
+    r, c = rng.integers(0, H, 600), rng.integers(0, W, 600)
+    sparse[r, c] = (5 + 0.2 * c - 0.1 * r).astype(np.float32)
+    out = densify(sparse, "linear")
+    rr, cc = np.nonzero(np.isfinite(sparse))
+    ref = LinearNDInterpolator(np.c_[cc, rr].astype(float), sparse[rr, cc].astype(float))
+    ys, xs = np.mgrid[0:H, 0:W]
+    expect = ref(xs.ravel().astype(float), ys.ravel().astype(float)).reshape(H, W)
+    inside = np.isfinite(expect)
+    np.testing.assert_allclose(out[inside], (5 + 0.2 * xs - 0.1 * ys)[inside], atol=1e-4)
+    # five points in general position (no four co-circular): one triangulation, the same values as scipy's
+    sparse = np.full((40, 40), np.nan, np.float32)
+    for y, x, v in ((2, 3, 1.0), (5, 35, 9.0), (30, 4, 4.0), (37, 33, 2.0), (18, 21, 7.0)):
+        sparse[y, x] = v
+    rr, cc = np.nonzero(np.isfinite(sparse))
+    ref = LinearNDInterpolator(np.c_[cc, rr].astype(float), sparse[rr, cc].astype(float))
+    ys, xs = np.mgrid[0:40, 0:40]
+    expect = ref(xs.ravel().astype(float), ys.ravel().astype(float)).reshape(40, 40)
+    inside = np.isfinite(expect)
+    np.testing.assert_allclose(densify(sparse, "linear")[inside], expect[inside], atol=1e-5)

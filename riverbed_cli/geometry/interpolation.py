@@ -5,10 +5,10 @@ Used by the LiDAR-only baselines (:mod:`riverbed_cli.products.densify`) and by t
 LiDAR.
 """
 
+import cv2
 import numpy as np
 from numba import njit, prange
 from scipy import ndimage
-from scipy.spatial import Delaunay
 
 from ..errors import RiverbedError
 
@@ -24,21 +24,30 @@ def checked_points(sparse):
     return sparse, valid
 
 
-def interpolate_nearest(sparse):
-    """Every pixel takes the disparity of its nearest LiDAR pixel. (H, W) float32."""
+def nearest_lidar(sparse):
+    """Each pixel's distance (px, float64) to its nearest LiDAR pixel and that pixel's row and column:
+    ``(distance, rows, cols)``, (H, W) each (Euclidean distance transform)."""
     sparse, valid = checked_points(sparse)
-    _, (iy, ix) = ndimage.distance_transform_edt(~valid, return_indices=True)
+    dist, (iy, ix) = ndimage.distance_transform_edt(~valid, return_indices=True)
+    return dist, iy, ix
+
+
+def interpolate_nearest(sparse, nearest=None):
+    """Every pixel takes the disparity of its nearest LiDAR pixel. (H, W) float32. ``nearest``: the
+    :func:`nearest_lidar` of ``sparse`` if already known."""
+    sparse, _ = checked_points(sparse)
+    _, iy, ix = nearest_lidar(sparse) if nearest is None else nearest
     return sparse[iy, ix].astype(np.float32)
 
 
 @njit(cache=True, parallel=True)
-def _raster_triangles(simplices, xs, ys, values, out):
-    # Each Delaunay triangle fills the pixel centres inside it (or on its edges) with the barycentric interpolation of
-    # its corners' values; triangles are independent, and a pixel on a shared edge gets the same value from both.
+def _raster_triangles(tx, ty, tv, out):
+    # Each triangle (corners tx, ty, values tv: (T, 3)) fills the pixel centres inside it (or on its edges) with the
+    # barycentric interpolation of its corners' values; triangles are independent, and a pixel on a shared edge gets
+    # the same value from both.
     H, W = out.shape
-    for t in prange(simplices.shape[0]):
-        a, b, c = simplices[t, 0], simplices[t, 1], simplices[t, 2]
-        x0, y0, x1, y1, x2, y2 = xs[a], ys[a], xs[b], ys[b], xs[c], ys[c]
+    for t in prange(tx.shape[0]):
+        x0, y0, x1, y1, x2, y2 = tx[t, 0], ty[t, 0], tx[t, 1], ty[t, 1], tx[t, 2], ty[t, 2]
         det = (y1 - y2) * (x0 - x2) + (x2 - x1) * (y0 - y2)
         if det == 0.0:
             continue
@@ -53,29 +62,45 @@ def _raster_triangles(simplices, xs, ys, values, out):
                 l1 = ((y2 - y0) * (x - x2) + (x0 - x2) * (y - y2)) / det
                 l2 = 1.0 - l0 - l1
                 if l0 >= -eps and l1 >= -eps and l2 >= -eps:
-                    out[y, x] = np.float32(l0 * values[a] + l1 * values[b] + l2 * values[c])
+                    out[y, x] = np.float32(l0 * tv[t, 0] + l1 * tv[t, 1] + l2 * tv[t, 2])
 
 
-def interpolate_linear(sparse):
+def delaunay_triangles(rows, cols, shape):
+    """Delaunay triangles of integer pixel positions: ``(T, 3)`` corner columns and rows (float64).
+
+    OpenCV's incremental ``Subdiv2D`` (10x faster than Qhull here: 21 ms for 18 500 points); the triangles that touch
+    its virtual outer vertices are dropped, so the union is the points' convex hull. Where four points are
+    co-circular (common on the pixel grid) either diagonal is a Delaunay triangulation; the two libraries may pick
+    differently.
+    """
+    H, W = shape
+    # a wide rectangle puts its virtual outer vertices far away: long sliver triangles along the hull stay Delaunay
+    sub = cv2.Subdiv2D((-20 * W, -20 * H, 41 * W, 41 * H))
+    sub.insert(np.stack([cols, rows], axis=1).astype(np.float32))
+    tri = sub.getTriangleList().reshape(-1, 3, 2).astype(np.float64)
+    inside = ((tri[..., 0] >= 0) & (tri[..., 0] < W) & (tri[..., 1] >= 0) & (tri[..., 1] < H)).all(axis=(1,))
+    tri = tri[inside]
+    return tri[..., 0], tri[..., 1]
+
+
+def interpolate_linear(sparse, nearest=None):
     """Linear interpolation over the Delaunay triangulation of the LiDAR pixels; nearest outside their hull.
 
-    The triangulation is scipy's (Qhull, as ``LinearNDInterpolator``); the triangles are rasterised in one Numba
-    kernel (barycentric weights at the pixel centres): 0.1 s for a megapixel where evaluating the interpolator pixel
-    by pixel took 20 s.
+    The triangles (:func:`delaunay_triangles`) are rasterised in one Numba kernel (barycentric weights at the pixel
+    centres): 0.03 s for 18 500 points on 740 x 500 px, where ``scipy.interpolate.LinearNDInterpolator`` took 12 s
+    on 0.5 MP. ``nearest``: the :func:`nearest_lidar` of ``sparse`` if already known.
     """
     sparse, valid = checked_points(sparse)
     rows, cols = np.nonzero(valid)
-    out = interpolate_nearest(sparse)
+    out = interpolate_nearest(sparse, nearest)
     if rows.size < 3:
         return out
-    pts = np.stack([cols, rows], axis=1).astype(np.float64)
-    try:
-        tri = Delaunay(pts)
-    except Exception:  # noqa: BLE001 - Qhull refuses degenerate (collinear) point sets: nearest is all there is
+    tx, ty = delaunay_triangles(rows, cols, sparse.shape)
+    if tx.shape[0] == 0:  # collinear points: no triangle, nearest is all there is
         return out
+    tv = sparse[np.rint(ty).astype(np.int64), np.rint(tx).astype(np.int64)].astype(np.float64)
     lin = np.full(sparse.shape, np.nan, np.float32)
-    _raster_triangles(tri.simplices.astype(np.int64), pts[:, 0].copy(), pts[:, 1].copy(),
-                      sparse[rows, cols].astype(np.float64), lin)
+    _raster_triangles(np.ascontiguousarray(tx), np.ascontiguousarray(ty), np.ascontiguousarray(tv), lin)
     inside = np.isfinite(lin)
     out[inside] = lin[inside]
     return out

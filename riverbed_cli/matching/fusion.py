@@ -36,12 +36,12 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
+from numba import njit, prange
 from scipy.spatial import cKDTree
 from scipy.special import erf
 
 from ..geometry.coverage import lidar_points
-from ..geometry.interpolation import interpolate_linear
+from ..geometry.interpolation import interpolate_linear, nearest_lidar
 from ..records import RecordMapping
 from .registry import register_fusion
 
@@ -82,39 +82,62 @@ def leave_one_out_residuals(rows, cols, values, neighbours=6):
     k = min(int(neighbours), len(values) - 1)
     _, idx = tree.query(pts, k=k + 1)
     nb = idx[:, 1:]
-    X = np.stack([cols[nb] - cols[:, None], rows[nb] - rows[:, None], np.ones(nb.shape)], axis=-1).astype(np.float64)
-    V = values[nb].astype(np.float64)
-    A = (X[:, :, :, None] * X[:, :, None, :]).sum(axis=1) + np.diag([1e-3, 1e-3, 0.0])
-    b = (X * V[:, :, None]).sum(axis=1)
-    # the intercept by Cramer's rule, in plain numpy: thousands of 3 x 3 solves through LAPACK spawn BLAS threads that
-    # fight Numba's for the cores (10-30 s on a loaded machine)
-    det = _det3(A)
-    Ac = A.copy()
-    Ac[:, :, 2] = b
-    c = np.divide(_det3(Ac), det, out=np.zeros(len(values)), where=det != 0)
-    return np.abs(c - values), tree
+    return np.abs(_plane_intercepts(rows.astype(np.float64), cols.astype(np.float64), values.astype(np.float64),
+                                    np.ascontiguousarray(nb, dtype=np.int64)) - values), tree
 
 
-def _det3(m):
-    # determinants of a stack of 3 x 3 matrices
-    return (m[:, 0, 0] * (m[:, 1, 1] * m[:, 2, 2] - m[:, 1, 2] * m[:, 2, 1])
-            - m[:, 0, 1] * (m[:, 1, 0] * m[:, 2, 2] - m[:, 1, 2] * m[:, 2, 0])
-            + m[:, 0, 2] * (m[:, 1, 0] * m[:, 2, 1] - m[:, 1, 1] * m[:, 2, 0]))
+@njit(cache=True, parallel=True)
+def _plane_intercepts(rows, cols, values, nb):
+    # Per point: the least-squares plane d = a dx + b dy + c through its neighbours nb (coordinates relative to the
+    # point, a 1e-3 ridge on the slopes), its intercept c by Cramer's rule (no LAPACK: thousands of 3 x 3 solves
+    # through BLAS threads fought Numba's for the cores, 10-30 s on a loaded machine).
+    n, k = nb.shape
+    out = np.zeros(n, np.float64)
+    for i in prange(n):
+        sxx = 1e-3
+        sxy = 0.0
+        sx = 0.0
+        syy = 1e-3
+        sy = 0.0
+        s1 = 0.0
+        bx = 0.0
+        by = 0.0
+        b1 = 0.0
+        for j in range(k):
+            q = nb[i, j]
+            dx = cols[q] - cols[i]
+            dy = rows[q] - rows[i]
+            v = values[q]
+            sxx += dx * dx
+            sxy += dx * dy
+            sx += dx
+            syy += dy * dy
+            sy += dy
+            s1 += 1.0
+            bx += dx * v
+            by += dy * v
+            b1 += v
+        det = sxx * (syy * s1 - sy * sy) - sxy * (sxy * s1 - sy * sx) + sx * (sxy * sy - syy * sx)
+        if det != 0.0:
+            dc = sxx * (syy * b1 - by * sy) - sxy * (sxy * b1 - by * sx) + bx * (sxy * sy - syy * sx)
+            out[i] = dc / det
+    return out
 
 
-def lidar_sigma(sparse, neighbours=6, support=4, floor=0.25):
+def lidar_sigma(sparse, neighbours=6, support=4, floor=0.25, nearest=None):
     """Per-pixel error estimate (px) of the linear interpolation of ``sparse`` (module docstring).
 
     Returns ``(sigma, distance)``: (H, W) float32 sigma (px of disparity) and each pixel's distance (px) to its
     nearest LiDAR pixel. With fewer than ``neighbours + 1`` LiDAR pixels nothing can be measured: every pixel gets
-    the span of the LiDAR disparities plus 1 px (the interpolation is taken to know little).
+    the span of the LiDAR disparities plus 1 px (the interpolation is taken to know little). ``nearest``: the
+    :func:`~riverbed_cli.geometry.interpolation.nearest_lidar` of ``sparse`` if already known.
     """
     rows, cols, values = lidar_points(sparse)
     shape = sparse.shape
     index = np.full(shape, -1, np.int64)
     index[rows, cols] = np.arange(len(values))
     # every pixel takes its nearest LiDAR point's sigma (Euclidean distance transform, as the nearest fill)
-    dist, (iy, ix) = ndimage.distance_transform_edt(index < 0, return_indices=True)
+    dist, iy, ix = nearest_lidar(sparse) if nearest is None else nearest
     if len(values) < int(neighbours) + 1:
         span = float(values.max() - values.min()) + 1.0 if len(values) else 1.0
         return np.full(shape, max(span, floor), np.float32), dist.astype(np.float32)
@@ -165,8 +188,9 @@ def fuse_disparity(stereo, status, sparse, gate=4.0, neighbours=6, support=4, fl
     FusionOutput
     """
     stereo = np.asarray(stereo, np.float32)
-    lidar = interpolate_linear(sparse)
-    sig_l, distance = lidar_sigma(sparse, neighbours, support, floor)
+    nearest = nearest_lidar(sparse)  # one distance transform for the interpolation's fill and the LiDAR's sigma
+    lidar = interpolate_linear(sparse, nearest)
+    sig_l, distance = lidar_sigma(sparse, neighbours, support, floor, nearest)
     sig_l = sig_l.astype(np.float64)
     fin = np.isfinite(stereo)
     consistent = fin if status is None else fin & (np.asarray(status) == 0)
