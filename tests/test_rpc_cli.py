@@ -310,12 +310,11 @@ def test_rpc_pair_files_refused_by_pinhole_commands_and_validated(pair_files, tm
     assert run(["rectify", "--rpc", left, left, right, rpc, "-o", out, "--heights", "470,530",
                 "--no-pointing-correction"]).exit_code == 0
     pf = out / "pair.yaml"
+    # project and dsm take RPC pair files (tests/test_rpc_geometry.py): here they get past the pair file
     r = run(["project", tmp_path / "cloud.laz", pf, "-o", tmp_path / "sparse.tif"])
-    assert (r.exit_code, r.output) == (1, f"riverbed: error: {pf}: RPC pair files are not supported by riverbed "
-                                          "project yet\n")
+    assert (r.exit_code, r.output) == (1, f"riverbed: error: {tmp_path / 'cloud.laz'}: file not found\n")
     r = run(["dsm", tmp_path / "disp.tif", pf, "-o", tmp_path / "dsm.tif"])
-    assert (r.exit_code, r.output) == (1, f"riverbed: error: {pf}: RPC pair files are not supported by riverbed "
-                                          "dsm yet\n")
+    assert (r.exit_code, r.output) == (1, f"riverbed: error: {tmp_path / 'disp.tif'}: file not found\n")
     with pytest.raises(RiverbedError) as e:
         load_pairfile(pf)
     assert str(e.value) == f"{pf}: RPC pair files are not supported by riverbed project, dsm or block yet"

@@ -12,6 +12,7 @@ from ..io.disparity import read_disparity
 from ..io.images import read_image
 from ..io.lidar import lidar_info, resolve_crs
 from ..geometry.pairfile import load_pairfile, load_registration
+from ..geometry.rpc_geometry import output_crs
 from ..io.pointcloud import check_pointcloud_path, write_points
 from ..io.raster import parse_creation_options, write_geotiff
 from ..products.dsm import (AGGREGATIONS, build_dsm, check_bounds, check_creation_options, check_min_confidence,
@@ -53,7 +54,8 @@ class Number(click.ParamType):
               help="Fill enclosed gaps up to N cells across (GDAL inverse-distance); filled cells are flagged in a "
                    "second band (1 = filled).")
 @click.option("--crs", default=None,
-              help="CRS of the output [default: the pair's, else the LiDAR file's]; assigned, not reprojected.")
+              help="CRS of the output [default: the pair's, else the LiDAR file's]; assigned, not reprojected (RPC "
+                   "pairs: a projected CRS the points are converted to, default the scene's UTM zone).")
 @click.option("--co", "creation", multiple=True, metavar="KEY=VALUE",
               help="GDAL COG creation option (repeatable; BLOCKSIZE a multiple of 16 from 128 to 4096; tried before "
                    "the work) [default: COMPRESS=DEFLATE, BLOCKSIZE=256, OVERVIEWS=AUTO].")
@@ -77,7 +79,9 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
     Every valid disparity is triangulated exactly (float64) with the pair's cameras, the pair's origin added back;
     the points of all couples (and of --lidar clouds) are merged into one north-up DSM, a cloud-optimised GeoTIFF.
     With --confidence and --min-confidence, the points of pixels whose confidence is below X (or NaN) are dropped
-    before the point cloud and the DSM (--json: confidence_dropped).
+    before the point cloud and the DSM (--json: confidence_dropped). An RPC pair file (riverbed rectify --rpc):
+    the two RPC rays are intersected, the points converted to --crs (a projected CRS; default: the UTM zone of the
+    scene), heights above the WGS 84 ellipsoid.
     """
     t0 = time.perf_counter()
     if len(disp_pair) % 2:
@@ -122,7 +126,7 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
 
     sources, confs = [], []
     for i, (disp_path, pair_path) in enumerate(zip(disp_pair[::2], disp_pair[1::2])):
-        pair = load_pairfile(pair_path, command="riverbed dsm")
+        pair = load_pairfile(pair_path, accept_rpc=True, command="riverbed dsm")
         disp = read_disparity(disp_path)
         if pair.image_size is not None and pair.image_size != disp.shape:
             raise RiverbedError(f"disparity map is {disp.shape[1]}x{disp.shape[0]} but the images of {pair_path} "
@@ -135,6 +139,13 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
         sources.append((disp, pair, image))
         confs.append(read_confidence(confidences[i], disp.shape) if confidences else None)
     reg = load_registration(registration) if registration else None
+    rpc = [getattr(p, "kind", None) == "rpc" for _, p, _ in sources]
+    if any(rpc):  # RPC pairs: points converted to --crs (default: the scene's UTM zone), heights ellipsoidal
+        if not all(rpc):
+            raise RiverbedError("cannot merge RPC pair files with pinhole pair files in one DSM")
+        crs = output_crs(sources[0][1], crs)
+        for _, p, _ in sources:
+            p.crs = crs
 
     if crs is None:
         crs = next((p.crs for _, p, _ in sources if p.crs), None)
@@ -160,7 +171,8 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
     bands = [dsm] if not fill_holes else [dsm, result.filled.astype(np.float32)]
     write_geotiff(output, np.stack(bands), result.grid.transform, crs, nodata, co, overwrite,
                   band_descriptions=["height", "filled"][: len(bands)],
-                  tags={"riverbed_aggregation": agg, "riverbed_merge_rule": "lidar wins where both exist"})
+                  tags={"riverbed_aggregation": agg, "riverbed_merge_rule": "lidar wins where both exist",
+                        **({"riverbed_heights": "ellipsoidal (WGS 84, m)"} if any(rpc) else {})})
     if points_out:
         xyz = np.concatenate([b[0] for b in blocks]) if blocks else np.zeros((0, 3))
         rgbs = [b[1] for b in blocks]

@@ -84,12 +84,17 @@ def project_cmd(cloud, pair, output, registration, classes, drop_classes, outlie
                 footprint, edge_reach, crs, chunk_size, as_json, overwrite):
     """Project the LiDAR CLOUD (LAS/LAZ/COPC, KITTI .bin) through PAIR (a pair file) into sparse OUTPUT.
 
+    PAIR may be an RPC pair file (riverbed rectify --rpc): the cloud's CRS (3D, or compound with its heights'
+    datum) is converted to WGS 84 by pyproj, and --visibility takes zbuffer or none.
+
     d = x_left - x_right (px) on the left image; per pixel the nearest point. OUTPUT format by extension: .tif
     (float32, NaN invalid, counts in the tags), .pfm, or .png (KITTI 16-bit: 1/256 px steps).
     """
     disparity_format(output)
     check_output(output, overwrite)
-    geometry = load_pairfile(pair, command="riverbed project")
+    geometry = load_pairfile(pair, accept_rpc=True, command="riverbed project")
+    if getattr(geometry, "kind", None) == "rpc" and registration:
+        raise RiverbedError("--registration does not apply to an RPC pair file (the cloud's CRS places it)", pair)
     try:
         shape = image_shape(geometry)
     except RiverbedError as e:

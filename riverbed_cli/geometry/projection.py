@@ -41,6 +41,7 @@ from . import visibility as vis
 from .cameras import as_matrix, check_registration
 from .coverage import lidar_share
 from .outliers import SOR_K, SOR_SIGMA, sor_inliers_image
+from .rpc_geometry import project_cloud_rpc
 
 log = logging.getLogger(__name__)
 
@@ -219,7 +220,9 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
     ----------
     cloud_path : str or path-like
         LAS/LAZ/COPC or KITTI ``.bin``, read in chunks of ``chunk_size`` points.
-    pair : PairGeometry
+    pair : PairGeometry or RPCPair
+        An RPC pair (``kind == "rpc"``) goes to :func:`~riverbed_cli.geometry.rpc_geometry.project_cloud_rpc`
+        (the cloud's CRS to WGS 84 by pyproj, visibility ``zbuffer`` or ``none``, no registration).
     registration : (4, 4) array, optional
         LiDAR -> world transform overriding the pair's.
     classes : iterable of int, optional
@@ -264,6 +267,16 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
         ``match --window auto`` would use), ``d_range``, ``row_offset_px`` (pairs off the baseline), ``crs``,
         ``seconds`` and ``stage_seconds`` (stream: read + project + z-buffer; outliers; visibility; share).
     """
+    if getattr(pair, "kind", None) == "rpc":  # satellite pair: the same steps through the RPCs (rpc_geometry)
+        if registration is not None:
+            raise RiverbedError("a registration does not apply to an RPC pair (the cloud's CRS places it)")
+        if outliers not in OUTLIERS:
+            raise RiverbedError(f"outliers must be one of {', '.join(OUTLIERS)}, got '{outliers}'")
+        if side not in SIDES:
+            raise RiverbedError(f"side must be one of {', '.join(SIDES)}, got '{side}'")
+        sparse, fields = project_cloud_rpc(cloud_path, pair, classes, drop_classes, outliers, side, visibility,
+                                           footprint, tolerance, slope, crs, shape, chunk_size, progress, edge_reach)
+        return sparse, ProjectionStats(**fields)
     t0 = time.perf_counter()
     if outliers not in OUTLIERS:
         raise RiverbedError(f"outliers must be one of {', '.join(OUTLIERS)}, got '{outliers}'")

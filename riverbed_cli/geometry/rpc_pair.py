@@ -144,7 +144,14 @@ class RPCPair:
     left: Path = None
     right: Path = None
     inputs: dict = field(default_factory=dict)
+    #: CRS of triangulated points (``riverbed dsm``): None is the UTM zone of the scene (rpc_geometry.scene_utm).
+    crs: str = None
     kind = "rpc"
+
+    @property
+    def registration(self):
+        """Identity (4 x 4): ``--lidar`` clouds merged into an RPC pair's DSM are in its output CRS already."""
+        return np.eye(4)
 
     @property
     def width(self):

@@ -21,6 +21,7 @@ from numba import njit
 from rasterio.fill import fillnodata
 
 from ..errors import RiverbedError
+from ..geometry.rpc_geometry import rpc_disparity_points
 from ..io.lidar import iter_lidar, lidar_info
 from ..io.paths import require_file
 from ..io.raster import write_geotiff
@@ -275,8 +276,10 @@ def disparity_points(disp, pair, rows=None, image=None, confidence=None, min_con
     ----------
     disp : (H, W) float
         Disparity of the left image, ``d = x_left - x_right``, NaN invalid.
-    pair : PairGeometry
-        The rectified cameras (world minus origin -> pixels).
+    pair : PairGeometry or RPCPair
+        The rectified cameras (world minus origin -> pixels); an RPC pair goes to
+        :func:`~riverbed_cli.geometry.rpc_geometry.rpc_disparity_points` (points in ``pair.crs``, ellipsoidal
+        heights; the second value is then the ground sample distance, m).
     rows : slice, optional
         Only these rows (row indices are image rows; used to stream large maps in blocks).
     image : (H, W) or (H, W, 3) array, optional
@@ -296,6 +299,8 @@ def disparity_points(disp, pair, rows=None, image=None, confidence=None, min_con
     rgb : (N, 3) array or None
         Colours of the left image at the points.
     """
+    if getattr(pair, "kind", None) == "rpc":  # two RPC rays intersected, points in the pair's output CRS
+        return rpc_disparity_points(disp, pair, rows, image, confidence, min_confidence)
     rows = rows or slice(0, disp.shape[0])
     block = np.asarray(disp[rows], np.float64)
     valid = np.isfinite(block)
@@ -536,7 +541,8 @@ def build_dsm(sources=(), lidar=(), resolution=None, agg="max", bounds=None, fil
         raise RiverbedError(f"no valid points to rasterise (all disparities {why} and no LiDAR points)")
     if resolution is None:
         if depths:
-            resolution = default_resolution(np.concatenate(depths), sources[0][1].focal)
+            rpc = getattr(sources[0][1], "kind", None) == "rpc"  # its "depths" are ground sample distances
+            resolution = default_resolution(np.concatenate(depths), 1.0 if rpc else sources[0][1].focal)
         else:
             area = max((hi[0] - lo[0]) * (hi[1] - lo[1]), 1e-12)
             resolution = float(f"{2 * math.sqrt(area / max(n_lidar_total, 1)):.2g}")
