@@ -101,7 +101,8 @@ def write_srtm_lidar(path, pair, dem, gsd, spacing_px, seed=0):
     """Step 2: an SRTM-surface "LiDAR" LAS, one point per ``spacing_px`` x ``spacing_px`` rectified pixels.
 
     Points uniformly at random over the UTM bounding box of the left crop's footprint (as an airborne survey
-    covers the whole scene: ``riverbed project`` keeps what lands in both rectified images); heights bilinear on the SRTM (ellipsoidal, m); written with laspy (LAS 1.4 point format 6, WKT CRS, 1 mm steps,
+    covers the whole scene: ``riverbed project`` keeps what lands in both rectified images); heights bilinear on the
+    SRTM (ellipsoidal, m); written with laspy (LAS 1.4 point format 6, WKT CRS, 1 mm steps,
     class 2 ground) in UTM 31N + ellipsoidal heights. Returns the number of points written.
     """
     to_utm = Transformer.from_crs("EPSG:4326", UTM, always_xy=True)
