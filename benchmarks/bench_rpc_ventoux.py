@@ -151,8 +151,9 @@ def dsm_grid(path):
         return (ds.bounds.left, ds.bounds.bottom, ds.bounds.right, ds.bounds.top), ds.res[0]
 
 
-def run(data, work, spacings=(4, 8), picture=None):
-    """Steps 1-5; returns the summary (dict) with one row per (spacing, method)."""
+def run(data, work, spacings=(4, 8), picture=None, baseline=True):
+    """Steps 1-5; returns the summary (dict) with one row per (spacing, method); ``baseline``: also the LiDAR-only
+    DSMs (``riverbed densify --method linear``)."""
     work = Path(work)
     work.mkdir(parents=True, exist_ok=True)
     rect, vertical = rectify(data, work)
@@ -184,8 +185,10 @@ def run(data, work, spacings=(4, 8), picture=None):
         n_pts = write_srtm_lidar(cloud, pair, dem, gsd, spacing, seed=spacing)
         p = riverbed("project", cloud, pair_file, "-o", sparse, "--json")
         m_g = riverbed("match", left, right, "--sparse", sparse, "-o", guided, "--json")
-        riverbed("densify", sparse, "-o", dense, "--method", "linear")
-        runs = [("guided", guided, m_g["seconds"]), ("lidar linear", dense, None)]
+        runs = [("guided", guided, m_g["seconds"])]
+        if baseline:
+            riverbed("densify", sparse, "-o", dense, "--method", "linear")
+            runs.append(("lidar linear", dense, None))
         if spacing == spacings[0]:
             runs.insert(0, ("unguided", unguided, m_un["seconds"]))
         for name, disp, seconds in runs:
