@@ -23,9 +23,10 @@ from click.testing import CliRunner
 from riverbed_cli.cli.main import cli
 from riverbed_cli.errors import RiverbedError
 from riverbed_cli.geometry.pairfile import load_pairfile
-from riverbed_cli.geometry.rpc import RPCModel, read_rpc
+from riverbed_cli.geometry.rpc import read_rpc
 from riverbed_cli.geometry.rpc_pair import RPCPair, footprint_bounds, rpc_pair_to_dict
 from riverbed_cli.geometry.rpc_rectify import apply_h, estimate_row_offset, resample, virtual_matches
+from rpc_synthetic import H0, coeffs, model  # noqa: E402  (tests/: synthetic RPC models)
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
@@ -36,29 +37,10 @@ VENTOUX = "satellite_pleiades_ventoux_shareloc/tests/data"
 SIZE = (240, 240)                  # left image, W x H
 CROP = (100, 50, 260, 250)         # right crop: col0, row0, W, H in the right full image
 POINTING_COLS = 3.0                # the right RPC file's columns are this much short of the image's
-H0 = 500.0                         # the terrain (m, ellipsoidal)
 
 
 def run(args):
     return CliRunner().invoke(cli, [str(a) for a in args])
-
-
-def coeffs(**terms):
-    """20 RPC00B coefficients from named terms (order of rpc.RPC_TERMS)."""
-    names = ["1", "L", "P", "H", "LP", "LH", "PH", "LL", "PP", "HH", "PLH", "LLL", "LPP", "LHH", "LLP", "PPP",
-             "PHH", "LLH", "PPH", "HHH"]
-    out = [0.0] * 20
-    for k, v in terms.items():
-        out[names.index(k)] = v
-    return out
-
-
-def model(samp, line, samp_off=120.0, line_off=120.0):
-    return RPCModel.from_dict({
-        "LINE_OFF": line_off, "SAMP_OFF": samp_off, "LAT_OFF": 44.2, "LONG_OFF": 5.2, "HEIGHT_OFF": H0,
-        "LINE_SCALE": 2000.0, "SAMP_SCALE": 2000.0, "LAT_SCALE": 0.02, "LONG_SCALE": 0.02, "HEIGHT_SCALE": 500.0,
-        "LINE_NUM_COEFF": line, "LINE_DEN_COEFF": coeffs(**{"1": 1.0}), "SAMP_NUM_COEFF": samp,
-        "SAMP_DEN_COEFF": coeffs(**{"1": 1.0})}, source="synthetic")
 
 
 # the left view looks forward (+1 px of rows per metre), the right one backward; a little roll and curvature

@@ -21,40 +21,22 @@ from scipy.spatial import cKDTree
 from riverbed_cli.cli.main import cli
 from riverbed_cli.errors import RiverbedError
 from riverbed_cli.geometry.pairfile import load_pairfile
-from riverbed_cli.geometry.rpc import RPCModel
 from riverbed_cli.geometry.rpc_geometry import (cloud_to_wgs84, ground_sample_distance, output_crs,
                                                  project_points_rpc, scene_utm, triangulate_rpc)
 from riverbed_cli.geometry.rpc_rectify import apply_h
 from riverbed_cli.io.disparity import read_disparity
 from riverbed_cli.io.pointcloud import write_points
+from rpc_synthetic import H0, coeffs, model  # noqa: E402  (tests/: synthetic RPC models)
 
 pytestmark = pytest.mark.filterwarnings("ignore::rasterio.errors.NotGeoreferencedWarning")
 
 VENTOUX = "satellite_pleiades_ventoux_shareloc/tests/data"
 SIZE = (240, 240)
-H0 = 500.0
 UTM3D = CRS("EPSG:32631").to_3d()     # the scene's UTM zone with ellipsoidal heights
 
 
 def run(args):
     return CliRunner().invoke(cli, [str(a) for a in args])
-
-
-def coeffs(**terms):
-    names = ["1", "L", "P", "H", "LP", "LH", "PH", "LL", "PP", "HH", "PLH", "LLL", "LPP", "LHH", "LLP", "PPP",
-             "PHH", "LLH", "PPH", "HHH"]
-    out = [0.0] * 20
-    for k, v in terms.items():
-        out[names.index(k)] = v
-    return out
-
-
-def model(samp, line, samp_off=120.0, line_off=120.0):
-    return RPCModel.from_dict({
-        "LINE_OFF": line_off, "SAMP_OFF": samp_off, "LAT_OFF": 44.2, "LONG_OFF": 5.2, "HEIGHT_OFF": H0,
-        "LINE_SCALE": 2000.0, "SAMP_SCALE": 2000.0, "LAT_SCALE": 0.02, "LONG_SCALE": 0.02, "HEIGHT_SCALE": 500.0,
-        "LINE_NUM_COEFF": line, "LINE_DEN_COEFF": coeffs(**{"1": 1.0}), "SAMP_NUM_COEFF": samp,
-        "SAMP_DEN_COEFF": coeffs(**{"1": 1.0})}, source="synthetic")
 
 
 LEFT = model(coeffs(L=1.0, P=0.02, H=0.05, LP=0.0008), coeffs(L=0.01, P=-1.0, H=0.25, LL=0.0005))
