@@ -35,7 +35,7 @@ from pyproj.exceptions import CRSError
 
 from ..errors import RiverbedError
 from ..io.images import read_image
-from ..io.lidar import iter_lidar, lidar_info, resolve_crs
+from ..io.lidar import class_mask, iter_lidar, lidar_info, resolve_crs
 from ..records import RecordMapping
 from . import visibility as vis
 from .cameras import as_matrix, check_registration
@@ -175,15 +175,6 @@ def _grow(a, cap):
     return out
 
 
-def _class_mask(cls, classes, drop_classes):
-    keep = np.ones(cls.shape[0], bool)
-    if classes is not None:
-        keep &= np.isin(cls, np.asarray(sorted(classes), np.uint8))
-    if drop_classes:
-        keep &= ~np.isin(cls, np.asarray(sorted(drop_classes), np.uint8))
-    return keep
-
-
 def _check_crs(pair, cloud_crs, cloud_path):
     """Refuse a cloud whose CRS differs from the pair's (no reprojection here)."""
     if pair.crs is None or cloud_crs is None:
@@ -315,7 +306,7 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
     n_read = n_class = 0
     for chunk in iter_lidar(cloud_path, chunk_size=chunk_size):
         xyz = np.ascontiguousarray(chunk["xyz"], np.float64)
-        keep = _class_mask(chunk["classification"], classes, drop_classes)
+        keep = class_mask(chunk["classification"], classes, drop_classes)
         n_read += xyz.shape[0]
         n_class += int(xyz.shape[0] - keep.sum())
         start = 0

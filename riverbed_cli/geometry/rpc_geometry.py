@@ -24,7 +24,7 @@ from pyproj import CRS, Transformer
 from pyproj.exceptions import CRSError
 
 from ..errors import RiverbedError
-from ..io.lidar import iter_lidar, lidar_info, resolve_crs
+from ..io.lidar import class_mask, iter_lidar, lidar_info, resolve_crs
 from . import visibility as vis
 from .coverage import lidar_share
 from .outliers import SOR_K, SOR_SIGMA, sor_inliers_image
@@ -252,15 +252,6 @@ def rpc_disparity_points(disp, pair, rows=None, image=None, confidence=None, min
 # riverbed project on an RPC pair
 
 
-def _class_mask(cls, classes, drop_classes):
-    keep = np.ones(cls.shape[0], bool)
-    if classes is not None:
-        keep &= np.isin(cls, np.asarray(sorted(classes), np.uint8))
-    if drop_classes:
-        keep &= ~np.isin(cls, np.asarray(sorted(drop_classes), np.uint8))
-    return keep
-
-
 def _two_highest(cand):
     """Per pixel the two highest candidates (a two-layer z-buffer, depth key ``-h``): ``(kept, rank)``."""
     order = np.lexsort((-cand["h"], cand["pix"]))
@@ -297,7 +288,7 @@ def project_cloud_rpc(cloud_path, pair, classes=None, drop_classes=(7, 18), outl
     n_read = n_class = n_outside = 0
     for chunk in iter_lidar(cloud_path, chunk_size=chunk_size):
         xyz = np.asarray(chunk["xyz"], np.float64)
-        keep = _class_mask(chunk["classification"], classes, drop_classes)
+        keep = class_mask(chunk["classification"], classes, drop_classes)
         n_read += xyz.shape[0]
         n_class += int(xyz.shape[0] - keep.sum())
         lon, lat, h = to_wgs(xyz[keep, 0], xyz[keep, 1], xyz[keep, 2])

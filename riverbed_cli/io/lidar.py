@@ -379,3 +379,13 @@ def _bin_info(path):
         scales=None,
         offsets=None,
     )
+
+
+def class_mask(cls, classes, drop_classes):
+    """Points to keep by their ASPRS classification: in ``classes`` (all when None) and not in ``drop_classes``."""
+    keep = np.ones(cls.shape[0], bool)
+    if classes is not None:
+        keep &= np.isin(cls, np.asarray(sorted(classes), np.uint8))
+    if drop_classes:
+        keep &= ~np.isin(cls, np.asarray(sorted(drop_classes), np.uint8))
+    return keep
