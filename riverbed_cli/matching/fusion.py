@@ -38,7 +38,6 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 from scipy.spatial import cKDTree
-from scipy.special import erf
 
 from ..geometry.coverage import lidar_points
 from ..geometry.interpolation import interpolate_linear, nearest_lidar
@@ -198,30 +197,55 @@ def fuse_disparity(stereo, status, sparse, gate=4.0, neighbours=6, support=4, fl
         sig_s = estimate_stereo_sigma(stereo, lidar, sig_l, consistent)
     else:
         sig_s = float(stereo_sigma)
-    s = np.where(fin, stereo, 0.0).astype(np.float64)
-    diff = np.abs(s - lidar)
-    if math.isfinite(sig_s):
-        agree = fin & (diff <= gate * np.sqrt(sig_s * sig_s + sig_l * sig_l))
-        ws, wl = 1.0 / (sig_s * sig_s), 1.0 / (sig_l * sig_l)
-        mean = (s * ws + lidar * wl) / (ws + wl)
-        sig_mean = 1.0 / np.sqrt(ws + wl)
-    else:
-        agree = np.zeros(stereo.shape, bool)
-        mean, sig_mean = s, sig_l
-    keep_stereo = fin & ~agree & (consistent | (sig_s <= sig_l))
-    out = np.where(agree, mean, np.where(keep_stereo, s, lidar)).astype(np.float32)
-    # against a credible rival (a consistent stereo, or the LiDAR) the choice is unsure by half their disagreement;
-    # over a stereo that failed its left-right check the LiDAR is as sure as its own sigma
-    half = np.where(fin, diff / 2.0, 0.0)
-    sig_f = np.where(agree, sig_mean, np.where(keep_stereo, np.maximum(sig_s, half),
-                                               np.where(consistent, np.maximum(sig_l, half), sig_l)))
-    confidence = erf(1.0 / (np.maximum(sig_f, 1e-6) * math.sqrt(2.0))).astype(np.float32)
+    out, confidence, counts = _decide(stereo, lidar, sig_l.astype(np.float32), consistent, float(sig_s),
+                                      float(gate))
     n = float(stereo.size)
-    from_lidar = ~agree & ~keep_stereo
-    stats = FusionStats(round(sig_s, 4) if math.isfinite(sig_s) else None, round(int(agree.sum()) / n, 4),
-                        round(int(from_lidar.sum()) / n, 4), round(int(keep_stereo.sum()) / n, 4),
-                        round(float(confidence.mean()), 4))
+    stats = FusionStats(round(sig_s, 4) if math.isfinite(sig_s) else None, round(int(counts[0]) / n, 4),
+                        round(int(counts[2]) / n, 4), round(int(counts[1]) / n, 4), round(float(confidence.mean()), 4))
     return FusionOutput(out, confidence, stats)
+
+
+@njit(cache=True, parallel=True)
+def _decide(stereo, lidar, sig_l, consistent, sig_s, gate):
+    # The per-pixel decision of fuse_disparity (module docstring) in one pass: output, confidence, and the counts of
+    # pixels averaged / kept from the stereo / taken from the LiDAR.
+    H, W = stereo.shape
+    out = np.empty((H, W), np.float32)
+    conf = np.empty((H, W), np.float32)
+    kinds = np.empty((H, W), np.int8)
+    finite_s = math.isfinite(sig_s)
+    ws = 1.0 / (sig_s * sig_s) if finite_s else 0.0
+    root2 = math.sqrt(2.0)
+    for y in prange(H):
+        for x in range(W):
+            s = np.float64(stereo[y, x])
+            li = np.float64(lidar[y, x])
+            sl = np.float64(sig_l[y, x])
+            fin = math.isfinite(s)
+            diff = abs(s - li) if fin else 0.0
+            if fin and finite_s and diff <= gate * math.sqrt(sig_s * sig_s + sl * sl):
+                wl = 1.0 / (sl * sl)
+                v = (s * ws + li * wl) / (ws + wl)
+                sf = 1.0 / math.sqrt(ws + wl)
+                kind = 0
+            elif fin and (consistent[y, x] or sig_s <= sl):
+                # against a credible rival the choice is unsure by half the disagreement
+                v = s
+                sf = max(sig_s, diff / 2.0)
+                kind = 1
+            else:
+                v = li
+                # over a stereo that failed its left-right check the LiDAR is as sure as its own sigma
+                sf = max(sl, diff / 2.0) if consistent[y, x] else sl
+                kind = 2
+            out[y, x] = np.float32(v)
+            conf[y, x] = np.float32(math.erf(1.0 / (max(sf, 1e-6) * root2)))
+            kinds[y, x] = kind
+    counts = np.zeros(3, np.int64)
+    for y in range(H):
+        for x in range(W):
+            counts[kinds[y, x]] += 1
+    return out, conf, counts
 
 
 class Fusion:
