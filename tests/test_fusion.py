@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+import pytest
 from scipy.special import erf
 
 from riverbed_cli.matching.fusion import fuse_disparity, leave_one_out_residuals, lidar_sigma
@@ -112,3 +113,41 @@ def test_fusion_is_the_default_with_lidar_and_none_reproduces_the_paper(cones):
     assert (err[c >= np.median(c)] > 1).mean() < 0.1 * (err[c < np.median(c)] > 1).mean()
     unguided = match_pair(left, right, None, 0, 63, guide="none")
     assert unguided.info["fusion"] == "none"
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--fusion", "confidence"], "riverbed: error: --fusion confidence needs --sparse (it combines the stereo with the "
+                                 "LiDAR)\n"),
+    (["--fusion-gate", "-1"], "riverbed: error: --fusion-gate: expected a positive number, got -1\n"),
+    (["--guide", "none", "--confidence", "{tmp}/c.tif"],
+     "riverbed: error: {tmp}/c.tif: no confidence with --fusion none (it comes from --fusion confidence, the default "
+     "with --sparse)\n"),
+])
+def test_fusion_bad_inputs_are_one_line_errors(tmp_path, extra, message):
+    from click.testing import CliRunner
+
+    from riverbed_cli.cli.main import cli
+
+    extra = [e.format(tmp=tmp_path) for e in extra]
+    r = CliRunner().invoke(cli, ["match", "tests/data/cones/im2.png", "tests/data/cones/im6.png", "--max-disp", "59",
+                                 *extra, "-o", str(tmp_path / "d.tif")])
+    assert r.exit_code == 1 and r.output == message.format(tmp=tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_confidence_file_is_written_beside_the_disparity(cones, tmp_path):
+    from click.testing import CliRunner
+
+    from riverbed_cli.cli.main import cli
+    from riverbed_cli.io.disparity import read_disparity, write_disparity
+
+    write_disparity(tmp_path / "s.tif", simulate_lidar(cones[2], 0.05, seed=0))
+    r = CliRunner().invoke(cli, ["match", "tests/data/cones/im2.png", "tests/data/cones/im6.png", "--sparse",
+                                 str(tmp_path / "s.tif"), "--max-disp", "59", "--min-disp", "0", "-o",
+                                 str(tmp_path / "d.tif"), "--confidence", str(tmp_path / "c.tif")])
+    assert r.exit_code == 0, r.output
+    conf, disp = read_disparity(tmp_path / "c.tif"), read_disparity(tmp_path / "d.tif")
+    lib = match_pair(*cones[:2], read_disparity(tmp_path / "s.tif"), 0, 59)
+    np.testing.assert_array_equal(conf, lib.confidence)
+    np.testing.assert_array_equal(disp, lib.disparity)
+    assert conf.dtype == np.float32 and 0 <= conf.min() and conf.max() <= 1
