@@ -28,7 +28,7 @@ import numpy as np
 from pyproj import CRS
 
 from ..errors import RiverbedError
-from ..io.atomic import atomic_output, check_output, check_output_folder
+from ..io.atomic import atomic_output, check_output_folder
 from ..io.images import MAX_PIXELS, read_image, write_png_file
 from .pairfile import write_pairfile
 from .cameras import PairGeometry
@@ -303,10 +303,7 @@ def rectify_files(left_image, left_orientation, right_image, right_orientation, 
     """
     t0 = time.perf_counter()
     outdir = Path(outdir)
-    check_output_folder(outdir)
-    if outdir.is_dir():
-        for name in OUTPUTS:
-            check_output(outdir / name, overwrite)
+    check_output_folder(outdir, OUTPUTS, overwrite)
     limit = MAX_PIXELS if max_pixels is None else max_pixels
     images, orients = [], []
     for img_path, or_path in ((left_image, left_orientation), (right_image, right_orientation)):

@@ -49,7 +49,7 @@ import yaml
 from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
 
 from ..errors import RiverbedError
-from ..io.atomic import atomic_output, check_output, check_output_folder
+from ..io.atomic import atomic_output, check_output_folder
 from ..io.images import MAX_PIXELS
 from ..io.paths import require_file
 from .cameras import as_matrix, parse_number
@@ -422,10 +422,7 @@ def rectify_rpc_files(left_image, left_rpc, right_image, right_rpc, outdir, roi=
     """
     t0 = time.perf_counter()
     outdir = Path(outdir)
-    check_output_folder(outdir)
-    if outdir.is_dir():
-        for name in OUTPUTS:
-            check_output(outdir / name, overwrite)
+    check_output_folder(outdir, OUTPUTS, overwrite)
     if (dem is None) == (heights is None):
         raise RiverbedError("give the terrain's height range: --dem DEM or --heights LO,HI (not both)")
     models, sizes, offsets = [], [], []

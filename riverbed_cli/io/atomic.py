@@ -18,14 +18,18 @@ def check_output(path, overwrite=False):
         raise RiverbedError(f"output folder {parent} does not exist", path)
 
 
-def check_output_folder(outdir):
-    """Raise unless ``outdir`` is an existing folder or a new name inside an existing one; returns its parent."""
+def check_output_folder(outdir, names=(), overwrite=False):
+    """Raise unless ``outdir`` is an existing folder or a new name inside an existing one, and (when it exists)
+    unless each of the output ``names`` inside it may be written (:func:`check_output`); returns its parent."""
     outdir = Path(outdir)
     parent = outdir.parent if str(outdir.parent) else Path(".")
     if not parent.is_dir():
         raise RiverbedError(f"folder {parent} does not exist", outdir)
     if outdir.exists() and not outdir.is_dir():
         raise RiverbedError("exists and is not a folder", outdir)
+    if outdir.is_dir():
+        for name in names:
+            check_output(outdir / name, overwrite)
     return parent
 
 
