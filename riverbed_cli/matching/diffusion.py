@@ -45,6 +45,18 @@ from .guidance import check_volume, guide_image, scaled_volume
 from .volume import volume_layout
 
 
+@njit(cache=True, inline="always")
+def bilateral_weight(guide, y, x, yy, xx, a, b):
+    """Joint-bilateral weight of pixel (yy, xx) seen from (y, x): ``exp(-|p - q|^2 a - |I(p) - I(q)|^2 b)`` over the
+    channels of ``guide`` (H, W, C); ``a = 1 / 2 sigma_s^2``, ``b = 1 / 2 sigma_i^2`` (per channel scaling by the
+    caller)."""
+    dd = 0.0
+    for ch in range(guide.shape[2]):
+        t = guide[y, x, ch] - guide[yy, xx, ch]
+        dd += t * t
+    return math.exp(-((yy - y) ** 2 + (xx - x) ** 2) * a - dd * b)
+
+
 @njit(cache=True, parallel=True)
 def _diffusion_kernel(flat, D0, sparse, ptr, cols, guide, d_min0, radius, a, b, dref, min_weight, tstart, twidth,
                       toffset):
@@ -52,7 +64,6 @@ def _diffusion_kernel(flat, D0, sparse, ptr, cols, guide, d_min0, radius, a, b, 
     # LiDAR pixels are touched), so rows are independent. With ``dref`` (H x W, or 0 x 0 for none) it also records
     # the disparity of the strongest weight >= min_weight (diffusion_support), in the same pass.
     H, W = sparse.shape
-    C = guide.shape[2]
     n = (2 * radius + 1) * (2 * radius + 1) * 2
     want_ref = dref.shape[0] == H
     tube = tstart.shape[0] == H
@@ -76,11 +87,7 @@ def _diffusion_kernel(flat, D0, sparse, ptr, cols, guide, d_min0, radius, a, b, 
                     if own and (yy != y or xx != x):
                         continue  # a LiDAR pixel keeps its own measurement
                     dp = sparse[yy, xx]
-                    dd = 0.0
-                    for ch in range(C):
-                        t = guide[y, x, ch] - guide[yy, xx, ch]
-                        dd += t * t
-                    w = math.exp(-((yy - y) ** 2 + (xx - x) ** 2) * a - dd * b)
+                    w = bilateral_weight(guide, y, x, yy, xx, a, b)
                     if want_ref and w >= min_weight and w > best_w:
                         best_w = w
                         dref[y, x] = dp

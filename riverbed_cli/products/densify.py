@@ -24,6 +24,7 @@ from numba import njit, prange
 from ..errors import RiverbedError
 from ..geometry.coverage import lidar_rows, lidar_share
 from ..geometry.interpolation import checked_points, interpolate_linear, interpolate_nearest
+from ..matching.diffusion import bilateral_weight
 
 METHODS = ("nearest", "linear", "guided")
 
@@ -31,7 +32,6 @@ METHODS = ("nearest", "linear", "guided")
 @njit(cache=True, parallel=True)
 def _guided_kernel(sparse, ptr, cols, guide, radius, a, b, out, wsum):
     H, W = sparse.shape
-    C = guide.shape[2]
     for y in prange(H):
         for x in range(W):
             num = 0.0
@@ -42,11 +42,7 @@ def _guided_kernel(sparse, ptr, cols, guide, radius, a, b, out, wsum):
                 while j < row.shape[0] and row[j] <= x + radius:
                     xx = row[j]
                     j += 1
-                    dd = 0.0
-                    for ch in range(C):
-                        t = guide[y, x, ch] - guide[yy, xx, ch]
-                        dd += t * t
-                    w = math.exp(-((yy - y) ** 2 + (xx - x) ** 2) * a - dd * b)
+                    w = bilateral_weight(guide, y, x, yy, xx, a, b)
                     num += w * sparse[yy, xx]
                     den += w
             wsum[y, x] = den
