@@ -192,17 +192,27 @@ def _label(r):
     return r["guide"] if r["window_set"] is None else f"riverbed s={r['window_set']}"
 
 
+def method_means(rows, metrics=("bad1", "bad3", "avg")):
+    """Means over seeds: ``{(scene, share): {(matcher, label): {metric: mean, ..., "fused": bool}}}``, methods in
+    the order of the rows; ``fused`` is whether every row of the method was fused (``fusion`` recorded, not
+    ``none``)."""
+    per = {}
+    for r in rows:
+        per.setdefault((r["scene"], r["share"]), {}).setdefault((r["matcher"], _label(r)), []).append(r)
+    return {key: {m: {**{k: float(np.mean([r[k] for r in rs])) for k in metrics},
+                      "fused": all(r.get("fusion", "none") not in (None, "none") for r in rs)}
+                  for m, rs in methods.items()}
+            for key, methods in per.items()}
+
+
 def winners(rows):
     """Per scene and share, the method with the best mean (over seeds) of each metric: ``{(scene, share): {metric:
     (label, value)}}``; labels are ``matcher guide``."""
-    per = {}
-    for r in rows:
-        per.setdefault((r["scene"], r["share"]), {}).setdefault(f"{r['matcher']} {_label(r)}", []).append(r)
     out = {}
-    for key, methods in per.items():
+    for key, methods in method_means(rows).items():
         out[key] = {}
         for metric in ("bad1", "bad3", "avg"):
-            means = {label: float(np.mean([r[metric] for r in rs])) for label, rs in methods.items()}
+            means = {f"{m} {g}": v[metric] for (m, g), v in methods.items()}
             best = min(means, key=means.get)
             out[key][metric] = (best, means[best])
     return out
@@ -212,35 +222,26 @@ def beats_inputs_table(rows):
     """Markdown lines: per scene and share, does each fused guided method (a guide label without ``:none``) beat
     both of its inputs — unguided matching (guide ``none``) and every LiDAR-only interpolation — on bad1, bad3 and
     mean error (means over seeds)? Empty when the rows hold no such comparison."""
-    per = {}
-    for r in rows:
-        per.setdefault((r["scene"], r["share"]), {}).setdefault((r["matcher"], _label(r)), []).append(r)
     lines = []
-    for (scene, share), methods in per.items():
-        inputs = {f"{m} {g}": rs for (m, g), rs in methods.items() if m == "lidar" or g == "none"}
-        fused = {f"{m} {g}": rs for (m, g), rs in methods.items()
-                 if m != "lidar" and g != "none" and not g.endswith(":none") and rows_fused(rs)}
+    for (scene, share), methods in method_means(rows).items():
+        inputs = {f"{m} {g}": v for (m, g), v in methods.items() if m == "lidar" or g == "none"}
+        fused = {f"{m} {g}": v for (m, g), v in methods.items()
+                 if m != "lidar" and g != "none" and not g.endswith(":none") and v["fused"]}
         if not inputs or not fused:
             continue
-        for label, rs in fused.items():
+        for label, mine in fused.items():
             cells = []
             for metric in ("bad1", "bad3", "avg"):
-                mine = float(np.mean([r[metric] for r in rs]))
-                best_in, best_v = min(((n, float(np.mean([r[metric] for r in v]))) for n, v in inputs.items()),
-                                      key=lambda t: t[1])
-                mark = "yes" if mine < best_v else "**no**"
-                cells.append(f"{mine:.3g} vs {best_v:.3g} ({best_in}): {mark}")
+                best_in = min(inputs, key=lambda n: inputs[n][metric])
+                best_v = inputs[best_in][metric]
+                mark = "yes" if mine[metric] < best_v else "**no**"
+                cells.append(f"{mine[metric]:.3g} vs {best_v:.3g} ({best_in}): {mark}")
             lines.append(f"| {scene} | {share * 100:.2f} % | {label} | " + " | ".join(cells) + " |")
     if not lines:
         return []
     return ["", "Does the fused output beat both its inputs (unguided matching and the best LiDAR-only interpolation "
             "of each metric; mean over seeds)?", "",
             "| scene | LiDAR | method | bad1 % | bad3 % | avg px |", "|---|---:|---|---|---|---|", *lines]
-
-
-def rows_fused(rows):
-    """Whether benchmark rows were fused (``fusion`` recorded and not ``none``)."""
-    return all(r.get("fusion", "none") not in (None, "none") for r in rows)
 
 
 def write_tables(rows, outdir, share_of="image"):
