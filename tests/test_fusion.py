@@ -8,7 +8,7 @@ from scipy.special import erf
 
 from riverbed_cli.matching.fusion import fuse_disparity, leave_one_out_residuals, lidar_sigma
 from riverbed_cli.matching.pipeline import match_pair
-from riverbed_cli.products.densify import densify_linear
+from riverbed_cli.geometry.interpolation import interpolate_linear
 from riverbed_cli.products.evaluate import evaluate_disparity
 from riverbed_cli.products.simulate import simulate_lidar
 
@@ -38,7 +38,7 @@ def test_fusion_takes_the_better_source_in_each_half():
     # the stereo's error given (0.5 px, as constructed): estimated here it would absorb the LiDAR's own error on the
     # checker, which no LiDAR point resolves (docs/fusion.md, limits)
     out = fuse_disparity(stereo, status, sparse, stereo_sigma=0.5)
-    lin = densify_linear(sparse)
+    lin = interpolate_linear(sparse)
     err = np.abs(out.disparity - truth)
     err_stereo, err_lidar = np.abs(stereo - truth), np.abs(lin - truth)
     inner = np.zeros_like(textured)
@@ -70,7 +70,7 @@ def test_agreeing_sources_average_by_inverse_variance():
     sparse[2::6, 2::6] = truth[2::6, 2::6]
     out = fuse_disparity(stereo, None, sparse, stereo_sigma=0.5, floor=0.25)
     # sigma_l is the floor (planar LiDAR) times the distance growth, 1 within the spacing: weights 1/0.25^2, 1/0.5^2
-    lin = densify_linear(sparse).astype(np.float64)
+    lin = interpolate_linear(sparse).astype(np.float64)
     sig_l, dist = lidar_sigma(sparse, floor=0.25)
     ws, wl = 1 / 0.25, 1 / sig_l.astype(np.float64) ** 2
     expect = (stereo * ws + lin * wl) / (ws + wl)

@@ -6,8 +6,8 @@ accuracy table shows these beside the matchers (``riverbed benchmark``), so a fu
 Methods:
 
 * ``nearest``: the disparity of the nearest LiDAR pixel (Euclidean, ``scipy.ndimage.distance_transform_edt``);
-* ``linear``: linear interpolation over the Delaunay triangulation of the LiDAR pixels
-  (``scipy.interpolate.LinearNDInterpolator``), nearest outside their convex hull;
+* ``linear``: linear interpolation over the Delaunay triangulation of the LiDAR pixels, nearest outside their convex
+  hull (:func:`~riverbed_cli.geometry.interpolation.interpolate_linear`);
 * ``guided``: an image-guided weighted average (the paper's §2.2 family, a joint-bilateral normalised convolution):
   ``d(p) = sum_q w(p, q) d_q / sum_q w(p, q)`` over the LiDAR pixels ``q`` within ``radius`` px (default: twice the
   mean LiDAR spacing), ``w = exp(-|p - q|^2 / 2 sigma_s^2 - |I(p) - I(q)|^2 / 2 sigma_i^2)`` with the left image
@@ -102,8 +102,3 @@ def densify(sparse, method="linear", image=None, **kwargs):
     if kwargs:
         raise RiverbedError(f"densify method {method} takes no settings ({', '.join(kwargs)})")
     return interpolate_nearest(sparse) if method == "nearest" else interpolate_linear(sparse)
-
-
-#: the LiDAR-only baselines by their ``densify`` names (:mod:`..geometry.interpolation`)
-densify_nearest = interpolate_nearest
-densify_linear = interpolate_linear
