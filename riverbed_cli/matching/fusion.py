@@ -189,16 +189,14 @@ def fuse_disparity(stereo, status, sparse, gate=4.0, neighbours=6, support=4, fl
     stereo = np.asarray(stereo, np.float32)
     nearest = nearest_lidar(sparse)  # one distance transform for the interpolation's fill and the LiDAR's sigma
     lidar = interpolate_linear(sparse, nearest)
-    sig_l, distance = lidar_sigma(sparse, neighbours, support, floor, nearest)
-    sig_l = sig_l.astype(np.float64)
+    sig_l, _ = lidar_sigma(sparse, neighbours, support, floor, nearest)
     fin = np.isfinite(stereo)
     consistent = fin if status is None else fin & (np.asarray(status) == 0)
     if stereo_sigma == "auto":
-        sig_s = estimate_stereo_sigma(stereo, lidar, sig_l, consistent)
+        sig_s = estimate_stereo_sigma(stereo, lidar, sig_l.astype(np.float64), consistent)
     else:
         sig_s = float(stereo_sigma)
-    out, confidence, counts = _decide(stereo, lidar, sig_l.astype(np.float32), consistent, float(sig_s),
-                                      float(gate))
+    out, confidence, counts = _decide(stereo, lidar, sig_l, consistent, float(sig_s), float(gate))
     n = float(stereo.size)
     stats = FusionStats(round(sig_s, 4) if math.isfinite(sig_s) else None, round(int(counts[0]) / n, 4),
                         round(int(counts[2]) / n, 4), round(int(counts[1]) / n, 4), round(float(confidence.mean()), 4))
