@@ -14,7 +14,7 @@ from ..io.atomic import atomic_output, check_output
 from ..io.disparity import disparity_format, read_disparity, read_range_map, write_disparity
 from ..io.images import check_pair, read_image
 from ..io.windowed import TiffSink, WindowedRaster, is_tiff, sparse_points_any
-from ..matching.pipeline import disparity_range_from_sparse, match_pair, warm_up
+from ..matching.pipeline import disparity_range_from_sparse, match_pair, resolve_fusion, warm_up
 from ..matching.registry import get_guide
 from ..products.visualize import disparity_picture, write_picture
 from ..matching.guidance import lidar_share_of_points
@@ -100,6 +100,9 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     guide = get_guide(config.guide)
     if guide.needs_sparse and not sparse:
         raise RiverbedError(f"--guide {config.guide} needs --sparse")
+    if confidence and resolve_fusion(config, guide, bool(sparse)) == "none":  # before any work
+        raise RiverbedError("no confidence with --fusion none (it comes from --fusion confidence, the default with "
+                            "--sparse)", confidence)
     if (min_disp is None or max_disp is None) and not sparse and not range_map:
         if max_disp is None:
             raise RiverbedError("give --max-disp (and --min-disp) or --sparse to derive the disparity range from")
@@ -159,9 +162,6 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     tags = {"riverbed_matcher": config.matcher, "riverbed_guide": config.guide, "riverbed_window": info["window"],
             "riverbed_d_min": info["d_min"], "riverbed_d_max": info["d_max"],
             "riverbed_lidar_share": f"{info['lidar_share']:.6f}"}
-    if confidence and result.confidence is None:
-        raise RiverbedError(f"no confidence with --fusion {info['fusion']} (it comes from --fusion confidence, the "
-                            "default with --sparse)", confidence)
     write_disparity(output, result.disparity, overwrite=overwrite, tags=tags)
     if confidence:
         write_disparity(confidence, result.confidence, overwrite=overwrite,
