@@ -124,7 +124,7 @@ ERRORS = [
     ({"pairs": [GOOD], "extra": 1}, "unknown key 'extra' (manifest keys: defaults, pairs)"),
     ({"defaults": {"windw": 5}, "pairs": [GOOD]}, "defaults: unknown key 'windw' (settings: resolution, crs, agg, "),
     ({"pairs": [{**GOOD, "colour": 1}]},
-     "pairs[0]: unknown key 'colour' (pair keys: pair, raw, cloud, name, and the settings of defaults)"),
+     "pairs[0]: unknown key 'colour' (pair keys: pair, raw, rpc, cloud, name, and the settings of defaults)"),
     ({"pairs": []}, "pairs: expected a non-empty list of {pair: PAIR_FILE, cloud: CLOUDS}"),
     ({"pairs": [GOOD, {"pair": "x/pair.yaml", "cloud": "lidar/west.laz"}]},
      "pairs[1].pair: file not found: x/pair.yaml"),
@@ -391,8 +391,8 @@ def test_raw_frames_in_the_manifest_are_rectified_then_matched(tmp_path):
     (tmp_path / "bad.yaml").write_text(yaml.safe_dump(bad))
     res = run(["block", str(tmp_path / "bad.yaml"), "-o", str(tmp_path / "out2")])
     assert res.exit_code == 1
-    assert res.stderr == (f"riverbed: error: {tmp_path / 'bad.yaml'}: pairs[0]: give either pair (a rectified pair "
-                          "file) or raw (frames and orientations)\n")
+    assert res.stderr == (f"riverbed: error: {tmp_path / 'bad.yaml'}: pairs[0]: give one of pair (a rectified pair "
+                          "file), raw (frames and orientations) or rpc (satellite images and their RPCs)\n")
 
 
 def test_manifest_reaches_adcensus_diffusion_and_riverbed_plus_settings(block, tmp_path):

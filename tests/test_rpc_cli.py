@@ -239,9 +239,9 @@ def bad_cases(tmp):
          "--vertical: unknown vertical datum 'EPSG:99999'"),
         ("DEM --vertical not vertical", [*four, "--dem", flat2d, "--vertical", "EPSG:32631"],
          f"{flat2d}: 'EPSG:32631' is not a vertical CRS"),
-        ("no heights", four, "give the terrain's height range: --dem DEM or --heights LO,HI (not both)"),
+        ("no heights", four, "give the terrain's height range: --dem DEM, --heights LO,HI or --lidar CLOUD (one of them)"),
         ("both heights", [*four, *h, "--dem", flat2d],
-         "give the terrain's height range: --dem DEM or --heights LO,HI (not both)"),
+         "give the terrain's height range: --dem DEM, --heights LO,HI or --lidar CLOUD (one of them)"),
         ("heights reversed", [*four, "--heights", "530,470"], "--heights: LO must be below HI, got '530,470'"),
         ("heights not numbers", [*four, "--heights", "low,high"],
          "--heights: expected LO,HI (two finite heights, m), got 'low,high'"),
@@ -299,7 +299,7 @@ def test_rpc_pair_files_refused_by_pinhole_commands_and_validated(pair_files, tm
     assert (r.exit_code, r.output) == (1, f"riverbed: error: {tmp_path / 'disp.tif'}: file not found\n")
     with pytest.raises(RiverbedError) as e:
         load_pairfile(pf)
-    assert str(e.value) == f"{pf}: RPC pair files are not supported by riverbed project, dsm or block yet"
+    assert str(e.value) == f"{pf}: an RPC pair file: this use needs a pinhole pair file (P_left, P_right)"
     import yaml
     data = yaml.safe_load(pf.read_text())
     bad = tmp_path / "bad.yaml"

@@ -45,7 +45,7 @@ def _parsed(parser, option):
 #: Options of one mode only: (parameter, option, mode it belongs to).
 PINHOLE_ONLY = (("alpha", "--alpha"), ("size", "--size"))
 RPC_ONLY = (("roi", "--roi"), ("dem", "--dem"), ("heights", "--heights"), ("vertical", "--vertical"),
-            ("pointing", "--no-pointing-correction"))
+            ("pointing", "--no-pointing-correction"), ("lidar", "--lidar"), ("lidar_crs", "--lidar-crs"))
 
 
 @click.command("rectify")
@@ -66,6 +66,12 @@ RPC_ONLY = (("roi", "--roi"), ("dem", "--dem"), ("heights", "--heights"), ("vert
                    "under the ROI +- 20 m.")
 @click.option("--heights", default=None, metavar="LO,HI", callback=_parsed(parse_heights, "--heights"),
               help="[--rpc] The terrain's height range instead of a DEM (m, ellipsoidal unless --vertical).")
+@click.option("--lidar", type=input_path(), multiple=True, metavar="CLOUD",
+              help="[--rpc] LiDAR (LAS/LAZ, repeatable) instead of a DEM: the height range is that of its points "
+                   "under the ROI +- 20 m (ASPRS noise classes 7 and 18 dropped).")
+@click.option("--lidar-crs", default=None, metavar="CRS",
+              help="[--rpc] CRS of the --lidar clouds when their files do not state it (3D, or compound with the "
+                   "heights' datum, e.g. EPSG:32631+5773).")
 @click.option("--vertical", default=None, metavar="DATUM",
               help="[--rpc] Vertical datum of --dem when its file does not say, or of --heights: ellipsoid or a "
                    "vertical CRS (EPSG:5773 = EGM96).")
@@ -81,8 +87,8 @@ RPC_ONLY = (("roi", "--roi"), ("dem", "--dem"), ("heights", "--heights"), ("vert
 @overwrite_opt
 @json_opt
 @click.pass_context
-def rectify_cmd(ctx, left_img, left_orient, right_img, right_orient, outdir, rpc, roi, dem, heights, vertical,
-                pointing, alpha, size, max_pixels, overwrite, as_json):
+def rectify_cmd(ctx, left_img, left_orient, right_img, right_orient, outdir, rpc, roi, dem, heights, lidar,
+                lidar_crs, vertical, pointing, alpha, size, max_pixels, overwrite, as_json):
     """Rectify raw frames LEFT_IMG and RIGHT_IMG with their orientation files (YAML; docs/rectify.md).
 
     Writes OUTDIR/left.png and OUTDIR/right.png (rows shared, d = x_left - x_right = f B / depth >= 0) and
@@ -95,7 +101,7 @@ def rectify_cmd(ctx, left_img, left_orient, right_img, right_orient, outdir, rpc
     With --rpc: LEFT_ORIENT and RIGHT_ORIENT are the images' RPC models; a region of interest (--roi) of
     LEFT_IMG is rectified the s2p way (affine epipolar geometry, the RPCs' pointing error removed on tie points)
     into OUTDIR/left.tif, OUTDIR/right.tif and OUTDIR/pair.yaml (both RPCs, the rectification, ROI, heights,
-    disparity range). The height range comes from --dem or --heights.
+    disparity range). The height range comes from --dem, --heights or --lidar.
     """
     if max_pixels is not None and max_pixels < 1:
         raise RiverbedError("--max-pixels must be positive")
@@ -107,7 +113,7 @@ def rectify_cmd(ctx, left_img, left_orient, right_img, right_orient, outdir, rpc
     if rpc:
         summary = rectify_rpc_files(left_img, left_orient, right_img, right_orient, outdir, roi=roi, dem=dem,
                                     heights=heights, vertical=vertical, pointing=pointing, overwrite=overwrite,
-                                    max_pixels=max_pixels)
+                                    max_pixels=max_pixels, lidar=list(lidar) or None, lidar_crs=lidar_crs)
         if as_json:
             print_json(summary)
         else:

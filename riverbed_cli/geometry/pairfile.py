@@ -14,8 +14,8 @@ registration: [[...4...], [...4...], [...4...], [0, 0, 0, 1]]   # optional LiDAR
 
 A pair file with an ``rpc:`` key is an *RPC pair* (``riverbed rectify --rpc``; its keys in
 :mod:`riverbed_cli.geometry.rpc_pair`): :func:`load_pairfile` reads it into an
-:class:`~riverbed_cli.geometry.rpc_pair.RPCPair` (``kind == "rpc"``) only when asked (``accept_rpc=True``); the
-commands that take a pinhole pair refuse it in one line.
+:class:`~riverbed_cli.geometry.rpc_pair.RPCPair` (``kind == "rpc"``) only when asked (``accept_rpc=True``, as
+``riverbed project``, ``dsm`` and ``block`` do); a caller that needs a pinhole pair refuses it in one line.
 
 Both formats go through :func:`load_pairfile`: ``.json`` files (or text starting with ``{``) with :mod:`json`,
 everything else with ``yaml.safe_load`` (never the unsafe loader: pair files come from strangers). Errors are
@@ -40,8 +40,8 @@ from .rpc_pair import relative_path, rpc_pair_from_dict
 #: Pair files and registration files larger than this are refused before parsing.
 MAX_BYTES = 1_000_000
 KEYS = ("left", "right", "width", "height", "P_left", "P_right", "origin", "crs", "registration")
-#: The commands that read pinhole pair files only (named when an RPC pair file reaches them).
-RPC_REFUSERS = "riverbed project, dsm or block"
+#: Who needs a pinhole pair file, when the caller does not say (named when an RPC pair file reaches it).
+RPC_REFUSERS = "this use"
 
 
 def _parse(path, what):
@@ -75,9 +75,9 @@ def load_pairfile(path, accept_rpc=False, command=None):
         The pair file.
     accept_rpc : bool
         Return an :class:`~riverbed_cli.geometry.rpc_pair.RPCPair` for a file with an ``rpc:`` key; otherwise
-        such a file is a one-line error ("RPC pair files are not supported by COMMAND yet").
+        such a file is a one-line error ("an RPC pair file: COMMAND needs a pinhole pair file (P_left, P_right)").
     command : str, optional
-        The command named in that error (default: every command that reads pair files but rectify).
+        What is named in that error (default "this use").
     """
     path = Path(path)
     data, _ = _parse(path, "pair file")
@@ -85,7 +85,8 @@ def load_pairfile(path, accept_rpc=False, command=None):
         raise RiverbedError("not a pair file (expected a mapping with P_left and P_right)", path)
     if "rpc" in data:
         if not accept_rpc:
-            raise RiverbedError(f"RPC pair files are not supported by {command or RPC_REFUSERS} yet", path)
+            raise RiverbedError(f"an RPC pair file: {command or RPC_REFUSERS} needs a pinhole pair file (P_left, "
+                                "P_right)", path)
         return rpc_pair_from_dict(data, path)
     unknown = [str(k) for k in data if k not in KEYS]
     if unknown:

@@ -100,20 +100,21 @@ def scene_utm(pair):
     return f"EPSG:{32600 + zone if lat >= 0 else 32700 + zone}"
 
 
-def output_crs(pair, crs=None):
+def output_crs(pair, crs=None, option="--crs"):
     """The CRS the triangulated points of an RPC pair are written in: ``crs`` or :func:`scene_utm`.
 
     A CRS pyproj does not know, or that is not projected (a DSM's cells are metres), is a one-line
-    :class:`RiverbedError` (``--crs: ...``).
+    :class:`RiverbedError` (``--crs: ...``; ``option`` names the setting: ``crs`` in a block manifest).
     """
     if crs is None:
         return scene_utm(pair)
     try:
         parsed = CRS.from_user_input(crs)
     except (CRSError, TypeError, ValueError):
-        raise RiverbedError(f"--crs: unknown CRS '{crs}'") from None
+        raise RiverbedError(f"{option}: unknown CRS '{crs}'") from None
     if not parsed.is_projected:
-        raise RiverbedError(f"--crs: {parsed.name} is not a projected CRS (an RPC pair's DSM is gridded in metres)")
+        raise RiverbedError(f"{option}: {parsed.name} is not a projected CRS (an RPC pair's DSM is gridded in "
+                            "metres)")
     return crs
 
 

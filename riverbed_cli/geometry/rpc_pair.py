@@ -54,9 +54,9 @@ from ..io.images import MAX_PIXELS
 from ..io.paths import require_file
 from .cameras import as_matrix, parse_number
 from .rpc import RPCModel, read_rpc
-from .rpc_dem import geoid_to_ellipsoid_transformer, read_dem
-from .rpc_rectify import (RPCRectification, apply_h, estimate_row_offset, heights_over_roi, rectify_rpc_pair,
-                          resample, virtual_matches, with_row_offset)
+from .rpc_heights import footprint_bounds, heights_from_dem, heights_from_lidar, heights_to_ellipsoid  # noqa: F401
+from .rpc_rectify import (RPCRectification, apply_h, estimate_row_offset, rectify_rpc_pair, resample,
+                          virtual_matches, with_row_offset)
 
 log = logging.getLogger(__name__)
 
@@ -289,47 +289,6 @@ def rpc_pair_from_dict(data, path):
 # rectify_rpc_files
 
 
-def footprint_bounds(rpc, roi, h):
-    """(lon_min, lat_min, lon_max, lat_max) of the ROI's border localised at height ``h`` (degrees)."""
-    x, y, w, hh = roi
-    t = np.linspace(0, 1, 9)
-    cols = np.concatenate([x + t * (w - 1), x + t * (w - 1), np.full(9, x), np.full(9, x + w - 1)])
-    rows = np.concatenate([np.full(9, y), np.full(9, y + hh - 1), y + t * (hh - 1), y + t * (hh - 1)])
-    lon, lat = rpc.localize(cols, rows, h)
-    if not (np.isfinite(lon).all() and np.isfinite(lat).all()):
-        raise RiverbedError("the RPC model cannot localise the ROI (outside the model's domain)", rpc.source)
-    return float(lon.min()), float(lat.min()), float(lon.max()), float(lat.max())
-
-
-def heights_from_dem(rpc_left, roi, dem_path, vertical=None, margin_m=20.0):
-    """The terrain's ellipsoidal height range (m) under the left ROI from a DEM, widened by ``margin_m``.
-
-    The DEM must cover the ROI's footprint at the model's mean height (checked before reading: a one-line error
-    naming the DEM) and the footprint on the terrain (:func:`~riverbed_cli.geometry.rpc_rectify.heights_over_roi`).
-    """
-    bounds = footprint_bounds(rpc_left, roi, rpc_left.height_off)
-    dem = read_dem(dem_path, bounds=bounds, vertical=vertical, margin_deg=0.01)
-    try:
-        lo, hi = heights_over_roi(rpc_left, roi, dem, margin_m=margin_m)
-    except RiverbedError:
-        raise RiverbedError("the DEM does not cover the ROI's footprint on the terrain", dem_path) from None
-    return (lo, hi), dem.vertical
-
-
-def heights_to_ellipsoid(heights, rpc_left, roi, vertical):
-    """``--heights`` in a vertical datum -> ellipsoidal heights (m) at the ROI's centre; unchanged for ellipsoid."""
-    if vertical is None or str(vertical).lower() in ("ellipsoid", "ellipsoidal", "epsg:4979"):
-        return tuple(float(v) for v in heights)
-    try:
-        tr = geoid_to_ellipsoid_transformer(vertical)
-    except RiverbedError as e:
-        raise RiverbedError(f"--vertical: {e}") from None
-    x, y, w, h = roi
-    lon, lat = rpc_left.localize(x + (w - 1) / 2, y + (h - 1) / 2, float(np.mean(heights)))
-    _, _, out = tr.transform([float(lon)] * 2, [float(lat)] * 2, list(heights))
-    return float(out[0]), float(out[1])
-
-
 def _window_of(H, size, ds):
     """The source window (clipped to the image) that the rectified frame of affinity ``H`` samples, or None."""
     w, h = size
@@ -385,8 +344,53 @@ def _row_residual(pair, n=21, n_heights=7):
     return float(np.max(np.abs(dy))), float(np.sqrt(np.mean(dy ** 2)))
 
 
+def read_rpc_inputs(left_image, left_rpc, right_image, right_rpc):
+    """The two images' RPC models (crop offsets applied), sizes and crop offsets.
+
+    Returns
+    -------
+    models : (RPCModel, RPCModel)
+        Left and right, in the pixels of the image files (a separate RPC file of a crop shifted by
+        :func:`crop_offset`; RPCs read from the image itself never are).
+    sizes : ((W, H), (W, H))
+        The images' sizes (px).
+    offsets : ((col0, row0), (col0, row0))
+        The crop offsets applied (px).
+    """
+    models, sizes, offsets = [], [], []
+    for img_path, rpc_path in ((left_image, left_rpc), (right_image, right_rpc)):
+        with _open(img_path) as ds:
+            sizes.append((ds.width, ds.height))
+        model = read_rpc(rpc_path)
+        same = Path(rpc_path).resolve() == Path(img_path).resolve()
+        off = (0.0, 0.0) if same else crop_offset(img_path)
+        offsets.append(off)
+        models.append(model.shifted(*off))
+    return tuple(models), tuple(sizes), tuple(offsets)
+
+
+def check_roi(roi, size, path, option="--roi"):
+    """``roi`` as four ints, inside an image of ``size`` (W, H); a one-line :class:`RiverbedError` otherwise."""
+    W, H = size
+    x, y, w, h = (int(v) for v in roi)
+    if x < 0 or y < 0 or x + w > W or y + h > H:
+        raise RiverbedError(f"{option} {x},{y},{w},{h} is outside the {W}x{H} image (it covers cols {x}..{x + w - 1}, "
+                            f"rows {y}..{y + h - 1})", path)
+    return x, y, w, h
+
+
+def right_share(rpc_left, rpc_right, roi, heights, right_size, n=11, n_heights=5):
+    """Share of virtual matches (an ``n x n`` grid over the left ROI x ``n_heights`` heights over ``heights``) whose
+    projection falls inside the right image of ``right_size`` (W, H), and their right columns and rows."""
+    _, _, x2, y2, _ = virtual_matches(rpc_left, rpc_right, roi, heights, n, n_heights)
+    W2, H2 = right_size
+    inside = (x2 >= -0.5) & (x2 <= W2 - 0.5) & (y2 >= -0.5) & (y2 <= H2 - 0.5)
+    return (float(inside.mean()) if inside.size else 0.0), x2, y2
+
+
 def rectify_rpc_files(left_image, left_rpc, right_image, right_rpc, outdir, roi=None, dem=None, heights=None,
-                      vertical=None, pointing=True, overwrite=False, max_pixels=MAX_PIXELS):
+                      vertical=None, pointing=True, overwrite=False, max_pixels=MAX_PIXELS, lidar=None,
+                      lidar_crs=None, classes=None, drop_classes=(7, 18)):
     """Rectify an RPC pair over a ROI of the left image; write left.tif, right.tif and pair.yaml into ``outdir``.
 
     Parameters
@@ -413,6 +417,10 @@ def rectify_rpc_files(left_image, left_rpc, right_image, right_rpc, outdir, roi=
         Replace existing outputs.
     max_pixels : int
         Refuse a rectified frame larger than this (width x height).
+    lidar : path or sequence of paths, optional
+        LiDAR clouds instead of a DEM: the height range is that of their points under the ROI +- 20 m
+        (:func:`heights_from_lidar`; ``lidar_crs`` their CRS when the files do not state it, ``classes`` /
+        ``drop_classes`` the ASPRS classes kept / dropped).
 
     Returns
     -------
@@ -423,36 +431,31 @@ def rectify_rpc_files(left_image, left_rpc, right_image, right_rpc, outdir, roi=
     t0 = time.perf_counter()
     outdir = Path(outdir)
     check_output_folder(outdir, OUTPUTS, overwrite)
-    if (dem is None) == (heights is None):
-        raise RiverbedError("give the terrain's height range: --dem DEM or --heights LO,HI (not both)")
-    models, sizes, offsets = [], [], []
-    for img_path, rpc_path in ((left_image, left_rpc), (right_image, right_rpc)):
-        with _open(img_path) as ds:
-            sizes.append((ds.width, ds.height))
-        model = read_rpc(rpc_path)
-        same = Path(rpc_path).resolve() == Path(img_path).resolve()
-        off = (0.0, 0.0) if same else crop_offset(img_path)
-        offsets.append(off)
-        models.append(model.shifted(*off))
-    rpc_l, rpc_r = models
+    if lidar is not None and not isinstance(lidar, (str, os.PathLike)) and not len(lidar):
+        lidar = None
+    if sum(v is not None for v in (dem, heights, lidar)) != 1:
+        raise RiverbedError("give the terrain's height range: --dem DEM, --heights LO,HI or --lidar CLOUD (one of "
+                            "them)")
+    if lidar is not None and vertical is not None:
+        raise RiverbedError("--vertical does not apply to --lidar (the cloud's CRS gives its heights' datum)")
+    (rpc_l, rpc_r), sizes, offsets = read_rpc_inputs(left_image, left_rpc, right_image, right_rpc)
     (W, H), (W2, H2) = sizes
-    if roi is None:
-        roi = (0, 0, W, H)
-    x, y, w, h = (int(v) for v in roi)
-    if x < 0 or y < 0 or x + w > W or y + h > H:
-        raise RiverbedError(f"--roi {x},{y},{w},{h} is outside the {W}x{H} image (it covers cols {x}..{x + w - 1}, "
-                            f"rows {y}..{y + h - 1})", left_image)
-    roi = (x, y, w, h)
+    roi = check_roi((0, 0, W, H) if roi is None else roi, (W, H), left_image)
+    x, y, w, h = roi
     if dem is not None:
         hrange, datum = heights_from_dem(rpc_l, roi, dem, vertical)
         heights_from = f"DEM {Path(dem).name} ({datum}) under the ROI +- 20 m"
+    elif lidar is not None:
+        hrange, found = heights_from_lidar(rpc_l, roi, lidar, lidar_crs, classes, drop_classes)
+        names = [Path(lidar).name] if isinstance(lidar, (str, os.PathLike)) else [Path(p).name for p in lidar]
+        heights_from = (f"LiDAR {', '.join(names)} ({found['points']} points under the ROI, "
+                        f"{found['range'][0]:.1f}..{found['range'][1]:.1f} m) +- 20 m")
     else:
         hrange = heights_to_ellipsoid(heights, rpc_l, roi, vertical)
         heights_from = "--heights" + (f" ({vertical})" if vertical else " (ellipsoidal)")
     # images that do not overlap: the ROI's ground, seen over the height range, must fall in the right image
-    _, _, x2, y2, _ = virtual_matches(rpc_l, rpc_r, roi, hrange)
-    inside = (x2 >= -0.5) & (x2 <= W2 - 0.5) & (y2 >= -0.5) & (y2 <= H2 - 0.5)
-    if not inside.any():
+    share, x2, y2 = right_share(rpc_l, rpc_r, roi, hrange, (W2, H2))
+    if share == 0:
         where = (f"cols {x2.min():.0f}..{x2.max():.0f}, rows {y2.min():.0f}..{y2.max():.0f}" if x2.size
                  else "nowhere")
         raise RiverbedError(f"does not overlap the left image's ROI (its RPC sees the ROI's ground at {where}, "

@@ -3,11 +3,16 @@
 import glob
 import os
 import re
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
+import rasterio
+
 from ...errors import RiverbedError
 from ...geometry.rectify import check_alpha, parse_size
+from ...geometry.rpc_dem import dem_vertical
+from ...geometry.rpc_pair import MIN_ROI_PX, check_roi, parse_heights, parse_roi
 from ...io.textfiles import parse_yaml, read_text
 from ...settings import SettingError, show
 from .settings import default_settings, settings_spec
@@ -15,10 +20,15 @@ from .settings import default_settings, settings_spec
 #: Manifests larger than this are refused before parsing.
 MANIFEST_MAX_BYTES = 10_000_000
 TOP_KEYS = ("defaults", "pairs")
-PAIR_KEYS = ("pair", "raw", "cloud", "name")
+PAIR_KEYS = ("pair", "raw", "rpc", "cloud", "name")
 RAW_KEYS = ("left", "left_orientation", "right", "right_orientation")
 #: Optional rectification settings of a ``raw:`` entry (as ``riverbed rectify --alpha / --size``).
 RAW_OPTIONS = ("alpha", "size")
+#: An ``rpc:`` entry: two satellite images and their RPC models (``riverbed rectify --rpc``'s inputs) ...
+RPC_KEYS = ("left", "left_rpc", "right", "right_rpc")
+#: ... and its optional settings (as ``--roi``, ``--dem``, ``--heights``, ``--vertical``,
+#: ``--no-pointing-correction``); without ``dem`` and ``heights`` the height range comes from the pair's clouds.
+RPC_OPTIONS = ("roi", "dem", "heights", "vertical", "pointing")
 #: Settings that shape the merged DSM: one value for the whole block, given under ``defaults`` only.
 BLOCK_KEYS = ("resolution", "crs", "agg")
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
@@ -35,6 +45,7 @@ class PairSpec:
     clouds: list
     settings: dict
     raw: dict = None  # raw frames and orientations (absolute paths), rectified by plan_block
+    rpc: dict = None  # satellite images, RPCs and ROI (absolute paths), rectified by the pair's project stage
 
 
 @dataclass
@@ -118,6 +129,93 @@ def _raw_frames(value, where, path, base):
     return out
 
 
+def _image_size(path):
+    """``(W, H)`` of an image from its header (GDAL), or None when GDAL cannot open it (the stage says why)."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+            with rasterio.open(path) as ds:
+                return ds.width, ds.height
+    except rasterio.errors.RasterioIOError:
+        return None
+
+
+def _rpc_images(value, where, path, base):
+    """The ``rpc:`` entry of a pair: two satellite images, their RPC models, a ROI of the left image and the
+    terrain's height range (``riverbed rectify --rpc``'s inputs; docs/rpc.md)."""
+    keys = RPC_KEYS + RPC_OPTIONS
+    if not isinstance(value, dict):
+        raise RiverbedError(f"{where}.rpc: expected a mapping with {', '.join(RPC_KEYS)}, got {show(value)}", path)
+    unknown = [str(k) for k in value if k not in keys]
+    if unknown:
+        raise RiverbedError(f"{where}.rpc: unknown key '{unknown[0]}' (rpc keys: {', '.join(keys)})", path)
+    out = {}
+    for key in RPC_KEYS:
+        v = value.get(key)
+        if not isinstance(v, str) or not v:
+            what = "an RPC file, or the image itself for GeoTIFF RPC tags" if key.endswith("_rpc") else "a file name"
+            raise RiverbedError(f"{where}.rpc.{key}: missing ({what})", path)
+        p = Path(os.path.normpath(base / v))
+        if not p.is_file():
+            raise RiverbedError(f"{where}.rpc.{key}: file not found: {v}", path)
+        out[key] = p
+    roi = value.get("roi")
+    if roi is not None:
+        text = ",".join(str(v) for v in roi) if isinstance(roi, list) else roi
+        if isinstance(roi, list) and not all(isinstance(v, int) and not isinstance(v, bool) for v in roi):
+            text = None
+        try:
+            if not isinstance(text, str):
+                raise ValueError(f"expected [col, row, width, height] (four integers, px, width and height at least "
+                                 f"{MIN_ROI_PX}), got {show(roi)}")
+            roi = parse_roi(text)
+        except ValueError as e:
+            raise RiverbedError(f"{where}.rpc.roi: {e}", path) from None
+        size = _image_size(out["left"])
+        if size is not None:
+            try:
+                check_roi(roi, size, out["left"], option="ROI")
+            except RiverbedError as e:
+                raise RiverbedError(f"{where}.rpc.roi: {e}", path) from None
+    out["roi"] = None if roi is None else list(roi)
+    if value.get("dem") is not None and value.get("heights") is not None:
+        raise RiverbedError(f"{where}.rpc: give dem or heights (or neither: the pair's clouds), not both", path)
+    out["dem"] = None
+    if value.get("dem") is not None:
+        v = value["dem"]
+        if not isinstance(v, str) or not v:
+            raise RiverbedError(f"{where}.rpc.dem: expected a file name, got {show(v)}", path)
+        out["dem"] = Path(os.path.normpath(base / v))
+        if not out["dem"].is_file():
+            raise RiverbedError(f"{where}.rpc.dem: file not found: {v}", path)
+    heights = value.get("heights")
+    if heights is not None:
+        text = ",".join(str(v) for v in heights) if isinstance(heights, list) else str(heights)
+        if isinstance(heights, list) and not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                 for v in heights):
+            text = show(heights)
+        try:
+            heights = list(parse_heights(text))
+        except ValueError as e:
+            raise RiverbedError(f"{where}.rpc.heights: {e}", path) from None
+    out["heights"] = heights
+    vertical = value.get("vertical")
+    if vertical is not None:
+        if not isinstance(vertical, str) or (out["dem"] is None and heights is None):
+            raise RiverbedError(f"{where}.rpc.vertical: expected the datum (ellipsoid or a vertical CRS such as "
+                                f"EPSG:5773) of dem or heights, got {show(vertical)}", path)
+        try:
+            dem_vertical(None, None, vertical)
+        except RiverbedError as e:
+            raise RiverbedError(f"{where}.rpc.vertical: {e}", path) from None
+    out["vertical"] = vertical
+    pointing = value.get("pointing", True)
+    if not isinstance(pointing, bool):
+        raise RiverbedError(f"{where}.rpc.pointing: expected true or false, got {show(pointing)}", path)
+    out["pointing"] = pointing
+    return out
+
+
 def default_name(pair_path, base):
     """A pair's default name: its pair file's path relative to the manifest, without suffix, '/' -> '_'."""
     rel = Path(os.path.relpath(pair_path, base)).with_suffix("")
@@ -131,7 +229,8 @@ def load_manifest(path):
 
     Raises :class:`RiverbedError` with one line naming the manifest and the key (``MANIFEST: pairs[1].cloud:
     'lidar/*.laz' matches no file``; pairs are numbered from 0) for: unreadable YAML, unknown keys, a missing pair
-    file, a cloud glob matching nothing, a bad value, duplicate names, a block-wide setting given per pair.
+    file, a cloud glob matching nothing, a bad value, duplicate names, a block-wide setting given per pair; for an
+    ``rpc:`` entry a missing image, RPC or DEM file, a malformed ROI or one outside the left image, bad heights.
     """
     path = Path(path)
     data = _read_manifest(path)
@@ -163,13 +262,14 @@ def load_manifest(path):
                                 "the settings of defaults)", path)
         if "cloud" not in entry:
             raise RiverbedError(f"{where}.cloud: missing", path)
-        if ("pair" in entry) == ("raw" in entry):
-            raise RiverbedError(f"{where}: give either pair (a rectified pair file) or raw (frames and orientations)",
-                                path)
-        raw = None
+        if sum(k in entry for k in ("pair", "raw", "rpc")) != 1:
+            raise RiverbedError(f"{where}: give one of pair (a rectified pair file), raw (frames and orientations) "
+                                "or rpc (satellite images and their RPCs)", path)
+        raw = rpc = pair_path = None
         if "raw" in entry:
             raw = _raw_frames(entry["raw"], where, path, base)
-            pair_path = None
+        elif "rpc" in entry:
+            rpc = _rpc_images(entry["rpc"], where, path, base)
         else:
             value = entry["pair"]
             if not isinstance(value, str) or not value:
@@ -179,7 +279,9 @@ def load_manifest(path):
                 raise RiverbedError(f"{where}.pair: file not found: {value}", path)
         clouds = _clouds(entry["cloud"], where, path, base)
         name = entry.get("name")
-        if name is None:
+        if name is None and rpc is not None:
+            name = default_name(rpc["left"], base) + ("_roi_{}_{}".format(*rpc["roi"][:2]) if rpc["roi"] else "")
+        elif name is None:
             name = default_name(pair_path if raw is None else raw["left_orientation"], base)
         elif not isinstance(name, str) or not _NAME.fullmatch(name):
             raise RiverbedError(f"{where}.name: expected letters, digits, '.', '_' or '-' (at most 100, not "
@@ -194,5 +296,5 @@ def load_manifest(path):
         lo, hi = settings["min_disp"], settings["max_disp"]
         if lo is not None and hi is not None and lo > hi:
             raise RiverbedError(f"{where}: min_disp {lo} > max_disp {hi}", path)
-        specs.append(PairSpec(i, name, pair_path, clouds, settings, raw))
+        specs.append(PairSpec(i, name, pair_path, clouds, settings, raw, rpc))
     return Manifest(path.absolute(), {**default_settings(), **defaults}, specs)

@@ -12,11 +12,12 @@ from ...io.raster import write_geotiff
 from ...products.dsm import Accumulator, Grid
 
 
-def merge_dsm(laz_paths, output, resolution, agg="max", crs=None, chunk_size=1_000_000):
+def merge_dsm(laz_paths, output, resolution, agg="max", crs=None, chunk_size=1_000_000, heights=None):
     """Rasterise the points of several LAS/LAZ files onto one grid (snapped to multiples of ``resolution``).
 
     Chunks stream into one :class:`~riverbed_cli.products.dsm.Accumulator`, so the result is the aggregation over
-    the union of the points, exact for every aggregation. Writes a COG GeoTIFF (NaN nodata) and returns stats.
+    the union of the points, exact for every aggregation. Writes a COG GeoTIFF (NaN nodata) and returns stats;
+    ``heights`` (e.g. ``"ellipsoidal (WGS 84, m)"`` for RPC pairs) goes into its tag ``riverbed_heights``.
     """
     t0 = time.perf_counter()
     infos = [lidar_info(p) for p in laz_paths]
@@ -35,7 +36,8 @@ def merge_dsm(laz_paths, output, resolution, agg="max", crs=None, chunk_size=1_0
             n += len(xyz)
     dsm = acc.result()
     write_geotiff(output, dsm, grid.transform, crs, float("nan"), None, overwrite=True, band_descriptions=["height"],
-                  tags={"riverbed_aggregation": agg, "riverbed_pairs": len(laz_paths)})
+                  tags={"riverbed_aggregation": agg, "riverbed_pairs": len(laz_paths),
+                        **({"riverbed_heights": heights} if heights else {})})
     return {"points": n, "resolution": grid.resolution, "width": grid.width, "height": grid.height,
             "bounds": list(grid.bounds), "cells_with_data": float(100.0 * np.isfinite(dsm).mean()),
             "seconds": round(time.perf_counter() - t0, 4)}
@@ -59,3 +61,17 @@ def merge_settings(plan, records):
                                         "give crs under defaults")
             crs = first
     return resolution, crs
+
+
+def merge_heights(records):
+    """What the merged DSM's heights are, from the finished pairs' records: ``"ellipsoidal (WGS 84, m)"`` when
+    every pair is an RPC pair, None for pinhole pairs (their world's heights); mixing the two is a
+    :class:`RiverbedError`."""
+    kinds = {n: r["stats"].get("heights") for n, r in records.items()}
+    found = set(kinds.values())
+    if len(found) > 1:
+        rpc = next(n for n, k in kinds.items() if k)
+        other = next(n for n, k in kinds.items() if not k)
+        raise RiverbedError(f"pairs '{rpc}' (RPC, {kinds[rpc]} heights) and '{other}' (pinhole) cannot be merged "
+                            "into one DSM")
+    return found.pop() if found else None

@@ -18,10 +18,11 @@ import rasterio
 
 from ...errors import RiverbedError
 from ...geometry.rectify import rectify_files
+from ...geometry.rpc_pair import rectify_rpc_files
 from ...io.atomic import atomic_output
 from ...io.images import read_image
 from ...geometry.pairfile import load_pairfile
-from .manifest import RAW_KEYS, Manifest, load_manifest
+from .manifest import RAW_KEYS, RPC_KEYS, Manifest, load_manifest
 
 log = logging.getLogger(__name__)
 
@@ -30,6 +31,8 @@ DONE = "done.json"
 MARKER = "block.json"
 WORK = ".work"
 MERGED = "dsm.tif"
+#: Where an ``rpc:`` or ``raw:`` entry's rectified pair goes, under ``pairs/NAME/``.
+RECTIFIED = "rectified"
 # io.atomic's temporary names: .STEM.XXXXXXXX.tmp.SUFFIX (8 hex digits)
 TEMP_NAME = re.compile(r"^\..+\.[0-9a-f]{8}\.tmp(\.[^.]*)?$")
 
@@ -64,7 +67,7 @@ def clean_pair_leftovers(folder, finished):
     and, for a ``finished`` pair (killed between its ``done.json`` and removing them), the image copies in
     ``.work/``. Returns the paths removed."""
     folder = Path(folder)
-    removed = [p for sub in (folder, folder / WORK, folder / "rectified") for p in clean_temps(sub)]
+    removed = [p for sub in (folder, folder / WORK, folder / RECTIFIED) for p in clean_temps(sub)]
     work = folder / WORK
     if finished and work.is_dir() and not work.is_symlink():
         removed += sorted(p for p in work.iterdir())
@@ -74,7 +77,7 @@ def clean_pair_leftovers(folder, finished):
 
 def rectify_raw(spec, outdir):
     """Rectify a raw entry into ``outdir/pairs/NAME/rectified/`` (unless done for the same inputs); its pair file."""
-    folder = Path(outdir) / "pairs" / spec.name / "rectified"
+    folder = Path(outdir) / "pairs" / spec.name / RECTIFIED
     stamp = folder / "inputs.json"
     r = spec.raw
     # the stamp holds the inputs and the settings: changing alpha or size re-rectifies
@@ -85,6 +88,39 @@ def rectify_raw(spec, outdir):
     folder.parent.mkdir(parents=True, exist_ok=True)
     rectify_files(r["left"], r["left_orientation"], r["right"], r["right_orientation"], folder, overwrite=True,
                   alpha=r["alpha"], size=r["size"])
+    write_json(stamp, inputs)
+    return folder / "pair.yaml"
+
+
+def rpc_stamp(rpc, clouds, settings):
+    """What an ``rpc:`` entry's rectification depends on: its files (name, size, mtime), ROI, heights, datum,
+    pointing and, when the heights come from the LiDAR, the clouds and the settings that select their points."""
+    files = [_stat(rpc[k], Path(rpc[k]).parent) for k in RPC_KEYS]
+    if rpc["dem"] is not None:
+        files.append(_stat(rpc["dem"], Path(rpc["dem"]).parent))
+    options = {k: rpc[k] for k in ("roi", "heights", "vertical", "pointing")}
+    if rpc["dem"] is None and rpc["heights"] is None:
+        files += [_stat(c, Path(c).parent) for c in clouds]
+        options.update({k: settings[k] for k in ("lidar_crs", "classes", "drop_classes")})
+    return files + [options]
+
+
+def rectify_rpc(job):
+    """Rectify an ``rpc:`` job's ROI into ``pairs/NAME/rectified/`` (``riverbed rectify --rpc``), unless done for
+    the same inputs (``rectified/inputs.json``); its pair file. The height range: ``dem``, ``heights`` or the
+    pair's clouds (:func:`~riverbed_cli.geometry.rpc_pair.heights_from_lidar`)."""
+    r, s = job.rpc, job.settings
+    folder = Path(job.folder) / RECTIFIED
+    stamp = folder / "inputs.json"
+    inputs = json.loads(json.dumps(rpc_stamp(r, job.clouds, s)))
+    if (folder / "pair.yaml").is_file() and stamp.is_file() and json.loads(stamp.read_text()) == inputs:
+        return folder / "pair.yaml"
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    lidar = job.clouds if r["dem"] is None and r["heights"] is None else None
+    rectify_rpc_files(r["left"], r["left_rpc"], r["right"], r["right_rpc"], folder, roi=r["roi"], dem=r["dem"],
+                      heights=r["heights"], vertical=r["vertical"], pointing=r["pointing"], overwrite=True,
+                      max_pixels=s["max_pixels"], lidar=lidar, lidar_crs=s["lidar_crs"], classes=s["classes"],
+                      drop_classes=s["drop_classes"])
     write_json(stamp, inputs)
     return folder / "pair.yaml"
 
@@ -105,6 +141,7 @@ class PairJob:
     status: str = "run"  # run | skip | failed (at planning)
     error: str = None
     record: dict = None  # done.json of a skipped pair
+    rpc: dict = None  # an rpc: entry (images, RPCs, ROI, heights), rectified by the project stage
 
 
 @dataclass
@@ -243,19 +280,29 @@ def plan_block(manifest, outdir, overwrite=False):
                       str(outdir / "pairs" / spec.name))
         jobs.append(job)
         cleaned += clean_pair_leftovers(job.folder, finished=False)
+        rpc_options = None
         try:
-            if spec.raw is not None:
-                # raw frames: rectify first (cheap, here in the planner), then the pair runs like any other
-                spec.pair = rectify_raw(spec, outdir)
-                job.pair = str(spec.pair)
-            pair = load_pairfile(spec.pair)
-            for side in ("left", "right"):
-                if getattr(pair, side) is None:
-                    raise RiverbedError(f"{side}: missing (a block needs the rectified images)", spec.pair)
-            shape = pair.image_size or _image_size(pair.left)
-            job.shape = tuple(int(v) for v in shape)
-            raw_files = [spec.raw[k] for k in RAW_KEYS] if spec.raw else []
-            files = [spec.pair, pair.left, pair.right, *spec.clouds, *raw_files]
+            if spec.rpc is not None:
+                # satellite images: each ROI is rectified by its project task (on the workers: it reads image
+                # windows and matches tie points); inputs and settings are hashed without the rectified pair
+                job.rpc = {k: (str(v) if isinstance(v, Path) else v) for k, v in spec.rpc.items()}
+                job.pair = str(Path(job.folder) / RECTIFIED / "pair.yaml")
+                files = [spec.rpc[k] for k in RPC_KEYS] + ([spec.rpc["dem"]] if spec.rpc["dem"] else [])
+                files += spec.clouds
+                rpc_options = {k: spec.rpc[k] for k in ("roi", "heights", "vertical", "pointing")}
+            else:
+                if spec.raw is not None:
+                    # raw frames: rectify first (cheap, here in the planner), then the pair runs like any other
+                    spec.pair = rectify_raw(spec, outdir)
+                    job.pair = str(spec.pair)
+                pair = load_pairfile(spec.pair, accept_rpc=True)
+                for side in ("left", "right"):
+                    if getattr(pair, side) is None:
+                        raise RiverbedError(f"{side}: missing (a block needs the rectified images)", spec.pair)
+                shape = pair.image_size or _image_size(pair.left)
+                job.shape = tuple(int(v) for v in shape)
+                raw_files = [spec.raw[k] for k in RAW_KEYS] if spec.raw else []
+                files = [spec.pair, pair.left, pair.right, *spec.clouds, *raw_files]
             if s["registration"]:
                 files.append(Path(s["registration"]))
             job.inputs = [_stat(p, base) for p in files]
@@ -265,8 +312,10 @@ def plan_block(manifest, outdir, overwrite=False):
         except OSError as e:
             job.status, job.error = "failed", f"{e.filename or ''}: {e.strerror or e}"
             continue
-        job.settings_hash = _hash_json({"name": spec.name, "settings": s, "inputs": job.inputs,
-                                        "riverbed": version})
+        hashed = {"name": spec.name, "settings": s, "inputs": job.inputs, "riverbed": version}
+        if rpc_options is not None:
+            hashed["rpc"] = rpc_options
+        job.settings_hash = _hash_json(hashed)
         record = verify_done(job.folder, job.settings_hash)
         if record is not None:
             job.status, job.record = "skip", record

@@ -13,8 +13,8 @@ from pathlib import Path
 import numba
 
 from ...errors import RiverbedError
-from .merge import merge_dsm, merge_settings
-from .plan import DONE, MARKER, MERGED, WORK, clean_temps, sha256_file, write_json
+from .merge import merge_dsm, merge_heights, merge_settings
+from .plan import DONE, MARKER, MERGED, WORK, clean_temps, rectify_rpc, sha256_file, write_json
 from .stages import PairFailure, finish_stage, n_tasks, project_stage, tile_stage
 
 log = logging.getLogger(__name__)
@@ -44,6 +44,10 @@ def _guard(stage, fn, *args):
 
 def task_project(job, threads):
     _numba_threads(threads)
+    if job.rpc is not None:  # an rpc: entry's ROI rectified first: its failures are the "rectify" stage's
+        done = _guard("rectify", rectify_rpc, job)
+        if isinstance(done, PairFailure):
+            return done
     return _guard("project", project_stage, job)
 
 
@@ -65,9 +69,9 @@ def task_finish(job, proj, tiles, threads):
     return result
 
 
-def task_merge(laz_paths, output, resolution, agg, crs):
+def task_merge(laz_paths, output, resolution, agg, crs, heights=None):
     clean_temps(Path(output).parent, (Path(output).name,))  # a merge killed mid-write and retried
-    return _guard("merge", merge_dsm, laz_paths, output, resolution, agg, crs)
+    return _guard("merge", merge_dsm, laz_paths, output, resolution, agg, crs, 1_000_000, heights)
 
 
 def _describe(exc):
@@ -335,6 +339,7 @@ def _merge(plan, entries, client, retries):
             records[j.name] = json.loads(path.read_text(encoding="utf-8"))
             hashes[j.name] = sha256_file(path)
         resolution, crs = merge_settings(plan, records)
+        heights = merge_heights(records)
     except (OSError, ValueError, KeyError) as e:
         return {"status": "failed", "error": f"cannot read a finished pair's record ({e})", "output": None}
     except RiverbedError as e:
@@ -353,14 +358,14 @@ def _merge(plan, entries, client, retries):
                 "seconds": round(time.perf_counter() - t0, 3)}
     paths = [str(Path(j.folder) / "points.laz") for j in good]
     if client is not None:
-        fut = client.submit(task_merge, paths, str(output), resolution, agg, crs, key=f"merge-{uuid.uuid4().hex[:8]}",
-                            retries=retries, pure=False)
+        fut = client.submit(task_merge, paths, str(output), resolution, agg, crs, heights,
+                            key=f"merge-{uuid.uuid4().hex[:8]}", retries=retries, pure=False)
         try:
             stats = fut.result()
         except Exception as e:  # noqa: BLE001 - reported like a failed pair
             stats = PairFailure("merge", _describe(e))
     else:
-        stats = _guard("merge", merge_dsm, paths, output, resolution, agg, crs)
+        stats = _guard("merge", merge_dsm, paths, output, resolution, agg, crs, 1_000_000, heights)
     if isinstance(stats, PairFailure):
         return {"status": "failed", "error": stats.message, "output": None}
     record["merged"] = {"key": key, "size": output.stat().st_size, "sha256": sha256_file(output), "stats": stats}

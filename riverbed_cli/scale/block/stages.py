@@ -11,10 +11,11 @@ import numpy as np
 
 from ...errors import RiverbedError
 from ...geometry.projection import project_cloud
+from ...geometry.rpc_geometry import cloud_to_wgs84, output_crs
 from ...io.atomic import atomic_output
 from ...io.disparity import read_disparity, write_disparity
 from ...io.images import check_pair, check_pixels, read_image
-from ...io.lidar import lidar_info
+from ...io.lidar import lidar_info, resolve_crs
 from ...geometry.pairfile import load_pairfile, load_registration
 from ...io.pointcloud import write_points
 from ...io.raster import write_geotiff
@@ -24,7 +25,7 @@ from ...matching.pipeline import match_pair, resolve_disparity_range
 from ...matching.registry import get_guide
 from ...products.dsm import build_dsm
 from ..tiles import Tile, match_tile, plan_tiles, tube_widths
-from .plan import DONE, OUTPUTS, WORK, clean_temps, riverbed_version, sha256_file, write_json
+from .plan import DONE, OUTPUTS, WORK, clean_temps, rectify_rpc, riverbed_version, sha256_file, write_json
 from .settings import match_params
 
 
@@ -38,22 +39,38 @@ class PairFailure:
         return f"PairFailure({self.stage!r}, {self.message!r})"
 
 
-def _cloud_may_land(path, pair, reg, shape):
+#: An RPC pair's cloud is read when its header box's corners project within this many pixels of the left image.
+RPC_BOX_MARGIN_PX = 16
+
+
+def _cloud_may_land(path, pair, reg, shape, crs=None):
     """False when the cloud's header box cannot project into the left image (all corners in front of the camera
-    and their image hull outside it): such a cloud is not read at all."""
+    and their image hull outside it; for an RPC pair, the corners through the cloud's CRS and the RPC, with a
+    margin of :data:`RPC_BOX_MARGIN_PX`): such a cloud is not read at all."""
     info = lidar_info(path)  # validates the header: a corrupt file fails here
     if info.point_count == 0:
         return False
     corners = np.array(np.meshgrid(*zip(info.mins, info.maxs))).T.reshape(-1, 3)
-    local = pair.lidar_to_local(corners, reg)
-    x, y, _, depth = pair.project(local)
-    if not (depth > 0).all():
-        return True
+    margin = 0.0
+    if getattr(pair, "kind", None) == "rpc":
+        lon, lat, h = cloud_to_wgs84(resolve_crs(info, crs), path)(corners[:, 0], corners[:, 1], corners[:, 2])
+        x, y, _, _ = pair.project(lon, lat, h)
+        if not (np.isfinite(x).all() and np.isfinite(y).all()):
+            return True
+        margin = RPC_BOX_MARGIN_PX
+    else:
+        local = pair.lidar_to_local(corners, reg)
+        x, y, _, depth = pair.project(local)
+        if not (depth > 0).all():
+            return True
     H, W = shape
-    return not (x.max() < -0.5 or x.min() >= W - 0.5 or y.max() < -0.5 or y.min() >= H - 0.5)
+    return not (x.max() < -0.5 - margin or x.min() >= W - 0.5 + margin or y.max() < -0.5 - margin
+                or y.min() >= H - 0.5 + margin)
 
 
 _EMPTY_CLOUD = ("no point lands in both images", "no point is left after")
+#: The heights of an RPC pair's points and DSMs (``riverbed dsm``'s tag on RPC pairs).
+RPC_HEIGHTS = "ellipsoidal (WGS 84, m)"
 
 
 def _image_source(path, shape, max_pixels):
@@ -94,12 +111,17 @@ def project_stage(job):
         (folder / DONE).unlink()  # from now on the folder is not a finished pair
     clean_temps(folder, ("sparse.tif",))
     clean_temps(folder / WORK, ("left.npy", "right.npy"))
-    pair = load_pairfile(job.pair)
+    if job.rpc is not None:
+        rectify_rpc(job)  # an rpc: entry: its ROI rectified (unless done for the same inputs)
+    pair = load_pairfile(job.pair, accept_rpc=True)
     reg = load_registration(s["registration"]) if s["registration"] else None
-    H, W = job.shape
+    H, W = job.shape if job.shape is not None else pair.image_size
+    rpc = getattr(pair, "kind", None) == "rpc"
+    if rpc and reg is not None:
+        raise RiverbedError("registration does not apply to an RPC pair (the cloud's CRS places it)", job.pair)
     sparse, counts, used, empty = None, {}, [], []
     for cloud in job.clouds:
-        if not _cloud_may_land(cloud, pair, pair.registration if reg is None else reg, (H, W)):
+        if not _cloud_may_land(cloud, pair, pair.registration if reg is None else reg, (H, W), s["lidar_crs"]):
             empty.append(cloud)
             continue
         try:
@@ -146,7 +168,7 @@ def project_stage(job):
              "lidar_points_kept": counts["kept"], "lidar_share": share, "lidar_crs": counts["crs"],
              "tile": int(plan.size) if tiles else None}
     return {"tiles": tiles, "window": window, "bits": bits, "d_min": d_min, "d_max": d_max, "stats": stats,
-            "seconds": round(time.perf_counter() - t0, 4)}
+            "shape": [H, W], "seconds": round(time.perf_counter() - t0, 4)}
 
 
 def tile_stage(job, proj, index):
@@ -160,9 +182,9 @@ def tile_stage(job, proj, index):
     s = job.settings
     p = match_params(s)
     folder = Path(job.folder)
-    H, W = job.shape
+    H, W = proj["shape"]
     if not proj["tiles"]:
-        pair = load_pairfile(job.pair)
+        pair = load_pairfile(job.pair, accept_rpc=True)
         left = read_image(pair.left, s["max_pixels"])
         right = read_image(pair.right, s["max_pixels"])
         check_pair(left, right, pair.left, pair.right)
@@ -200,7 +222,7 @@ def finish_stage(job, proj, tiles):
     s = job.settings
     folder = Path(job.folder)
     clean_temps(folder, (*OUTPUTS, DONE))
-    H, W = job.shape
+    H, W = proj["shape"]
     tiled = bool(proj["tiles"])
     if tiled:
         disp = np.full((H, W), np.nan, np.float32)
@@ -218,13 +240,17 @@ def finish_stage(job, proj, tiles):
     write_disparity(folder / "disparity.tif", disp, overwrite=True,
                     tags={"riverbed_guide": s["guide"], "riverbed_block_pair": job.name,
                           "riverbed_tiles": info["tiles"]})
-    pair = load_pairfile(job.pair)
+    pair = load_pairfile(job.pair, accept_rpc=True)
     work = folder / WORK
     if tiled:
         image = np.load(work / "left.npy", mmap_mode="r")
     else:
         image = read_image(pair.left, s["max_pixels"])
-    crs = s["crs"] or pair.crs or proj["stats"]["lidar_crs"]
+    rpc = getattr(pair, "kind", None) == "rpc"
+    if rpc:  # two RPC rays intersected: points in the block's crs, default the scene's UTM zone; heights ellipsoidal
+        pair.crs = crs = output_crs(pair, s["crs"], option="crs")
+    else:
+        crs = s["crs"] or pair.crs or proj["stats"]["lidar_crs"]
     blocks = []
     res = build_dsm([(disp, pair, image)], (), s["resolution"], s["agg"],
                     point_sink=lambda xyz, rgb: blocks.append((xyz, rgb)))
@@ -235,10 +261,12 @@ def finish_stage(job, proj, tiles):
     write_points(folder / "points.laz", xyz, rgb, crs, overwrite=True)
     write_geotiff(folder / "dsm.tif", res.dsm, res.grid.transform, crs, float("nan"), None, overwrite=True,
                   band_descriptions=["height"],
-                  tags={"riverbed_aggregation": s["agg"], "riverbed_block_pair": job.name})
+                  tags={"riverbed_aggregation": s["agg"], "riverbed_block_pair": job.name,
+                        **({"riverbed_heights": RPC_HEIGHTS} if rpc else {})})
     t_match = sum(t["seconds"] for t in tiles)
     seconds = {"project": proj["seconds"], "match": round(t_match, 4), "dsm": round(time.perf_counter() - t0, 4)}
     summary = {"points": len(xyz), "resolution": res.grid.resolution, "crs": crs,
+               **({"heights": RPC_HEIGHTS, "roi": list(pair.roi)} if rpc else {}),
                "bounds": list(res.grid.bounds), **proj["stats"], **info, "d_min": proj["d_min"],
                "d_max": proj["d_max"], "seconds": seconds}
     outputs = {name: {"size": (folder / name).stat().st_size, "sha256": sha256_file(folder / name)}

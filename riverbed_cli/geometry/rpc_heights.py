@@ -1,0 +1,129 @@
+"""The terrain's height range under a ROI of an RPC image: from a DEM, from LiDAR, or given (docs/rpc.md).
+
+``riverbed rectify --rpc`` (``--dem``, ``--lidar``, ``--heights``) and block ``rpc:`` entries take the range from
+here: the affine rectification is fitted on virtual matches over it and the rectified disparity range spans it.
+"""
+
+import math
+import os
+
+import numpy as np
+
+from ..errors import RiverbedError
+from ..io.lidar import class_mask, iter_lidar, lidar_info, resolve_crs
+from .rpc_dem import geoid_to_ellipsoid_transformer, read_dem
+from .rpc_geometry import cloud_to_wgs84
+from .rpc_rectify import heights_over_roi
+
+#: Margin (m) added below and above the terrain's height range from a DEM or a LiDAR cloud.
+HEIGHT_MARGIN_M = 20.0
+#: The LiDAR's points under the ROI must fall in at least this share of the cells of a LIDAR_GRID x LIDAR_GRID
+#: grid over the ROI for ``heights_from_lidar``; below it the cloud "does not cover the ROI".
+LIDAR_MIN_COVER = 0.5
+LIDAR_GRID = 8
+
+
+def footprint_bounds(rpc, roi, h):
+    """(lon_min, lat_min, lon_max, lat_max) of the ROI's border localised at height ``h`` (degrees)."""
+    x, y, w, hh = roi
+    t = np.linspace(0, 1, 9)
+    cols = np.concatenate([x + t * (w - 1), x + t * (w - 1), np.full(9, x), np.full(9, x + w - 1)])
+    rows = np.concatenate([np.full(9, y), np.full(9, y + hh - 1), y + t * (hh - 1), y + t * (hh - 1)])
+    lon, lat = rpc.localize(cols, rows, h)
+    if not (np.isfinite(lon).all() and np.isfinite(lat).all()):
+        raise RiverbedError("the RPC model cannot localise the ROI (outside the model's domain)", rpc.source)
+    return float(lon.min()), float(lat.min()), float(lon.max()), float(lat.max())
+
+
+def heights_from_dem(rpc_left, roi, dem_path, vertical=None, margin_m=20.0):
+    """The terrain's ellipsoidal height range (m) under the left ROI from a DEM, widened by ``margin_m``.
+
+    The DEM must cover the ROI's footprint at the model's mean height (checked before reading: a one-line error
+    naming the DEM) and the footprint on the terrain (:func:`~riverbed_cli.geometry.rpc_rectify.heights_over_roi`).
+    """
+    bounds = footprint_bounds(rpc_left, roi, rpc_left.height_off)
+    dem = read_dem(dem_path, bounds=bounds, vertical=vertical, margin_deg=0.01)
+    try:
+        lo, hi = heights_over_roi(rpc_left, roi, dem, margin_m=margin_m)
+    except RiverbedError:
+        raise RiverbedError("the DEM does not cover the ROI's footprint on the terrain", dem_path) from None
+    return (lo, hi), dem.vertical
+
+
+def heights_from_lidar(rpc_left, roi, clouds, crs=None, classes=None, drop_classes=(7, 18),
+                       margin_m=HEIGHT_MARGIN_M, chunk_size=1_000_000):
+    """The terrain's ellipsoidal height range (m) under the left ROI from LiDAR clouds, widened by ``margin_m``.
+
+    Every point (of the kept classes: ``classes``, all when None, minus ``drop_classes``, ASPRS noise by default)
+    is converted to WGS 84 and ellipsoidal heights (:func:`~riverbed_cli.geometry.rpc_geometry.cloud_to_wgs84`,
+    the file's CRS or ``crs``) and projected through the left RPC with its own height; the points landing inside
+    the ROI give the range. The cloud must cover the ROI: its points must fall in at least
+    :data:`LIDAR_MIN_COVER` of the cells of a :data:`LIDAR_GRID` x :data:`LIDAR_GRID` grid over the ROI, else a
+    one-line :class:`RiverbedError` naming the (first) cloud.
+
+    Parameters
+    ----------
+    rpc_left : RPCModel
+        The left image's model (pixels of the left input file).
+    roi : (col, row, width, height)
+        The region of the left image (px).
+    clouds : path or sequence of paths
+        LAS/LAZ files (read in chunks).
+    crs : str, optional
+        The clouds' CRS when their files do not state it (3D or compound: the heights' datum must be known).
+
+    Returns
+    -------
+    (lo, hi) : tuple of float
+        Ellipsoidal heights (m), margins included.
+    info : dict
+        ``points`` under the ROI, ``points_read``, ``cover`` (share of the grid's cells with points), ``range``
+        (the points' own min and max, m).
+    """
+    clouds = [clouds] if isinstance(clouds, (str, os.PathLike)) else list(clouds)
+    x0, y0, w, h = roi
+    lo, hi = math.inf, -math.inf
+    n_read = n_in = 0
+    cells = np.zeros(LIDAR_GRID * LIDAR_GRID, bool)
+    for path in clouds:
+        info = lidar_info(path)
+        to_wgs = cloud_to_wgs84(resolve_crs(info, crs), path)
+        for chunk in iter_lidar(path, chunk_size=chunk_size):
+            xyz = np.asarray(chunk["xyz"], np.float64)
+            n_read += xyz.shape[0]
+            xyz = xyz[class_mask(chunk["classification"], classes, drop_classes)]
+            lon, lat, hh = to_wgs(xyz[:, 0], xyz[:, 1], xyz[:, 2])
+            col, row = rpc_left.project(lon, lat, hh)
+            inside = (col >= x0 - 0.5) & (col < x0 + w - 0.5) & (row >= y0 - 0.5) & (row < y0 + h - 0.5)
+            if not inside.any():
+                continue
+            n_in += int(inside.sum())
+            lo, hi = min(lo, float(hh[inside].min())), max(hi, float(hh[inside].max()))
+            gi = np.clip(((col[inside] - x0 + 0.5) * LIDAR_GRID / w).astype(np.int64), 0, LIDAR_GRID - 1)
+            gj = np.clip(((row[inside] - y0 + 0.5) * LIDAR_GRID / h).astype(np.int64), 0, LIDAR_GRID - 1)
+            cells[gj * LIDAR_GRID + gi] = True
+    name = clouds[0] if len(clouds) == 1 else f"{clouds[0]} (and {len(clouds) - 1} more)"
+    where = f"the ROI {x0},{y0},{w},{h} of the left image"
+    if n_in == 0:
+        raise RiverbedError(f"does not cover {where}: no point of the kept classes lands in it ({n_read} read)",
+                            name)
+    cover = float(cells.mean())
+    if cover < LIDAR_MIN_COVER:
+        raise RiverbedError(f"does not cover {where}: its {n_in} points there fall in {cover:.0%} of an "
+                            f"{LIDAR_GRID}x{LIDAR_GRID} grid over it (at least {LIDAR_MIN_COVER:.0%} needed)", name)
+    return (lo - margin_m, hi + margin_m), {"points": n_in, "points_read": n_read, "cover": cover,
+                                            "range": [lo, hi]}
+
+
+def heights_to_ellipsoid(heights, rpc_left, roi, vertical):
+    """``--heights`` in a vertical datum -> ellipsoidal heights (m) at the ROI's centre; unchanged for ellipsoid."""
+    if vertical is None or str(vertical).lower() in ("ellipsoid", "ellipsoidal", "epsg:4979"):
+        return tuple(float(v) for v in heights)
+    try:
+        tr = geoid_to_ellipsoid_transformer(vertical)
+    except RiverbedError as e:
+        raise RiverbedError(f"--vertical: {e}") from None
+    x, y, w, h = roi
+    lon, lat = rpc_left.localize(x + (w - 1) / 2, y + (h - 1) / 2, float(np.mean(heights)))
+    _, _, out = tr.transform([float(lon)] * 2, [float(lat)] * 2, list(heights))
+    return float(out[0]), float(out[1])
