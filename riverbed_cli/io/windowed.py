@@ -1,6 +1,7 @@
 """Rasters read and written window by window: :class:`WindowedRaster` (a TIFF sliced like a numpy array),
 :class:`TiffSink` (a float32 GeoTIFF written tile by tile), and whole-raster scans that read block by block."""
 
+import os
 import warnings
 
 import numpy as np
@@ -55,6 +56,19 @@ class WindowedRaster:
 
     def __setstate__(self, state):
         self.__init__(state["path"], state["kind"])
+
+
+#: GDAL's block cache while rasters are read and written tile by tile. GDAL's default is 5 % of the machine's memory
+#: (1.2 GiB here): a 100 MP tiled match filled it with the inputs' and the output's blocks and peaked at 2016 MiB
+#: instead of 1339 MiB. Each tile reads its window once, so a small cache costs no speed.
+TILED_CACHE_BYTES = 64 * 2**20
+
+
+def bounded_raster_cache():
+    """A context in which GDAL's block cache holds at most :data:`TILED_CACHE_BYTES` (``GDAL_CACHEMAX`` in the
+    environment, in MiB, overrides it)."""
+    env = os.environ.get("GDAL_CACHEMAX")
+    return rasterio.Env() if env else rasterio.Env(GDAL_CACHEMAX=TILED_CACHE_BYTES)
 
 
 def is_tiff(path):

@@ -21,7 +21,7 @@ import psutil
 
 from ..errors import RiverbedError
 from ..io.images import to_guide
-from ..io.windowed import image_bits, sparse_points_any
+from ..io.windowed import bounded_raster_cache, image_bits, sparse_points_any
 from ..matching.config import OVERLAP_DEFAULT, TILE_DEFAULT
 from ..matching.guidance import lidar_share, lidar_share_of_points
 from ..matching.pipeline import make_config, match_pair, resolve_disparity_range, resolve_range
@@ -266,34 +266,35 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
         raise RiverbedError(f"left and right images differ in size: {W}x{H} vs {right.shape[1]}x{right.shape[0]}")
     if sparse is not None and sparse.shape[:2] != (H, W):
         raise RiverbedError(f"sparse map is {sparse.shape[1]}x{sparse.shape[0]} but the images are {W}x{H} (WxH)")
-    t_all = time.perf_counter()
-    share = 0.0
-    if sparse is not None:
-        pr, pc, pv = sparse_points_any(sparse)
-        if pv.size == 0:
-            raise RiverbedError("sparse map has no valid disparities")
-        share = lidar_share_of_points(pr, pc, (H, W))
-    d_min, d_max = resolve_disparity_range(d_min, d_max, pv if sparse is not None else None)
-    if overlap < 0:
-        raise RiverbedError(f"--overlap must be >= 0, got {overlap}")
-    bits = image_bits(left, right)
-    if guide.uses_window and p.guidance.window == "auto":
-        # One window for the whole image: a tile's own LiDAR share would change it from tile to tile.
-        p = p.replace(window=guide.window(share, p))
-    widths = tube_widths(p, (pr, pc, pv), (H, W), d_min, d_max, share) if sparse is not None else None
-    plan = plan_tiles(H, W, sparse, d_min, d_max, tile, overlap, lidar_range, widths=widths)
-    if out is None:
-        out = np.full((H, W), np.nan, np.float32)
-    stages = {}
-    evaluations = 0
-    for t in plan.tiles:
-        block, n, st = match_tile(left, right, sparse, t, overlap, p, bits, share, (d_min, d_max))
-        out[t.y0:t.y1, t.x0:t.x1] = block
-        evaluations += n
-        for k, v in st.items():
-            stages[k] = round(stages.get(k, 0.0) + v, 4)
-        if progress:
-            progress(1)
+    with bounded_raster_cache():  # GDAL's cache would otherwise hold blocks of the whole image
+        t_all = time.perf_counter()
+        share = 0.0
+        if sparse is not None:
+            pr, pc, pv = sparse_points_any(sparse)
+            if pv.size == 0:
+                raise RiverbedError("sparse map has no valid disparities")
+            share = lidar_share_of_points(pr, pc, (H, W))
+        d_min, d_max = resolve_disparity_range(d_min, d_max, pv if sparse is not None else None)
+        if overlap < 0:
+            raise RiverbedError(f"--overlap must be >= 0, got {overlap}")
+        bits = image_bits(left, right)
+        if guide.uses_window and p.guidance.window == "auto":
+            # One window for the whole image: a tile's own LiDAR share would change it from tile to tile.
+            p = p.replace(window=guide.window(share, p))
+        widths = tube_widths(p, (pr, pc, pv), (H, W), d_min, d_max, share) if sparse is not None else None
+        plan = plan_tiles(H, W, sparse, d_min, d_max, tile, overlap, lidar_range, widths=widths)
+        if out is None:
+            out = np.full((H, W), np.nan, np.float32)
+        stages = {}
+        evaluations = 0
+        for t in plan.tiles:
+            block, n, st = match_tile(left, right, sparse, t, overlap, p, bits, share, (d_min, d_max))
+            out[t.y0:t.y1, t.x0:t.x1] = block
+            evaluations += n
+            for k, v in st.items():
+                stages[k] = round(stages.get(k, 0.0) + v, 4)
+            if progress:
+                progress(1)
     info = TiledMatchInfo(round(time.perf_counter() - t_all, 4), stages, p.guide, share,
                           p.guidance.window if guide.uses_window else None, d_min, d_max, [W, H], len(plan.tiles),
                           plan.size, overlap, int(evaluations), plan.to_dict()["tile_ranges"])
