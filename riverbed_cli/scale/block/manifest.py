@@ -162,7 +162,8 @@ def _rpc_images(value, where, path, base):
     roi = value.get("roi")
     if roi is not None:
         text = ",".join(str(v) for v in roi) if isinstance(roi, list) else roi
-        if isinstance(roi, list) and not all(isinstance(v, int) and not isinstance(v, bool) for v in roi):
+        if isinstance(roi, list) and (len(roi) != 4 or not all(isinstance(v, int) and not isinstance(v, bool)
+                                                                for v in roi)):
             text = None
         try:
             if not isinstance(text, str):

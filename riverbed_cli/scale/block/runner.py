@@ -14,7 +14,7 @@ import numba
 
 from ...errors import RiverbedError
 from .merge import merge_dsm, merge_heights, merge_settings
-from .plan import DONE, MARKER, MERGED, WORK, clean_temps, rectify_rpc, sha256_file, write_json
+from .plan import DONE, MARKER, MERGED, WORK, clean_temps, sha256_file, write_json
 from .stages import PairFailure, finish_stage, n_tasks, project_stage, tile_stage
 
 log = logging.getLogger(__name__)
@@ -38,16 +38,12 @@ def _numba_threads(n):
 def _guard(stage, fn, *args):
     try:
         return fn(*args)
-    except RiverbedError as e:
-        return PairFailure(stage, str(e))
+    except RiverbedError as e:  # a stage may name a finer one (the project task's "rectify")
+        return PairFailure(getattr(e, "stage", None) or stage, str(e))
 
 
 def task_project(job, threads):
     _numba_threads(threads)
-    if job.rpc is not None:  # an rpc: entry's ROI rectified first: its failures are the "rectify" stage's
-        done = _guard("rectify", rectify_rpc, job)
-        if isinstance(done, PairFailure):
-            return done
     return _guard("project", project_stage, job)
 
 

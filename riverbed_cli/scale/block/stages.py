@@ -23,10 +23,17 @@ from ...io.windowed import WindowedRaster, image_bits, open_windowed, sparse_poi
 from ...matching.guidance import lidar_share_of_points
 from ...matching.pipeline import match_pair, resolve_disparity_range
 from ...matching.registry import get_guide
-from ...products.dsm import build_dsm
+from ...products.dsm import Accumulator, Grid, default_resolution, disparity_points
 from ..tiles import Tile, match_tile, plan_tiles, tube_widths
 from .plan import DONE, OUTPUTS, WORK, clean_temps, rectify_rpc, riverbed_version, sha256_file, write_json
 from .settings import match_params
+
+
+class RectifyError(RiverbedError):
+    """Bad input found while rectifying an ``rpc:`` entry's ROI (the project task's first step): reported as the
+    ``rectify`` stage's failure."""
+
+    stage = "rectify"
 
 
 class PairFailure:
@@ -111,8 +118,13 @@ def project_stage(job):
         (folder / DONE).unlink()  # from now on the folder is not a finished pair
     clean_temps(folder, ("sparse.tif",))
     clean_temps(folder / WORK, ("left.npy", "right.npy"))
-    if job.rpc is not None:
-        rectify_rpc(job)  # an rpc: entry: its ROI rectified (unless done for the same inputs)
+    t_rectify = None
+    if job.rpc is not None:  # an rpc: entry: its ROI rectified (unless done for the same inputs)
+        try:
+            rectify_rpc(job)
+        except RiverbedError as e:
+            raise RectifyError(str(e)) from None
+        t_rectify = round(time.perf_counter() - t0, 4)
     pair = load_pairfile(job.pair, accept_rpc=True)
     reg = load_registration(s["registration"]) if s["registration"] else None
     H, W = job.shape if job.shape is not None else pair.image_size
@@ -168,7 +180,7 @@ def project_stage(job):
              "lidar_points_kept": counts["kept"], "lidar_share": share, "lidar_crs": counts["crs"],
              "tile": int(plan.size) if tiles else None}
     return {"tiles": tiles, "window": window, "bits": bits, "d_min": d_min, "d_max": d_max, "stats": stats,
-            "shape": [H, W], "seconds": round(time.perf_counter() - t0, 4)}
+            "shape": [H, W], "rectify_seconds": t_rectify, "seconds": round(time.perf_counter() - t0, 4)}
 
 
 def tile_stage(job, proj, index):
@@ -213,6 +225,39 @@ def n_tasks(proj):
     return len(proj["tiles"]) or 1
 
 
+def pair_dsm(disp, pair, image, resolution, agg, block_rows=256):
+    """A pair's points and DSM, triangulated once: :func:`~riverbed_cli.products.dsm.build_dsm` without LiDAR
+    (the same points in the same order into the same grid and accumulator: the same DSM), keeping the points it
+    would hand its point sink instead of triangulating twice (extent, then rasterisation).
+
+    Returns ``(dsm, grid, xyz, rgb)``: float32 heights (NaN empty), the
+    :class:`~riverbed_cli.products.dsm.Grid` (snapped to multiples of ``resolution``; default the left image's
+    ground sample distance at the median depth), the points (N x 3) and their colours (None without an image).
+    """
+    blocks, depths = [], []
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for r0 in range(0, disp.shape[0], block_rows):
+        xyz, depth, rgb = disparity_points(disp, pair, slice(r0, r0 + block_rows), image)
+        ok = np.isfinite(xyz).all(axis=1)
+        xyz = xyz[ok]
+        if len(xyz):
+            lo, hi = np.minimum(lo, xyz.min(axis=0)), np.maximum(hi, xyz.max(axis=0))
+            depths.append(depth[:: max(1, len(depth) // 2000)])
+        blocks.append((xyz, None if rgb is None else rgb[ok]))
+    if not np.isfinite(lo).all():
+        raise RiverbedError("no valid points to rasterise (all disparities invalid and no LiDAR points)")
+    if resolution is None:
+        rpc = getattr(pair, "kind", None) == "rpc"  # its "depths" are ground sample distances
+        resolution = default_resolution(np.concatenate(depths), 1.0 if rpc else pair.focal)
+    grid = Grid.from_bounds(lo[0], lo[1], hi[0], hi[1], resolution)
+    acc = Accumulator(grid, agg)
+    for xyz, _ in blocks:
+        acc.add(xyz[:, 0], xyz[:, 1], xyz[:, 2])
+    xyz = np.concatenate([b[0] for b in blocks])
+    rgb = np.concatenate([b[1] for b in blocks]) if all(b[1] is not None for b in blocks) else None
+    return acc.result().astype(np.float32), grid, xyz, rgb
+
+
 def finish_stage(job, proj, tiles):
     """Stitch the tiles, triangulate, write ``disparity.tif``, ``points.laz``, ``dsm.tif`` and, last, ``done.json``.
 
@@ -251,23 +296,20 @@ def finish_stage(job, proj, tiles):
         pair.crs = crs = output_crs(pair, s["crs"], option="crs")
     else:
         crs = s["crs"] or pair.crs or proj["stats"]["lidar_crs"]
-    blocks = []
-    res = build_dsm([(disp, pair, image)], (), s["resolution"], s["agg"],
-                    point_sink=lambda xyz, rgb: blocks.append((xyz, rgb)))
-    xyz = np.concatenate([b[0] for b in blocks]) if blocks else np.zeros((0, 3))
-    rgb = np.concatenate([b[1] for b in blocks]) if blocks and all(b[1] is not None for b in blocks) else None
-    blocks.clear()
+    dsm, grid, xyz, rgb = pair_dsm(disp, pair, image, s["resolution"], s["agg"])
     del image
     write_points(folder / "points.laz", xyz, rgb, crs, overwrite=True)
-    write_geotiff(folder / "dsm.tif", res.dsm, res.grid.transform, crs, float("nan"), None, overwrite=True,
+    write_geotiff(folder / "dsm.tif", dsm, grid.transform, crs, float("nan"), None, overwrite=True,
                   band_descriptions=["height"],
                   tags={"riverbed_aggregation": s["agg"], "riverbed_block_pair": job.name,
                         **({"riverbed_heights": RPC_HEIGHTS} if rpc else {})})
     t_match = sum(t["seconds"] for t in tiles)
     seconds = {"project": proj["seconds"], "match": round(t_match, 4), "dsm": round(time.perf_counter() - t0, 4)}
-    summary = {"points": len(xyz), "resolution": res.grid.resolution, "crs": crs,
+    if proj.get("rectify_seconds") is not None:  # included in "project"
+        seconds["rectify"] = proj["rectify_seconds"]
+    summary = {"points": len(xyz), "resolution": grid.resolution, "crs": crs,
                **({"heights": RPC_HEIGHTS, "roi": list(pair.roi)} if rpc else {}),
-               "bounds": list(res.grid.bounds), **proj["stats"], **info, "d_min": proj["d_min"],
+               "bounds": list(grid.bounds), **proj["stats"], **info, "d_min": proj["d_min"],
                "d_max": proj["d_max"], "seconds": seconds}
     outputs = {name: {"size": (folder / name).stat().st_size, "sha256": sha256_file(folder / name)}
                for name in OUTPUTS}
