@@ -30,19 +30,21 @@ import numpy as np
 from ...errors import RiverbedError
 from .. import census
 from ..disparity import median_filter
-from .cost import adcensus_cost, cost_luts, to_u8, u8_image
-from .cross import adcensus_aggregate, cross_aggregate, cross_arms, support_counts
+from .cost import adcensus_cost, adcensus_cost_tube, cost_luts, to_u8, u8_image
+from .cross import (adcensus_aggregate, cross_aggregate, cross_aggregate_tube, cross_arms, stage_plan, support_counts,
+                    support_layouts)
 from .params import GUIDE_STAGES, ADCensusParams
-from .refinement import refine, region_voting, wta_lr_kernel
+from .refinement import refine, region_voting, wta_lr_kernel, wta_lr_tube_kernel
 from .scanline import scanline_optimize, so_penalties
 
-__all__ = ["ADCensusParams", "GUIDE_STAGES", "adcensus_aggregate", "adcensus_cost", "adcensus_disparity",
-           "cost_luts", "cross_aggregate", "cross_arms", "refine", "region_voting", "scanline_optimize",
-           "so_penalties", "support_counts", "to_u8", "wta_lr_kernel"]
+__all__ = ["ADCensusParams", "GUIDE_STAGES", "adcensus_aggregate", "adcensus_cost", "adcensus_cost_tube",
+           "adcensus_disparity", "cost_luts", "cross_aggregate", "cross_aggregate_tube", "cross_arms", "refine",
+           "region_voting", "scanline_optimize", "so_penalties", "stage_plan", "support_counts", "support_layouts",
+           "to_u8", "wta_lr_kernel", "wta_lr_tube_kernel"]
 
 
 def adcensus_disparity(left, right, d_min, d_max, params=None, census_window=(9, 7), grey=None, modulate=None,
-                       subpixel=True, median=3, timings=None, return_status=False):
+                       subpixel=True, median=3, timings=None, return_status=False, tubes=None):
     """AD-Census disparity of a rectified pair (all stages, package docstring).
 
     Parameters
@@ -57,16 +59,22 @@ def adcensus_disparity(left, right, d_min, d_max, params=None, census_window=(9,
     grey : (left_grey, right_grey), optional
         Float grey images for the census transform (default: the channel mean of ``left`` / ``right``).
     modulate : callable, optional
-        ``modulate(volume, max_cost) -> (volume, max_cost, support)``: guidance of the uint16 volume (cost units
-        ``1 / params.scale``), called after cross aggregation (``guide_stage="aggregated"``, before scanline
-        optimisation) or on the raw cost (``"initial"``); ``support`` is None or the ``(lo, hi)`` disparity
-        interval the guidance vouches for per pixel (:func:`refine`).
+        ``modulate(volume, max_cost, layout) -> (volume, max_cost, support)``: guidance of the uint16 volume (cost
+        units ``1 / params.scale``), called after cross aggregation (``guide_stage="aggregated"``, before scanline
+        optimisation) or on the raw cost (``"initial"``); ``layout`` is None for a dense volume or the
+        :class:`~riverbed_cli.matching.volume.TubeLayout` of the flat one; ``support`` is None or the ``(lo, hi)``
+        disparity interval the guidance vouches for per pixel (:func:`refine`).
     subpixel : bool
         Parabola sub-pixel fit. ``median``: median filter size (1: off).
     timings : dict, optional
         Filled with seconds per stage (cost, aggregation, guidance, optimisation, refinement).
     return_status : bool
         Add the left-right outcome map to ``info`` (:func:`refine`).
+    tubes : TubeLayout, optional
+        Per-pixel tubes inside ``[d_min, d_max]``: every stage works on them (docs/tubes.md, "AD-Census"). The
+        cost is computed on the support layouts of the cross aggregation (:func:`support_layouts`), so the
+        aggregated cost at every tube disparity equals the full-range one; scanline optimisation treats a
+        disparity outside the previous pixel's tube as unreachable; the refinement as :func:`refine` with tubes.
 
     Returns
     -------
@@ -93,14 +101,17 @@ def adcensus_disparity(left, right, d_min, d_max, params=None, census_window=(9,
 
     support = None
 
-    def guide(vol, max_cost):
+    def guide(vol, max_cost, layout=None):
         nonlocal support
         t = time.perf_counter()
         if modulate is not None:
-            vol, max_cost, support = modulate(vol, max_cost)
+            vol, max_cost, support = modulate(vol, max_cost, layout)
         timings["guidance"] = time.perf_counter() - t
         return vol, max_cost
 
+    if tubes is not None:
+        return _tube_disparity(left, right, cl, cr, d_min, d_max, arms, p, guide, lambda: support, subpixel, median,
+                               timings, return_status, tubes, time.perf_counter())
     work = []
     t0 = time.perf_counter()
     if p.guide_stage == "initial":
@@ -123,6 +134,39 @@ def adcensus_disparity(left, right, d_min, d_max, params=None, census_window=(9,
     timings["optimisation"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     disp, info = refine(fwd, bwd, d_min, left, arms, p, subpixel, return_status, support)
+    del fwd, bwd
+    disp = median_filter(disp, median)
+    timings["refinement"] = time.perf_counter() - t0
+    return disp, info
+
+
+def _tube_disparity(left, right, cl, cr, d_min, d_max, arms, p, guide, get_support, subpixel, median, timings,
+                    return_status, tubes, t0):
+    # the stages of adcensus_disparity on tube volumes (t0: when the cost stage started)
+    if tubes.shape != left.shape[:2]:
+        raise RiverbedError(f"tube layout {tubes.shape} and images {left.shape[:2]} differ in size")
+    max_cost = 2 * p.scale
+    layouts = support_layouts(tubes, arms, p.iterations, d_min)
+    cost = adcensus_cost_tube(left, right, cl, cr, d_min, layouts[0], p.lambda_ad, p.lambda_census, p.scale,
+                              p.outside)
+    timings["cost"] += time.perf_counter() - t0
+    support_costs = int(layouts[0].size)
+    if p.guide_stage == "initial":
+        cost, max_cost = guide(cost, max_cost, layouts[0])
+    t0 = time.perf_counter()
+    agg = cross_aggregate_tube(cost, arms, p.iterations, layouts)
+    del cost, layouts
+    timings["aggregation"] = time.perf_counter() - t0
+    if p.guide_stage == "aggregated":
+        agg, max_cost = guide(agg, max_cost, tubes)
+    t0 = time.perf_counter()
+    fwd, bwd = scanline_optimize(agg, left, right, d_min, p.pi1, p.pi2, p.tau_so, p.scale, max_cost, tubes=tubes)
+    del agg
+    timings["optimisation"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    disp, info = refine(fwd, bwd, d_min, left, arms, p, subpixel, return_status, get_support(), tubes,
+                        int(d_max) - int(d_min) + 1)
+    info["support_costs"] = support_costs  # raw costs computed (the first support layout), against tubes.size
     del fwd, bwd
     disp = median_filter(disp, median)
     timings["refinement"] = time.perf_counter() - t0

@@ -142,3 +142,41 @@ def to_u8(guide):
     """A float 0..255 image (:func:`io.images.to_guide`) rounded to ``uint8`` ``H x W x C`` for AD and crosses."""
     return np.ascontiguousarray(np.clip(np.floor(np.asarray(guide, np.float32) + np.float32(0.5)), 0, 255)
                                 .astype(np.uint8))
+
+
+@njit(cache=True, parallel=True)
+def _cost_tube_kernel(left, right, cl, cr, d_min, ad_lut, cen_lut, outside, flat, start, width, offset):
+    # cost_row's costs, pixel by pixel, at each pixel's own disparities only
+    C, H, W = left.shape
+    for y in prange(H):
+        for x in range(W):
+            b = start[y, x]
+            d0 = d_min + np.int64(offset[y, x])
+            a = cl[y, x]
+            for i in range(width[y, x]):
+                xr = x - (d0 + i)
+                if xr < 0 or xr >= W:
+                    flat[b + i] = outside
+                    continue
+                s = np.int32(abs(left[0, y, x] - right[0, y, xr]))
+                if C == 3:
+                    s = np.int32(abs(left[0, y, x] - right[0, y, xr]) + abs(left[1, y, x] - right[1, y, xr]) +
+                                 abs(left[2, y, x] - right[2, y, xr]))
+                flat[b + i] = ad_lut[s] + cen_lut[np.int32(popcount64(a ^ cr[y, xr]))]
+
+
+def adcensus_cost_tube(left, right, census_left, census_right, d_min, tubes, lambda_ad=10.0, lambda_census=30.0,
+                       scale=256, outside=1.0):
+    """:func:`adcensus_cost` at each pixel's own disparities only.
+
+    ``tubes`` is a :class:`~riverbed_cli.matching.volume.TubeLayout` (disparities ``d_min + offset + i``); the other
+    parameters are those of :func:`adcensus_cost`. Returns the flat ``(tubes.size,)`` uint16 volume, equal to the
+    dense volume's entries at the tubes.
+    """
+    if tubes.shape != np.shape(census_left):
+        raise RiverbedError(f"tube layout {tubes.shape} and images {np.shape(census_left)} differ in size")
+    args = cost_inputs(left, right, census_left, census_right, d_min, d_min, lambda_ad, lambda_census, scale,
+                       outside)
+    flat = np.empty(tubes.size, dtype=np.uint16)
+    _cost_tube_kernel(*args, flat, tubes.start, tubes.width, tubes.offset)
+    return flat

@@ -82,6 +82,59 @@ def wta_lr_kernel(fwd, bwd, d_min, lr_threshold):
     return best, status
 
 
+@njit(cache=True, parallel=True)
+def wta_lr_tube_kernel(fwd, bwd, d_min, lr_threshold, start, width, offset, n_disp):
+    # wta_lr_kernel on a tube volume: winners as indices d - d_min over the nominal n_disp disparities; a right
+    # pixel's winner is taken over the left pixels whose tube holds the disparity.
+    H, W = start.shape
+    best = np.empty((H, W), dtype=np.int32)
+    status = np.zeros((H, W), dtype=np.int8)
+    pad = n_disp + abs(d_min) + 1
+    n = W + 2 * pad
+    dmax = 1
+    for y in range(H):
+        for x in range(W):
+            dmax = max(dmax, np.int64(width[y, x]))
+    for y in prange(H):
+        s = np.empty(dmax, dtype=np.int32)
+        rcost = np.full(n, 2147483647, dtype=np.int32)
+        rbest = np.full(n, -1, dtype=np.int32)
+        for x in range(W):
+            b = start[y, x]
+            D = np.int64(width[y, x])
+            o = np.int64(offset[y, x])
+            bv = np.int32(2147483647)
+            for i in range(D):
+                v = np.int32(fwd[b + i]) + np.int32(bwd[b + i])
+                s[i] = v
+                bv = min(bv, v)
+            bi = 0
+            while s[bi] != bv:
+                bi += 1
+            best[y, x] = o + bi
+            j0 = W - 1 - (x - d_min) + pad + o
+            rc = rcost[j0:j0 + D]
+            rb = rbest[j0:j0 + D]
+            for i in range(D):
+                v = s[i]
+                better = v < rc[i]
+                rc[i] = v if better else rc[i]
+                rb[i] = np.int32(o + i) if better else rb[i]
+        back = np.zeros(W, dtype=np.bool_)
+        for xr in range(W):
+            rbv = rbest[W - 1 - xr + pad]
+            if rbv >= 0:
+                back[xr + d_min + rbv] = True
+        for x in range(W):
+            bi = best[y, x]
+            xr = x - (d_min + bi)
+            if xr < 0 or xr >= W:
+                status[y, x] = 1
+            elif abs(bi - rbest[W - 1 - xr + pad]) > lr_threshold:
+                status[y, x] = 1 if back[x] else 2
+    return best, status
+
+
 @njit(cache=True, inline="always")
 def _vote_row(hist, votes, arms, yy, x, sign):
     # add (sign 1) or remove (sign -1) the votes of row yy's horizontal segment through column x
@@ -258,7 +311,60 @@ def _final_kernel(best, fwd, bwd, d_min, adjust, threshold, subpixel):
     return disp
 
 
-def refine(fwd, bwd, d_min, img, arms, params=None, subpixel=True, return_status=False, support=None):
+_UNREACHABLE = 2147483647  # the optimised cost of a disparity outside a pixel's tube
+
+
+@njit(cache=True, inline="always")
+def _tube_cost(fwd, bwd, start, width, offset, y, x, k):
+    # optimised cost of absolute disparity index k at (y, x); unreachable outside the pixel's tube
+    i = np.int64(k) - np.int64(offset[y, x])
+    if i < 0 or i >= width[y, x]:
+        return np.int32(_UNREACHABLE)
+    b = start[y, x] + i
+    return np.int32(fwd[b]) + np.int32(bwd[b])
+
+
+@njit(cache=True, parallel=True)
+def _final_tube_kernel(best, fwd, bwd, d_min, adjust, threshold, subpixel, start, width, offset):
+    # _final_kernel on a tube volume: a cost outside a pixel's tube is unreachable (no swap towards it, any
+    # reachable neighbour beats it; no sub-pixel fit unless both neighbours of the winner are in the tube)
+    H, W = best.shape
+    disp = np.empty((H, W), dtype=np.float32)
+    for y in prange(H):
+        for x in range(W):
+            b = best[y, x]
+            if adjust and 0 < y < H - 1 and 0 < x < W - 1:
+                gx = (best[y - 1, x + 1] - best[y - 1, x - 1]) + 2 * (best[y, x + 1] - best[y, x - 1]) + \
+                     (best[y + 1, x + 1] - best[y + 1, x - 1])
+                gy = (best[y + 1, x - 1] - best[y - 1, x - 1]) + 2 * (best[y + 1, x] - best[y - 1, x]) + \
+                     (best[y + 1, x + 1] - best[y - 1, x + 1])
+                if abs(gx) + abs(gy) > threshold:
+                    c0 = _tube_cost(fwd, bwd, start, width, offset, y, x, b)
+                    out = b
+                    for xn in (x - 1, x + 1):
+                        bn = best[y, xn]
+                        cn = _tube_cost(fwd, bwd, start, width, offset, y, xn, bn)
+                        if cn < c0:
+                            c0 = cn
+                            out = bn
+                    b = out
+            val = np.float32(d_min + b)
+            if subpixel:
+                i = np.int64(b) - np.int64(offset[y, x])
+                if 0 < i < width[y, x] - 1:
+                    k = start[y, x] + i
+                    a = np.int32(fwd[k - 1]) + np.int32(bwd[k - 1])
+                    m = np.int32(fwd[k]) + np.int32(bwd[k])
+                    c = np.int32(fwd[k + 1]) + np.int32(bwd[k + 1])
+                    den = a - 2 * m + c
+                    if den > 0 and m <= a and m <= c:
+                        val += np.float32(0.5 * (a - c) / den)
+            disp[y, x] = val
+    return disp
+
+
+def refine(fwd, bwd, d_min, img, arms, params=None, subpixel=True, return_status=False, support=None,
+           tubes=None, n_disp=None):
     """Multi-step refinement (module docstring) of the optimised cost ``fwd + bwd``.
 
     ``support`` (optional ``(lo, hi)`` float maps, NaN where none) is the disparity interval that LiDAR guidance
@@ -276,10 +382,15 @@ def refine(fwd, bwd, d_min, img, arms, params=None, subpixel=True, return_status
         ``return_status`` also ``status``, the (H, W) int8 left-right outcome (0 consistent, 1 mismatch, 2 occlusion).
     """
     p = params or ADCensusParams()
-    D = fwd.shape[2]
     t = {}
     t0 = time.perf_counter()
-    best, status = wta_lr_kernel(fwd, bwd, int(d_min), int(p.lr_threshold))
+    if tubes is not None:
+        D = int(n_disp)
+        best, status = wta_lr_tube_kernel(fwd, bwd, int(d_min), int(p.lr_threshold), tubes.start, tubes.width,
+                                          tubes.offset, D)
+    else:
+        D = fwd.shape[2]
+        best, status = wta_lr_kernel(fwd, bwd, int(d_min), int(p.lr_threshold))
     info = {"outliers": int((status > 0).sum()), "occlusions": int((status == 2).sum())}
     if support is not None:
         lo, hi = support
@@ -299,7 +410,12 @@ def refine(fwd, bwd, d_min, img, arms, params=None, subpixel=True, return_status
     t0 = time.perf_counter()
     if p.interpolate:
         best = _interp_kernel(best, status, u8_image(img, "left"), max(best.shape), _DIR_COS, _DIR_SIN)
-    disp = _final_kernel(best, fwd, bwd, int(d_min), bool(p.discontinuity), float(p.edge_threshold), bool(subpixel))
+    if tubes is not None:
+        disp = _final_tube_kernel(best, fwd, bwd, int(d_min), bool(p.discontinuity), float(p.edge_threshold),
+                                  bool(subpixel), tubes.start, tubes.width, tubes.offset)
+    else:
+        disp = _final_kernel(best, fwd, bwd, int(d_min), bool(p.discontinuity), float(p.edge_threshold),
+                             bool(subpixel))
     t["interpolation_subpixel"] = time.perf_counter() - t0
     info["seconds"] = {k: round(v, 4) for k, v in t.items()}
     return disp, info

@@ -131,6 +131,121 @@ def _so_two_passes(cost, fwd, bwd, left, right, d_min, p1tab, p2tab, tau):
             _so_pass(cost, bwd, left, right, d_min, p1tab, p2tab, tau, True)
 
 
+@njit(cache=True, inline="always")
+def _tube_value(prev, wq, j, p1):
+    # min(L(j), L(j -+ 1) + p1) of the previous pixel's tube (wq wide) at its index j; outside it: the sentinel
+    sent = np.int16(_SENTINEL)
+    a = prev[j + 1] if 0 <= j < wq else sent
+    b = prev[j] if 1 <= j <= wq else sent
+    e = prev[j + 2] if -1 <= j < wq - 1 else sent
+    return min(a, min(b, e) + p1)
+
+
+@njit(cache=True, inline="always")
+def _so_tube_step(prev, wq, cur, c, acc, p1, p2, mp, s):
+    # _so_step between tubes: index d here is index d + s of the previous pixel's tube (wq wide, padded by the
+    # sentinel at prev[0] and prev[wq + 1]); a disparity outside that tube is unreachable there, not zero.
+    w = c.shape[0]
+    m = np.int16(_SENTINEL)
+    lo = min(w, max(0, -s))
+    hi = max(lo, min(w, wq - s))
+    for d in range(w):
+        j = d + s
+        if lo <= d < hi:
+            v = min(prev[j + 1], min(prev[j], prev[j + 2]) + p1[d])
+        else:
+            v = _tube_value(prev, wq, j, p1[d])
+        v = min(v, mp + p2[d])
+        v = np.int16(c[d] + v - mp)
+        cur[d + 1] = v
+        acc[d] += v
+        m = min(m, v)
+    cur[w + 1] = np.int16(_SENTINEL)
+    return m
+
+
+@njit(cache=True)
+def _so_pass_tube(flat, out, start, width, offset, dmax, n_disp, left, right, d_min, p1tab, p2tab, tau, flip):
+    # _so_pass on a tube volume: pixel (y, x) holds width[y, x] disparities from d_min + offset[y, x] at
+    # flat[start[y, x]:]; path rows are dmax + 2 wide, a pixel uses its first width + 2 (the last one the sentinel).
+    H, W = start.shape
+    step = -1 if flip else 1
+    sent = np.int16(_SENTINEL)
+    Lh = np.full((2, dmax + 2), sent, dtype=np.int16)
+    Lv = np.full((2, W, dmax + 2), sent, dtype=np.int16)
+    mv = np.zeros((2, W), dtype=np.int16)
+    acc_all = np.empty(dmax, dtype=np.int16)
+    pad = n_disp + abs(d_min) + 1
+    n = W + 2 * pad
+    P1 = np.empty((2, 2, n), dtype=np.int16)
+    P2 = np.empty((2, 2, n), dtype=np.int16)
+    fh = np.empty(W, dtype=np.int8)
+    fv = np.empty(W, dtype=np.int8)
+    bh = np.empty(W, dtype=np.int8)
+    bv = np.empty(W, dtype=np.int8)
+    for yy in range(H):
+        y = H - 1 - yy if flip else yy
+        py = y - step
+        vs = yy % 2
+        vp = 1 - vs
+        for x in range(W):
+            qx = x - step
+            if qx < 0 or qx >= W:
+                fh[x] = 2
+                bh[x] = 0
+            else:
+                fh[x] = 1 if _colour_dist(right, y, x, y, qx) >= tau else 0
+                bh[x] = 1 if _colour_dist(left, y, x, y, qx) >= tau else 0
+            if yy == 0:
+                fv[x] = 2
+                bv[x] = 0
+            else:
+                fv[x] = 1 if _colour_dist(right, y, x, py, x) >= tau else 0
+                bv[x] = 1 if _colour_dist(left, y, x, py, x) >= tau else 0
+        for b in range(2):
+            _row_penalties(fh, b, p1tab, p2tab, P1[0, b], P2[0, b], pad)
+            _row_penalties(fv, b, p1tab, p2tab, P1[1, b], P2[1, b], pad)
+        hs = 0
+        mh = np.int16(0)
+        for xx in range(W):
+            x = W - 1 - xx if flip else xx
+            b0 = start[y, x]
+            w = np.int64(width[y, x])
+            o = np.int64(offset[y, x])
+            c = flat[b0:b0 + w]
+            acc = acc_all[:w]
+            acc[:] = 0
+            j0 = W - 1 - (x - d_min) + pad + o  # reversed index of the tube's first disparity
+            if xx == 0:
+                mh = _so_start(Lh[hs], c, acc)
+                Lh[hs, w + 1] = sent
+            else:
+                q = x - step
+                b = bh[x]
+                mh = _so_tube_step(Lh[1 - hs], np.int64(width[y, q]), Lh[hs], c, acc, P1[0, b, j0:j0 + w],
+                                   P2[0, b, j0:j0 + w], mh, o - np.int64(offset[y, q]))
+            hs = 1 - hs
+            if yy == 0:
+                mv[vs, x] = _so_start(Lv[vs, x], c, acc)
+                Lv[vs, x, w + 1] = sent
+            else:
+                b = bv[x]
+                mv[vs, x] = _so_tube_step(Lv[vp, x], np.int64(width[py, x]), Lv[vs, x], c, acc, P1[1, b, j0:j0 + w],
+                                          P2[1, b, j0:j0 + w], mv[vp, x], o - np.int64(offset[py, x]))
+            ob = out[b0:b0 + w]
+            for d in range(w):
+                ob[d] = np.uint16(acc[d])
+
+
+@njit(cache=True, parallel=True)
+def _so_two_passes_tube(flat, fwd, bwd, start, width, offset, dmax, n_disp, left, right, d_min, p1tab, p2tab, tau):
+    for t in prange(2):
+        if t == 0:
+            _so_pass_tube(flat, fwd, start, width, offset, dmax, n_disp, left, right, d_min, p1tab, p2tab, tau, False)
+        else:
+            _so_pass_tube(flat, bwd, start, width, offset, dmax, n_disp, left, right, d_min, p1tab, p2tab, tau, True)
+
+
 def so_penalties(pi1, pi2, scale):
     """``(P1, P2)`` tables (int16) indexed by the number of colour differences ``>= tau_so`` (0, 1 or 2)."""
     p1 = np.array([round(scale * pi1), round(scale * pi1 / 4), round(scale * pi1 / 10)], dtype=np.int16)
@@ -138,7 +253,8 @@ def so_penalties(pi1, pi2, scale):
     return p1, p2
 
 
-def scanline_optimize(cost, left, right, d_min, pi1=1.0, pi2=3.0, tau_so=15, scale=256, max_cost=None, out=None):
+def scanline_optimize(cost, left, right, d_min, pi1=1.0, pi2=3.0, tau_so=15, scale=256, max_cost=None, out=None,
+                      tubes=None):
     """Scanline optimisation over 4 paths (module docstring).
 
     Parameters
@@ -151,6 +267,11 @@ def scanline_optimize(cost, left, right, d_min, pi1=1.0, pi2=3.0, tau_so=15, sca
         Penalties in the paper's cost units (``P = round(scale * pi / {1, 4, 10})``).
     out : (fwd, bwd), optional
         Two uint16 volumes of the shape of ``cost`` to write into (e.g. the aggregation's scratch volumes).
+    tubes : TubeLayout, optional
+        Per-pixel tubes (:class:`~riverbed_cli.matching.volume.TubeLayout`; ``cost`` and the results are flat tube
+        volumes): the recursion compares equal disparities of neighbours, and a disparity outside the previous
+        pixel's tube is unreachable there (the sentinel, not zero), so only the ``P2`` jump from its minimum reaches
+        it. Penalties are those of the dense volume at the same disparity.
 
     Returns
     -------
@@ -160,7 +281,12 @@ def scanline_optimize(cost, left, right, d_min, pi1=1.0, pi2=3.0, tau_so=15, sca
     """
     left = u8_image(left, "left")
     right = u8_image(right, "right")
-    if cost.ndim != 3 or cost.dtype not in (np.uint8, np.uint16) or cost.shape[:2] != left.shape[:2]:
+    if tubes is not None:
+        if cost.ndim != 1 or cost.dtype not in (np.uint8, np.uint16) or cost.size != tubes.size or \
+                tubes.shape != left.shape[:2]:
+            raise RiverbedError(f"tube cost volume must be flat uint8/uint16 of {tubes.size} costs for "
+                                f"{tubes.shape}, got {cost.dtype} {cost.shape}")
+    elif cost.ndim != 3 or cost.dtype not in (np.uint8, np.uint16) or cost.shape[:2] != left.shape[:2]:
         raise RiverbedError(f"cost volume must be uint8/uint16 (H, W, D) of the image size, got {cost.shape}")
     p1, p2 = so_penalties(pi1, pi2, scale)
     if not 0 <= p1[0] <= p2[0]:
@@ -170,6 +296,13 @@ def scanline_optimize(cost, left, right, d_min, pi1=1.0, pi2=3.0, tau_so=15, sca
     if int(max_cost) + int(p2[0]) >= _SENTINEL:
         raise RiverbedError(f"scanline optimisation: max cost {max_cost} + P2 {p2[0]} does not fit int16 paths")
     cost = np.ascontiguousarray(cost)
+    if tubes is not None:
+        fwd = np.empty(cost.shape, dtype=np.uint16)
+        bwd = np.empty(cost.shape, dtype=np.uint16)
+        n_disp = int((tubes.offset + tubes.width).max(initial=1))
+        _so_two_passes_tube(cost, fwd, bwd, tubes.start, tubes.width, tubes.offset, int(tubes.max_width), n_disp,
+                            left, right, int(d_min), p1, p2, int(tau_so))
+        return fwd, bwd
     if out is not None and all(o.shape == cost.shape and o.dtype == np.uint16 and o is not cost for o in out):
         fwd, bwd = out
     else:

@@ -1,5 +1,6 @@
 """``adcensus``: AD-Census (Mei et al. 2011; the stages in :mod:`..adcensus`), guided between cross aggregation and
-scanline optimisation (or on the raw cost, ``adcensus_guide_stage: initial``)."""
+scanline optimisation (or on the raw cost, ``adcensus_guide_stage: initial``); on the full range or on per-pixel
+tubes (docs/tubes.md, "AD-Census")."""
 
 from ...io.images import effective_bits, to_grey, to_guide
 from .. import adcensus, census, guidance
@@ -12,6 +13,8 @@ from .base import Matcher, MatcherOutput
 @register_matcher
 class ADCensusMatcher(Matcher):
     name = "adcensus"
+
+    supports_tubes = True
 
     def match(self, left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages, tubes=None,
               return_status=False):
@@ -31,15 +34,15 @@ class ADCensusMatcher(Matcher):
             fbar = 1.0 if g.wall_scale == "auto" else float(g.wall_scale)
             inputs = GuidanceInputs(sparse, guide_img, share, fbar, cap, first_pass, want_support=True)
 
-            def modulate(data, max_cost):
-                result = guide.modulate(CostVolume(data, d_min, ap.scale, max_cost), inputs, config)
+            def modulate(data, max_cost, layout):
+                result = guide.modulate(CostVolume(data, d_min, ap.scale, max_cost, layout), inputs, config)
                 used["window"] = result.window
                 return result.volume.data, result.volume.max_cost, result.support
 
         timings = {}
         disp, ref = adcensus.adcensus_disparity(il, ir, d_min, d_max, ap, census.parse_census_window(config.census),
                                                 grey, modulate, config.subpixel, config.median, timings,
-                                                return_status=return_status)
+                                                return_status=return_status, tubes=tubes)
         stages.update({k: round(v, 4) for k, v in timings.items()})
         status = ref.pop("status") if return_status else None
         return MatcherOutput(disp, used["window"], ref, status)
@@ -47,5 +50,5 @@ class ADCensusMatcher(Matcher):
     def unreliable(self, left, right, sparse, d_min, d_max, config, lr_threshold, tubes=None):
         # AD-Census always checks left-right consistency; its own status map says which pixels failed
         out = self.match(left, right, sparse, d_min, d_max, config, get_guide(config.guide),
-                         guidance.lidar_share(sparse), None, {}, return_status=True)  # full range
+                         guidance.lidar_share(sparse), None, {}, tubes, return_status=True)
         return out.status > 0
