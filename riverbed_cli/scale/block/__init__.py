@@ -18,7 +18,14 @@ The manifest (YAML, read with ``yaml.safe_load`` only; paths relative to the man
               right: raw/f1.png, right_orientation: raw/f1.yaml}   # (riverbed rectify's inputs): rectified into
         cloud: lidar.laz                                           # OUTDIR/pairs/NAME/rectified/ first; optional
                                                                    # alpha (0..1, -1) and size (WxH) as rectify's
-      - pair: a/pair.yaml      # a pair file naming the rectified left and right images
+      - rpc: {left: l.tif, left_rpc: l.geom,                   # or satellite images and their RPC models
+              right: r.tif, right_rpc: r.geom,                     # (riverbed rectify --rpc's inputs): the ROI
+              roi: [0, 0, 2000, 2000], dem: srtm.hgt}              # rectified into pairs/NAME/rectified/ by the
+        cloud: lidar.laz                                           # project task; optional roi (default the
+                                                                   # whole left image), dem or heights ([lo, hi];
+                                                                   # neither: the range of the pair's clouds under
+                                                                   # the ROI), vertical, pointing (true/false)
+      - pair: a/pair.yaml      # a pair file naming the rectified left and right images (or an RPC pair file)
         cloud: lidar/*.laz     # a path, a glob or a list of them (several clouds: per pixel the nearer point)
         name: a                # optional; default the pair file's path without suffix, '/' -> '_' (a_pair)
         window: 7              # per-pair override of any setting except the block-wide ones
@@ -61,6 +68,13 @@ Rules
   Its heights are those of the LAZ files (1 mm quantisation). Without ``resolution`` each pair's DSM takes its own
   ground sample distance and the merged DSM the median of those.
 
+RPC pairs (``rpc:`` entries, or ``pair:`` an RPC pair file of ``riverbed rectify --rpc``; docs/rpc.md): the project
+task first rectifies the ROI (``rectify`` stage; skipped when ``rectified/inputs.json`` records the same inputs,
+ROI, heights and settings), the LiDAR goes through the cloud's CRS and the RPCs, the points are triangulated in
+``crs`` (default: the UTM zone of each pair's scene; ``riverbed block split-rpc`` writes one ``crs`` for the
+whole scene) with ellipsoidal heights (the DSMs' tag ``riverbed_heights``). The settings hash holds the four files,
+the DEM, the clouds and the ROI/heights settings, so changing one ROI re-runs that pair only.
+
 Task graph (dask.distributed, one set per pair to run)::
 
     project(pair) ──► tile(pair, 0) ──┐
@@ -84,30 +98,34 @@ scheduler reports once the workers are up (``scheduler``, ``workers``, ``threads
 ``numba_threads`` planned per task), and each pair run now its finish task's ``numba_threads``.
 """
 
-from .manifest import (BLOCK_KEYS, MANIFEST_MAX_BYTES, PAIR_KEYS, RAW_KEYS, RAW_OPTIONS, TOP_KEYS, Manifest,
-                       PairSpec, default_name, load_manifest)
-from .merge import merge_dsm, merge_settings
-from .plan import (DONE, MARKER, MERGED, OUTPUTS, TEMP_NAME, WORK, BlockPlan, PairJob, clean_pair_leftovers,
-                   clean_temps, job_dict, plan_block, prepare_outdir, rectify_raw, riverbed_version, sha256_file,
-                   verify_done, write_json)
+from .manifest import (BLOCK_KEYS, MANIFEST_MAX_BYTES, PAIR_KEYS, RAW_KEYS, RAW_OPTIONS, RPC_KEYS, RPC_OPTIONS,
+                       TOP_KEYS, Manifest, PairSpec, default_name, load_manifest)
+from .merge import merge_dsm, merge_heights, merge_settings
+from .plan import (DONE, MARKER, MERGED, OUTPUTS, RECTIFIED, TEMP_NAME, WORK, BlockPlan, PairJob,
+                   clean_pair_leftovers, clean_temps, job_dict, plan_block, prepare_outdir, rectify_raw, rectify_rpc,
+                   riverbed_version, rpc_stamp, sha256_file, verify_done, write_json)
 from .runner import BlockResult, run_block, task_finish, task_merge, task_project, task_tile
 from .settings import SettingError, default_settings, match_params, settings_spec
-from .stages import PairFailure, finish_stage, n_tasks, project_stage, run_pair, tile_stage
+from .split import MIN_RIGHT_SHARE, split_axis, split_rois, write_split_manifest
+from .stages import (PairFailure, RectifyError, finish_stage, n_tasks, pair_dsm, project_stage, run_pair,
+                     tile_stage)
 
 __all__ = [
     # manifest
-    "BLOCK_KEYS", "MANIFEST_MAX_BYTES", "PAIR_KEYS", "RAW_KEYS", "RAW_OPTIONS", "TOP_KEYS", "Manifest", "PairSpec",
-    "default_name", "load_manifest",
+    "BLOCK_KEYS", "MANIFEST_MAX_BYTES", "PAIR_KEYS", "RAW_KEYS", "RAW_OPTIONS", "RPC_KEYS", "RPC_OPTIONS", "TOP_KEYS",
+    "Manifest", "PairSpec", "default_name", "load_manifest",
     # settings
     "SettingError", "default_settings", "match_params", "settings_spec",
     # planning
-    "DONE", "MARKER", "MERGED", "OUTPUTS", "TEMP_NAME", "WORK", "BlockPlan", "PairJob", "clean_pair_leftovers",
-    "clean_temps", "job_dict", "plan_block", "prepare_outdir", "rectify_raw", "riverbed_version", "sha256_file",
-    "verify_done", "write_json",
+    "DONE", "MARKER", "MERGED", "OUTPUTS", "RECTIFIED", "TEMP_NAME", "WORK", "BlockPlan", "PairJob",
+    "clean_pair_leftovers", "clean_temps", "job_dict", "plan_block", "prepare_outdir", "rectify_raw", "rectify_rpc",
+    "riverbed_version", "rpc_stamp", "sha256_file", "verify_done", "write_json",
+    # splitting a satellite scene into ROIs
+    "MIN_RIGHT_SHARE", "split_axis", "split_rois", "write_split_manifest",
     # stages
-    "PairFailure", "finish_stage", "n_tasks", "project_stage", "run_pair", "tile_stage",
+    "PairFailure", "RectifyError", "finish_stage", "n_tasks", "pair_dsm", "project_stage", "run_pair", "tile_stage",
     # merging
-    "merge_dsm", "merge_settings",
+    "merge_dsm", "merge_heights", "merge_settings",
     # running
     "BlockResult", "run_block", "task_finish", "task_merge", "task_project", "task_tile",
 ]
