@@ -430,9 +430,11 @@ def _dilate_kernel(lo, hi, arms, horizontal):
                 b = x + np.int64(arms[y, x, 1]) + 1
                 v = lo[y, x]
                 u = hi[y, x]
-                for xx in range(a, b):
-                    olo[y, xx] = min(olo[y, xx], v)
-                    ohi[y, xx] = max(ohi[y, xx], u)
+                rl = olo[y, a:b]
+                rh = ohi[y, a:b]
+                for i in range(b - a):
+                    rl[i] = min(rl[i], v)
+                    rh[i] = max(rh[i], u)
     else:
         for x in prange(W):
             for y in range(H):
@@ -490,13 +492,18 @@ def _run_step(src, sb, w, o, run, rb, rp, wp, op):
     # and restarts elsewhere. A segment whose pixels all hold d then sums to run(end) - run(before its start).
     lo = min(w, max(0, op - o))
     hi = max(lo, min(w, op + wp - o))
+    sv = src[sb:sb + w]
+    rv = run[rb:rb + w]
     for i in range(lo):
-        run[rb + i] = src[sb + i]
-    s = rp + o - op
-    for i in range(lo, hi):
-        run[rb + i] = run[s + i] + src[sb + i]
+        rv[i] = sv[i]
+    if hi > lo:
+        pv = run[rp + o - op + lo:rp + o - op + hi]
+        sl = sv[lo:hi]
+        rl = rv[lo:hi]
+        for i in range(hi - lo):
+            rl[i] = pv[i] + sl[i]
     for i in range(hi, w):
-        run[rb + i] = src[sb + i]
+        rv[i] = sv[i]
 
 
 @njit(cache=True, inline="always")
@@ -504,22 +511,33 @@ def _seg_out(run, eb, ew, eo, pb, pw, po, has_before, out, ob, w, o, f, norm):
     # out[ob + i] for disparity index o + i: the segment's sum run(end) - run(before), end's tube at run[eb:] (ew
     # wide from eo), the pixel before the segment at run[pb:] (pw wide from po; absent when not has_before)
     half = np.float32(0.5)
-    se = eb + o - eo
+    ev = run[eb + o - eo:eb + o - eo + w]
+    ov = out[ob:ob + w]
     lo = w
     hi = w
     if has_before:
         lo = min(w, max(0, po - o))
         hi = max(lo, min(w, po + pw - o))
-    sp = pb + o - po
-    for i in range(lo):
-        v = run[se + i]
-        out[ob + i] = np.uint16(np.float32(v) * f + half) if norm else v
-    for i in range(lo, hi):
-        v = run[se + i] - run[sp + i]
-        out[ob + i] = np.uint16(np.float32(v) * f + half) if norm else v
-    for i in range(hi, w):
-        v = run[se + i]
-        out[ob + i] = np.uint16(np.float32(v) * f + half) if norm else v
+    if hi > lo:
+        pv = run[pb + o - po + lo:pb + o - po + hi]
+        el = ev[lo:hi]
+        ol = ov[lo:hi]
+        if norm:
+            for i in range(hi - lo):
+                ol[i] = np.uint16(np.float32(el[i] - pv[i]) * f + half)
+        else:
+            for i in range(hi - lo):
+                ol[i] = el[i] - pv[i]
+    if norm:
+        for i in range(lo):
+            ov[i] = np.uint16(np.float32(ev[i]) * f + half)
+        for i in range(hi, w):
+            ov[i] = np.uint16(np.float32(ev[i]) * f + half)
+    else:
+        for i in range(lo):
+            ov[i] = ev[i]
+        for i in range(hi, w):
+            ov[i] = ev[i]
 
 
 @njit(cache=True, parallel=True)
@@ -548,15 +566,20 @@ def _tube_hstage(src, sstart, swidth, soff, out, ostart, owidth, ooff, arms, inv
 
 @njit(cache=True, parallel=True)
 def _tube_vruns(src, sstart, swidth, soff, run):
-    # running sums down the columns, on the source layout (columns in parallel)
+    # running sums down the columns, on the source layout; rows in raster order within strips of columns (one per
+    # thread), so consecutive tubes are read and written one after the other
     H, W = sstart.shape
-    for x in prange(W):
+    ns = 8
+    for k in prange(ns):
+        x0 = k * W // ns
+        x1 = (k + 1) * W // ns
         for y in range(H):
-            if y == 0:
-                _run_step(src, sstart[y, x], swidth[y, x], soff[y, x], run, sstart[y, x], 0, 0, 0)
-            else:
-                _run_step(src, sstart[y, x], swidth[y, x], soff[y, x], run, sstart[y, x], sstart[y - 1, x],
-                          swidth[y - 1, x], soff[y - 1, x])
+            for x in range(x0, x1):
+                if y == 0:
+                    _run_step(src, sstart[y, x], swidth[y, x], soff[y, x], run, sstart[y, x], 0, 0, 0)
+                else:
+                    _run_step(src, sstart[y, x], swidth[y, x], soff[y, x], run, sstart[y, x], sstart[y - 1, x],
+                              swidth[y - 1, x], soff[y - 1, x])
 
 
 @njit(cache=True, parallel=True)

@@ -149,13 +149,25 @@ def _so_tube_step(prev, wq, cur, c, acc, p1, p2, mp, s):
     m = np.int16(_SENTINEL)
     lo = min(w, max(0, -s))
     hi = max(lo, min(w, wq - s))
-    for d in range(w):
-        j = d + s
-        if lo <= d < hi:
-            v = min(prev[j + 1], min(prev[j], prev[j + 2]) + p1[d])
-        else:
-            v = _tube_value(prev, wq, j, p1[d])
-        v = min(v, mp + p2[d])
+    for d in range(lo):
+        v = min(_tube_value(prev, wq, d + s, p1[d]), mp + p2[d])
+        v = np.int16(c[d] + v - mp)
+        cur[d + 1] = v
+        acc[d] += v
+        m = min(m, v)
+    if hi > lo:  # the overlap: as _so_step, shifted
+        pv = prev[lo + s:hi + s + 2]
+        cv = cur[lo + 1:hi + 1]
+        for k in range(hi - lo):
+            d = lo + k
+            v = min(pv[k + 1], min(pv[k], pv[k + 2]) + p1[d])
+            v = min(v, mp + p2[d])
+            v = np.int16(c[d] + v - mp)
+            cv[k] = v
+            acc[d] += v
+            m = min(m, v)
+    for d in range(hi, w):
+        v = min(_tube_value(prev, wq, d + s, p1[d]), mp + p2[d])
         v = np.int16(c[d] + v - mp)
         cur[d + 1] = v
         acc[d] += v
