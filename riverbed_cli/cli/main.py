@@ -26,7 +26,7 @@ COMMANDS = {
     "evaluate": ("evaluate", "evaluate_cmd", "Compare a disparity map (or a DSM) with ground truth."),
     "dsm": ("dsm", "dsm_cmd", "Triangulate disparity maps of pairs into a point cloud and a DSM."),
     "sample": ("sample", "sample_cmd", "Generate the synthetic aerial block (pair, LiDAR, ground truth)."),
-    "block": ("block", "block_cmd", "Run every pair of a block manifest and merge their DSMs (dask)."),
+    "block": ("block", "block_cmd", "Run a block manifest on dask and merge its DSMs (or split-rpc a scene)."),
     "rectify": ("rectify", "rectify_cmd", "Rectify raw frames with their orientations into a pair."),
     "benchmark": ("benchmark", "benchmark_cmd", "Run the paper's protocol (matchers x guides x LiDAR shares)."),
 }
