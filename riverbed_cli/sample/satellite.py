@@ -224,17 +224,22 @@ class SatelliteSample:
 
 def satellite_scene(size="small", seed=0):
     """The geometry of a satellite sample without its images: ``(spec, scene_spec, cameras, scene)`` (a few
-    seconds; what :func:`ground_truth_disparity` needs)."""
-    if size not in SATELLITE_SIZES:
+    seconds; what :func:`ground_truth_disparity` needs). ``size`` is a name of :data:`SATELLITE_SIZES` or a
+    :class:`SatelliteSpec`."""
+    if isinstance(size, SatelliteSpec):
+        spec = size
+    elif size in SATELLITE_SIZES:
+        spec = SATELLITE_SIZES[size]
+    else:
         raise RiverbedError(f"unknown size '{size}' (use one of {', '.join(SATELLITE_SIZES)})")
-    spec = SATELLITE_SIZES[size]
     cams = satellite_cameras(spec, seed)
     sspec = scene_spec(spec, cams)
     return spec, sspec, cams, build_scene(sspec, seed)
 
 
 def make_satellite(size="small", seed=0, progress=None):
-    """Generate a satellite sample in memory (deterministic for a size and seed).
+    """Generate a satellite sample in memory (deterministic for a size and seed; ``size`` as for
+    :func:`satellite_scene`).
 
     ``progress``, if given, is called with each stage name of :data:`SATELLITE_STAGES` but the last.
     """

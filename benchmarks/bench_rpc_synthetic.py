@@ -1,0 +1,202 @@
+"""The paper's Table 2 comparison on the synthetic satellite sample (issue 14 item 6, docs/rpc_synthetic.md).
+
+    python benchmarks/bench_rpc_synthetic.py [--size small|full] [--seed N] [--work DIR] [--densities ...]
+                                             [--methods ...] [--roi COL,ROW,W,H] [--json]
+
+Runs the chain as a user does, each step a ``riverbed`` subprocess:
+
+1. ``riverbed sample WORK/sample --satellite`` (raw pushbroom images with fitted RPCs, GT DSM, LiDAR);
+2. ``riverbed rectify --rpc left.tif left.tif right.tif right.tif --heights LO,HI`` (the scene's height range
+   from ``scene.json``, +- 5 m), the default pointing correction included;
+3. per LiDAR density (``lidar.laz``, ``lidar_sparse.laz``, and ``lidar_thin.laz``: a quarter of the sparse one,
+   drawn here with laspy): ``riverbed project`` onto the pair (default z-buffer and outlier removal);
+4. ``riverbed match`` unguided (``--guide none``, the pair's disparity range), Gauss, diffusion and riverbed
+   (``--range full --fusion none``: each guide alone on the cost volume, the paper's setting; same range), the
+   fused default (``--sparse`` alone: riverbed + tubes + fusion); ``riverbed densify`` nearest, linear, guided
+   (the LiDAR-only baselines);
+5. ``riverbed dsm`` of each on the GT DSM's grid (``--bounds``, ``--resolution``), ``riverbed evaluate --dsm``
+   against ``gt_dsm.tif``; ``riverbed evaluate`` of each disparity map against the exact GT disparity with the
+   LiDAR pixels excluded (``--exclude``).
+
+The ground-truth disparity is exact: every pixel of the rectified left image is mapped back to the raw left image
+(``H_left^-1`` from ``pair.yaml``), its line of sight through the *rigorous* pushbroom camera cast onto the
+scene itself, the surface point projected by the right camera and through ``H_right``
+(``riverbed_cli.sample.satellite.ground_truth_disparity``; NaN where the right camera does not see it). LiDAR
+shares are of the rectified left image's pixels (``riverbed project``'s ``lidar_share``).
+"""
+
+import argparse
+import json
+import math
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import laspy
+import numpy as np
+
+from riverbed_cli.geometry.pairfile import load_pairfile
+from riverbed_cli.io.disparity import write_disparity
+from riverbed_cli.sample.satellite import ground_truth_disparity, satellite_scene
+
+DENSITIES = ("lidar", "lidar_sparse", "lidar_thin")
+#: name -> (kind, extra arguments); "match" methods get the LiDAR with --sparse, "densify" ones are LiDAR-only.
+METHODS = {
+    "unguided": ("match", ["--guide", "none"]),
+    "gauss": ("match", ["--guide", "gauss", "--range", "full", "--fusion", "none"]),
+    "diffusion": ("match", ["--guide", "diffusion", "--range", "full", "--fusion", "none"]),
+    "riverbed": ("match", ["--guide", "riverbed", "--range", "full", "--fusion", "none"]),
+    "fused default": ("match", []),
+    "lidar nearest": ("densify", ["--method", "nearest"]),
+    "lidar linear": ("densify", ["--method", "linear"]),
+    "lidar guided": ("densify", ["--method", "guided"]),
+}
+THIN_SHARE = 0.25
+HEIGHT_MARGIN = 5.0
+
+
+def riverbed(*args):
+    """Run ``riverbed ARGS`` (the script beside this Python, else on PATH); its parsed ``--json`` output, if any."""
+    exe = Path(sys.executable).with_name("riverbed")
+    cmd = [str(exe) if exe.exists() else "riverbed", *map(str, args)]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed ({r.returncode}): {r.stderr.strip()}")
+    return json.loads(r.stdout) if "--json" in cmd else None
+
+
+def thin_laz(src, dst, share, seed=0):
+    """A random ``share`` of the points of ``src`` written to ``dst`` (same header, CRS and point format)."""
+    las = laspy.read(str(src))
+    keep = np.random.default_rng([seed, 44]).random(len(las.points)) < share
+    out = laspy.LasData(las.header)
+    out.points = las.points[keep]
+    out.write(str(dst), do_compress=True, laz_backend=laspy.LazBackend.Lazrs)
+    return int(keep.sum())
+
+
+def run(work, size="small", seed=0, densities=DENSITIES, methods=tuple(METHODS), roi=None):
+    """Steps 1-5 in ``work``; the summary (dict): sample, rectification, GT disparity, one row per (density,
+    method) with DSM ``rmse``, ``nmad``, ``over_3res``, ``completeness`` and disparity ``bad1``, ``bad3``,
+    ``avg`` (the unguided row is matched once and evaluated against each density's exclusion mask)."""
+    work = Path(work)
+    work.mkdir(parents=True, exist_ok=True)
+    sample = work / "sample"
+    gen = riverbed("sample", sample, "--satellite", "--size", size, "--seed", seed, "--overwrite", "--json")
+    desc = json.loads((sample / "scene.json").read_text())
+    lo, hi = desc["heights_m"]
+    heights = f"{math.floor(lo - HEIGHT_MARGIN)},{math.ceil(hi + HEIGHT_MARGIN)}"
+    left, right = sample / "left.tif", sample / "right.tif"
+    extra = [] if roi is None else ["--roi", roi]
+    rect = riverbed("rectify", "--rpc", left, left, right, right, "-o", work / "rect", "--heights", heights, *extra,
+                    "--overwrite", "--json")
+    pair_file = work / "rect" / "pair.yaml"
+    pair = load_pairfile(pair_file, accept_rpc=True)
+    _, _, cameras, scene = satellite_scene(size, seed)
+    gt, gt_info = ground_truth_disparity(scene, cameras, pair)
+    gt_path = work / "gt_disparity.tif"
+    write_disparity(gt_path, gt.astype(np.float32), overwrite=True)
+    rl, rr = work / "rect" / "left.tif", work / "rect" / "right.tif"
+    dmin, dmax = int(math.floor(pair.disparity[0])), int(math.ceil(pair.disparity[1]))
+    full_range = ["--min-disp", dmin, "--max-disp", dmax]
+    g = desc["dsm"]
+    grid = ["--bounds", *g["bounds"], "--resolution", g["resolution_m"]]
+    summary = {"sample": {k: gen[k] for k in ("image", "gsd_m", "base_to_height", "heights_m", "rpc_check_rms_px",
+                                              "rpc_check_max_px", "lidar_points", "lidar_sparse_points", "seconds")},
+               "lidar_density_per_m2": {"lidar": desc["lidar"]["density_per_m2"],
+                                        "lidar_sparse": desc["lidar"]["sparse_density_per_m2"],
+                                        "lidar_thin": desc["lidar"]["sparse_density_per_m2"] * THIN_SHARE},
+               "rectify": {k: rect[k] for k in ("width", "height", "heights", "disparity", "disparity_per_metre",
+                                                "pointing_row_offset_px", "virtual_row_residual_max_px")},
+               "gt_disparity": gt_info, "gt_dsm_cells": g["valid_cells"], "rows": []}
+    done = {}
+
+    def evaluate(name, disp, sparse, density, seconds, lidar_share):
+        if disp not in done:
+            dsm = disp.with_name("dsm_" + disp.name)
+            riverbed("dsm", disp, pair_file, "-o", dsm, *grid, "--overwrite", "--json")
+            done[disp] = riverbed("evaluate", "--dsm", dsm, sample / "gt_dsm.tif", "--json")
+        ev = done[disp]
+        ed = riverbed("evaluate", disp, gt_path, "--exclude", sparse, "--json")
+        summary["rows"].append({"density": density, "lidar_share": lidar_share, "method": name, "seconds": seconds,
+                                **{k: ev[k] for k in ("rmse", "nmad", "median", "over_3res", "completeness")},
+                                **{k: ed[k] for k in ("bad1", "bad3", "avg")}, "predicted": ed["density"]})
+
+    unguided = None
+    for density in densities:
+        cloud = sample / f"{density}.laz"
+        if density == "lidar_thin":
+            cloud = work / "lidar_thin.laz"
+            thin_laz(sample / "lidar_sparse.laz", cloud, THIN_SHARE, seed)
+        sparse = work / f"sparse_{density}.tif"
+        p = riverbed("project", cloud, pair_file, "-o", sparse, "--overwrite", "--json")
+        share = p["lidar_share"]
+        for name in methods:
+            kind, args = METHODS[name]
+            tag = name.replace(" ", "_")
+            if name == "unguided":
+                if unguided is None:
+                    unguided = work / "unguided.tif"
+                    m = riverbed("match", rl, rr, *args, *full_range, "-o", unguided, "--overwrite", "--json")
+                    summary["unguided_seconds"] = m["seconds"]
+                evaluate(name, unguided, sparse, density, summary["unguided_seconds"], share)
+                continue
+            out = work / f"{tag}_{density}.tif"
+            if kind == "match":
+                rng = full_range if "--range" in args else []
+                m = riverbed("match", rl, rr, "--sparse", sparse, *args, *rng, "-o", out, "--overwrite", "--json")
+                seconds = m["seconds"]
+            else:
+                img = ["--image", rl] if "guided" in args else []
+                riverbed("densify", sparse, "-o", out, *args, *img, "--overwrite")
+                seconds = None
+            evaluate(name, out, sparse, density, seconds, share)
+    return summary
+
+
+def table(summary):
+    lines = ["| LiDAR | pt/m² | share of pixels (%) | method | DSM RMSE (m) | DSM NMAD (m) | > 3 GSD (%) | "
+             "completeness (%) | bad1 (%) | bad3 (%) | mean error (px) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    dens = summary["lidar_density_per_m2"]
+    for r in summary["rows"]:
+        lines.append(f"| {r['density']} | {dens[r['density']]:.2f} | {100 * r['lidar_share']:.1f} | {r['method']} | "
+                     f"{r['rmse']:.3f} | {r['nmad']:.3f} | {r['over_3res']:.2f} | {r['completeness']:.1f} | "
+                     f"{r['bad1']:.2f} | {r['bad3']:.2f} | {r['avg']:.3f} |")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--size", default="small", choices=("small", "full"))
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--work", help="work folder (default: a temporary one, removed)")
+    ap.add_argument("--densities", default=",".join(DENSITIES), help="comma-separated, of " + ", ".join(DENSITIES))
+    ap.add_argument("--methods", default=",".join(METHODS), help="comma-separated, of " + ", ".join(METHODS))
+    ap.add_argument("--roi", help="COL,ROW,W,H of the left image to rectify (default: all of it)")
+    ap.add_argument("--json", action="store_true")
+    a = ap.parse_args(argv)
+    kw = {"size": a.size, "seed": a.seed, "densities": tuple(a.densities.split(",")),
+          "methods": tuple(a.methods.split(",")), "roi": a.roi}
+    if a.work:
+        summary = run(a.work, **kw)
+    else:
+        with tempfile.TemporaryDirectory() as tmp:
+            summary = run(tmp, **kw)
+    if a.json:
+        print(json.dumps(summary, indent=1))
+    else:
+        s, r, gd = summary["sample"], summary["rectify"], summary["gt_disparity"]
+        print(f"sample {a.size} seed {a.seed}: {s['image']} px at {s['gsd_m']} m, B/H {s['base_to_height']}, RPC "
+              f"check rms {s['rpc_check_rms_px']} px (max {s['rpc_check_max_px']}); rectified {r['width']} x "
+              f"{r['height']}, d {[round(v, 2) for v in r['disparity']]}, {r['disparity_per_metre']:.3f} px/m, "
+              f"pointing {r['pointing_row_offset_px']:.3f} px; GT disparity on {100 * gd['valid_share']:.1f} % "
+              f"of the pixels (rows off by {gd['row_error_rms_px']:.3f} px rms); GT DSM cells "
+              f"{summary['gt_dsm_cells']}")
+        print(table(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
