@@ -10,6 +10,7 @@ One module per stage, each a function on numpy arrays; :func:`adcensus_disparity
 - 4. guidance (optional, in :mod:`pipeline`): the aggregated volume is modulated with LiDAR disparities *before*
   scanline optimisation, as the census volume is before SGM (``guide_stage="initial"`` modulates the raw cost before
   aggregation instead).
+- ``cross_tubes.py``: 3. on per-pixel tubes (:func:`cross_aggregate_tube`, exact; :func:`support_layouts`).
 - ``scanline.py``: 5. scanline optimisation over 4 paths (:func:`scanline_optimize`).
 - ``refinement.py``: 6. left-right check, region voting, interpolation, discontinuity adjustment, sub-pixel fit
   (:func:`refine`); then a 3 x 3 median filter.
@@ -31,8 +32,8 @@ from ...errors import RiverbedError
 from .. import census
 from ..disparity import median_filter
 from .cost import adcensus_cost, adcensus_cost_tube, cost_luts, to_u8, u8_image
-from .cross import (adcensus_aggregate, cross_aggregate, cross_aggregate_tube, cross_arms, stage_plan, support_counts,
-                    support_layouts)
+from .cross import adcensus_aggregate, cross_aggregate, cross_arms, support_counts
+from .cross_tubes import cross_aggregate_tube, stage_plan, support_layouts
 from .params import GUIDE_STAGES, ADCensusParams
 from .refinement import refine, region_voting, wta_lr_kernel, wta_lr_tube_kernel
 from .scanline import scanline_optimize, so_penalties
