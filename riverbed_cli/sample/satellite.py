@@ -123,7 +123,7 @@ class SatelliteSpec:
 
 SATELLITE_SIZES = {
     "small": SatelliteSpec("small", size=(480, 480)),
-    "full": SatelliteSpec("full", size=(1200, 1000)),
+    "full": SatelliteSpec("full", size=(1200, 1000), cell=0.2),
 }
 
 
