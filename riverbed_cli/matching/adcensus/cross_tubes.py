@@ -20,9 +20,9 @@ from .cross import inverse_counts
 
 
 def stage_plan(iterations):
-    """The segment-sum stages of :func:`.cross.cross_aggregate`, in order: ``(horizontal, normalise, inverse_index)`` per
-    stage; iteration ``k`` (1-based) is a raw pass then a normalising pass, horizontal first for odd ``k``, and
-    normalises by ``1 / |U(p)|`` of :func:`.cross.support_counts` ``[(k - 1) % 2]``."""
+    """The segment-sum stages of :func:`.cross.cross_aggregate`, in order: ``(horizontal, normalise,
+    inverse_index)`` per stage; iteration ``k`` (1-based) is a raw pass then a normalising pass, horizontal first
+    for odd ``k``, and normalises by ``1 / |U(p)|`` of :func:`.cross.support_counts` ``[(k - 1) % 2]``."""
     plan = []
     for k in range(1, int(iterations) + 1):
         h_first = k % 2 == 1
@@ -32,35 +32,33 @@ def stage_plan(iterations):
 
 
 @njit(cache=True, parallel=True)
-def _dilate_kernel(lo, hi, arms, horizontal):
-    # (lo, hi) at q: min / max over the p whose segment (horizontal: arms 0/1 along the row; vertical: 2/3 along the
-    # column) holds q. Every p's segment holds p, so the result contains the input.
+def _dilate_rows(lo, hi, back, ahead):
+    # (lo, hi) at q: min / max over the p of q's row whose segment [x - back, x + ahead] holds q. Every p's segment
+    # holds p, so the result contains the input.
     H, W = lo.shape
     olo = lo.copy()
     ohi = hi.copy()
-    if horizontal:
-        for y in prange(H):
-            for x in range(W):
-                a = x - np.int64(arms[y, x, 0])
-                b = x + np.int64(arms[y, x, 1]) + 1
-                v = lo[y, x]
-                u = hi[y, x]
-                rl = olo[y, a:b]
-                rh = ohi[y, a:b]
-                for i in range(b - a):
-                    rl[i] = min(rl[i], v)
-                    rh[i] = max(rh[i], u)
-    else:
-        for x in prange(W):
-            for y in range(H):
-                a = y - np.int64(arms[y, x, 2])
-                b = y + np.int64(arms[y, x, 3]) + 1
-                v = lo[y, x]
-                u = hi[y, x]
-                for yy in range(a, b):
-                    olo[yy, x] = min(olo[yy, x], v)
-                    ohi[yy, x] = max(ohi[yy, x], u)
+    for y in prange(H):
+        for x in range(W):
+            a = x - np.int64(back[y, x])
+            b = x + np.int64(ahead[y, x]) + 1
+            v = lo[y, x]
+            u = hi[y, x]
+            rl = olo[y, a:b]
+            rh = ohi[y, a:b]
+            for i in range(b - a):
+                rl[i] = min(rl[i], v)
+                rh[i] = max(rh[i], u)
     return olo, ohi
+
+
+def _dilate(lo, hi, arms, horizontal):
+    # the support hull through one stage's segments (vertical ones on the transposed maps, rows stay contiguous)
+    if horizontal:
+        return _dilate_rows(lo, hi, np.ascontiguousarray(arms[:, :, 0]), np.ascontiguousarray(arms[:, :, 1]))
+    t = _dilate_rows(np.ascontiguousarray(lo.T), np.ascontiguousarray(hi.T), np.ascontiguousarray(arms[:, :, 2].T),
+                     np.ascontiguousarray(arms[:, :, 3].T))
+    return np.ascontiguousarray(t[0].T), np.ascontiguousarray(t[1].T)
 
 
 def support_layouts(tubes, arms, iterations, d_min):
@@ -88,7 +86,7 @@ def support_layouts(tubes, arms, iterations, d_min):
     hi = (lo + tubes.width - 1).astype(np.int32)
     out = [tubes]
     for horizontal, _, _ in reversed(stage_plan(iterations)):
-        lo, hi = _dilate_kernel(lo, hi, arms, horizontal)
+        lo, hi = _dilate(lo, hi, arms, horizontal)
         out.append(TubeLayout.from_bounds(lo, hi, d_min))
     return out[::-1]
 
