@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 import rasterio
+from numba import njit, prange
 from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
 from rasterio.rpc import RPC
 
@@ -75,21 +76,44 @@ NEWTON_TOL_PX = 1e-9
 NEWTON_MAX_ITER = 30
 
 
-def _monomials(L, P, H):
-    """The 20 RPC terms and their derivatives in L and P, each (20, N), at normalised coordinates."""
-    Lp = [np.ones_like(L), L, L * L, L * L * L]
-    Pp = [np.ones_like(P), P, P * P, P * P * P]
-    Hp = [np.ones_like(H), H, H * H, H * H * H]
-    zero = np.zeros_like(L)
-    terms = np.empty((20,) + L.shape)
-    dL = np.empty_like(terms)
-    dP = np.empty_like(terms)
-    for k, (a, b, c) in enumerate(RPC_TERMS):
-        ph = Pp[b] * Hp[c]
-        terms[k] = Lp[a] * ph
-        dL[k] = a * Lp[a - 1] * ph if a else zero
-        dP[k] = b * Lp[a] * Pp[b - 1] * Hp[c] if b else zero
-    return terms, dL, dP
+@njit(cache=True, parallel=True)
+def _rational_kernel(L, P, H, coef, expo, derivatives, out):
+    # Per point: the column and row ratios N/D of the 20-term polynomials (coef rows: samp num, samp den, line num,
+    # line den) and, with derivatives, their partial derivatives in L and P. out: (6, N) = q_s, dq_s/dL, dq_s/dP,
+    # q_r, dq_r/dL, dq_r/dP. One pass per point, no (20, N) temporaries: triangulating a 500 x 500 map projects
+    # millions of points.
+    n = L.shape[0]
+    for i in prange(n):
+        lp = np.empty(4, np.float64)
+        pp = np.empty(4, np.float64)
+        hp = np.empty(4, np.float64)
+        lp[0] = 1.0
+        pp[0] = 1.0
+        hp[0] = 1.0
+        for j in range(1, 4):
+            lp[j] = lp[j - 1] * L[i]
+            pp[j] = pp[j - 1] * P[i]
+            hp[j] = hp[j - 1] * H[i]
+        acc = np.zeros(12, np.float64)  # value, d/dL, d/dP of each of the 4 polynomials
+        for k in range(20):
+            ea, eb, ec = expo[k, 0], expo[k, 1], expo[k, 2]
+            ph = pp[eb] * hp[ec]
+            t = lp[ea] * ph
+            tl = ea * lp[ea - 1] * ph if ea > 0 else 0.0
+            tp = eb * lp[ea] * pp[eb - 1] * hp[ec] if eb > 0 else 0.0
+            for m in range(4):
+                acc[3 * m] += coef[m, k] * t
+                if derivatives:
+                    acc[3 * m + 1] += coef[m, k] * tl
+                    acc[3 * m + 2] += coef[m, k] * tp
+        for side in range(2):
+            nu = 3 * (2 * side)
+            de = nu + 3
+            q = acc[nu] / acc[de]
+            out[3 * side, i] = q
+            if derivatives:
+                out[3 * side + 1, i] = (acc[nu + 1] - q * acc[de + 1]) / acc[de]
+                out[3 * side + 2, i] = (acc[nu + 2] - q * acc[de + 2]) / acc[de]
 
 
 @dataclass(frozen=True)
@@ -178,20 +202,17 @@ class RPCModel:
                 (h - self.height_off) / self.height_scale)
 
     def _rational(self, L, P, H, derivatives=False):
-        terms, dL, dP = _monomials(L, P, H)
-        out = []
-        for num, den in ((self.samp_num_coeff, self.samp_den_coeff), (self.line_num_coeff, self.line_den_coeff)):
-            num = np.asarray(num)
-            den = np.asarray(den)
-            n = np.tensordot(num, terms, 1)
-            d = np.tensordot(den, terms, 1)
-            q = n / d
-            if derivatives:
-                out.append((q, (np.tensordot(num, dL, 1) - q * np.tensordot(den, dL, 1)) / d,
-                            (np.tensordot(num, dP, 1) - q * np.tensordot(den, dP, 1)) / d))
-            else:
-                out.append(q)
-        return out
+        # the column and row ratios (and their derivatives in L and P) at normalised coordinates, any shape
+        shape = np.shape(L)
+        flat = [np.ascontiguousarray(np.ravel(v), dtype=np.float64) for v in (L, P, H)]
+        coef = np.array([self.samp_num_coeff, self.samp_den_coeff, self.line_num_coeff, self.line_den_coeff],
+                        dtype=np.float64)
+        out = np.empty((6, flat[0].size), np.float64)
+        _rational_kernel(*flat, coef, RPC_TERMS, bool(derivatives), out)
+        out = out.reshape((6,) + shape)
+        if derivatives:
+            return [(out[0], out[1], out[2]), (out[3], out[4], out[5])]
+        return [out[0], out[3]]
 
     def project(self, lon, lat, h):
         """Ground -> image: ``(col, row)`` in pixels (float64 arrays of the broadcast shape).
