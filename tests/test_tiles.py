@@ -153,3 +153,26 @@ def test_tile_auto_tiles_under_a_small_budget(tmp_path, cones, monkeypatch):
     a, b = read_disparity(tmp_path / "tiled.tif"), read_disparity(tmp_path / "whole.tif")
     inner = (slice(BORDER, -BORDER), slice(BORDER, -BORDER))
     assert (np.abs(a[inner] - b[inner]) <= 0.01).mean() >= 0.999
+
+
+def test_tube_tiles_are_sized_for_the_tubes_only_for_sgm():
+    # SGM's tube tiles count the tubes' volume; AD-Census's exact tube aggregation holds 1.6-3.8x the tubes' costs,
+    # so its tiles are planned for the nominal volume (as with --range full): smaller tiles under the same budget.
+    from riverbed_cli.matching.pipeline import make_config
+    from riverbed_cli.scale.tiles import plan_tiles, tube_widths
+
+    H, W = 3000, 3000
+    rng = np.random.default_rng(0)
+    n = H * W // 100
+    rows, cols = rng.integers(0, H, n), rng.integers(0, W, n)
+    vals = (100 + 0.01 * cols).astype(np.float32)
+    share = 0.01
+    sgm = tube_widths(make_config(None, guide="riverbed"), (rows, cols, vals), (H, W), 0, 300, share)
+    ad = tube_widths(make_config(None, guide="riverbed", matcher="adcensus"), (rows, cols, vals), (H, W), 0, 300,
+                     share)
+    assert ad is None and sgm is not None
+    assert 4 < float(sgm[0].mean()) < 40
+    budget = 256 * 2**20
+    tubes = plan_tiles(H, W, None, 0, 300, "auto", 64, False, budget=budget, widths=sgm)
+    nominal = plan_tiles(H, W, None, 0, 300, "auto", 64, False, budget=budget, widths=ad)
+    assert tubes.size > 2 * nominal.size

@@ -152,9 +152,10 @@ def tile_budget():
 
 def tube_widths(config, points, shape, d_min, d_max, share):
     """``(cell widths, cell)`` of the tubes a match with ``config`` will search (for :func:`plan_tiles`), or None when
-    it searches whole ranges. ``points``: the LiDAR's ``(rows, cols, values)``."""
+    it searches whole ranges or its matcher's tiles are sized for the nominal volume (``tube_sized_tiles``).
+    ``points``: the LiDAR's ``(rows, cols, values)``."""
     guide, matcher = get_guide(config.guide), get_matcher(config.matcher)
-    if points is None or resolve_range(config, guide, matcher, True, False) != "tube":
+    if points is None or not matcher.tube_sized_tiles or resolve_range(config, guide, matcher, True, False) != "tube":
         return None
     tube = asdict(config.tube)
     return cell_widths_from_points(*points, shape, d_min, d_max, share, tube), max(1, int(tube["cell"]))

@@ -26,6 +26,7 @@ class SGMMatcher(Matcher):
     name = "sgm"
 
     supports_tubes = True
+    tube_sized_tiles = True
 
     def match(self, left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages, tubes=None,
               return_status=False):
