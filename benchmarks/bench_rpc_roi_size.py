@@ -313,6 +313,11 @@ def print_row(name, r, file=sys.stdout):
     print("  ".join(parts), file=file, flush=True)
 
 
+def num(v, digits=4):
+    """``v`` with ``digits`` decimals, or in two significant digits below 0.001 (shareloc's 1e-5 px)."""
+    return f"{v:.{digits}f}" if abs(v) >= 1e-3 or v == 0 else f"{v:.1e}"
+
+
 def table(name, rows, cases):
     """A markdown table: one line per ROI size, median / p95 / max |residual| (px) per case."""
     head = "| ROI (px) | heights (m) | d range (px) | " + " | ".join(
@@ -323,11 +328,11 @@ def table(name, rows, cases):
                  f"{r['disparity_range_px'][1]:.0f}"]
         for _, key in cases:
             v = r.get(key)
-            cells.append("—" if v is None else f"{v['median']:.4f} / {v['p95']:.4f} / {v['max']:.4f}")
+            cells.append("—" if v is None else f"{num(v['median'])} / {num(v['p95'])} / {num(v['max'])}")
         ka = "affine_box_rpc"
         kg = "grid_box_rpc"
-        cells.append(f"{r[ka]['direction_mrad']:.3f} / "
-                     + (f"{r[kg]['direction_mrad']:.3f}" if kg in r else "—"))
+        cells.append(f"{num(r[ka]['direction_mrad'], 3)} / "
+                     + (num(r[kg]['direction_mrad'], 3) if kg in r else "—"))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
