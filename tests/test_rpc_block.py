@@ -358,3 +358,20 @@ def test_ventoux_split_into_rois_on_dask_merges_like_the_whole_crop(shared_data,
     assert abs(d["merged_vs_whole"]["median"]) < 0.05 and d["merged_vs_whole"]["nmad"] < 0.3
     for key in ("merged_vs_srtm", "whole_vs_srtm"):
         assert abs(d[key]["median"]) < 0.1 and d[key]["nmad"] < 0.4
+
+
+def test_lidar_height_range_ignores_unclassified_noise():
+    # 40 x 40 ground points at 1 m on a 5 % slope (500..502 m), a bird 120 m above and a multipath echo 60 m below:
+    # neither stretches the range (the affine rectification is fitted over it)
+    from riverbed_cli.geometry.rpc_heights import robust_height_range
+
+    e, n = np.meshgrid(np.arange(40.0), np.arange(40.0))
+    lon = 5.2 + e.ravel() / (111_320.0 * np.cos(np.radians(44.2)))
+    lat = 44.2 + n.ravel() / 110_574.0
+    h = 500.0 + 0.05 * e.ravel()
+    llh = np.stack([lon, lat, h], axis=1)
+    noisy = np.concatenate([llh, [[lon[300], lat[300], 620.0], [lon[900], lat[900], 440.0]]])
+    lo, hi, out = robust_height_range(noisy)
+    # (the grid's 4 corners, whose neighbours are far, go too: SOR's floor of 1.5 times the typical spacing)
+    assert out == 6 and lo == 500.0 and hi == pytest.approx(501.95)
+    assert robust_height_range(llh)[:2] == (500.0, pytest.approx(501.95))

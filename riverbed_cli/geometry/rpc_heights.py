@@ -11,6 +11,7 @@ import numpy as np
 
 from ..errors import RiverbedError
 from ..io.lidar import class_mask, iter_lidar, lidar_info, resolve_crs
+from .outliers import sor_inliers
 from .rpc_dem import geoid_to_ellipsoid_transformer, read_dem
 from .rpc_geometry import cloud_to_wgs84
 from .rpc_rectify import heights_over_roi
@@ -21,6 +22,8 @@ HEIGHT_MARGIN_M = 20.0
 #: grid over the ROI for ``heights_from_lidar``; below it the cloud "does not cover the ROI".
 LIDAR_MIN_COVER = 0.5
 LIDAR_GRID = 8
+#: At most this many of the points under the ROI (a seeded sample) go through the outlier filter.
+LIDAR_SOR_POINTS = 2_000_000
 
 
 def footprint_bounds(rpc, roi, h):
@@ -59,7 +62,10 @@ def heights_from_lidar(rpc_left, roi, clouds, crs=None, classes=None, drop_class
     the file's CRS or ``crs``) and projected through the left RPC with its own height; the points landing inside
     the ROI give the range. The cloud must cover the ROI: its points must fall in at least
     :data:`LIDAR_MIN_COVER` of the cells of a :data:`LIDAR_GRID` x :data:`LIDAR_GRID` grid over the ROI, else a
-    one-line :class:`RiverbedError` naming the (first) cloud.
+    one-line :class:`RiverbedError` naming the (first) cloud. Unclassified noise (birds, multipath) would stretch
+    the range, and the affine rectification fitted over it: the points under the ROI go through the statistical
+    outlier filter ``riverbed project`` uses (:func:`~riverbed_cli.geometry.outliers.sor_inliers`, on local metric
+    coordinates; at most :data:`LIDAR_SOR_POINTS` of them, a seeded sample), and the range is the inliers'.
 
     Parameters
     ----------
@@ -82,8 +88,8 @@ def heights_from_lidar(rpc_left, roi, clouds, crs=None, classes=None, drop_class
     """
     clouds = [clouds] if isinstance(clouds, (str, os.PathLike)) else list(clouds)
     x0, y0, w, h = roi
-    lo, hi = math.inf, -math.inf
     n_read = n_in = 0
+    kept = []
     cells = np.zeros(LIDAR_GRID * LIDAR_GRID, bool)
     for path in clouds:
         info = lidar_info(path)
@@ -98,7 +104,7 @@ def heights_from_lidar(rpc_left, roi, clouds, crs=None, classes=None, drop_class
             if not inside.any():
                 continue
             n_in += int(inside.sum())
-            lo, hi = min(lo, float(hh[inside].min())), max(hi, float(hh[inside].max()))
+            kept.append(np.stack([lon[inside], lat[inside], hh[inside]], axis=1))
             gi = np.clip(((col[inside] - x0 + 0.5) * LIDAR_GRID / w).astype(np.int64), 0, LIDAR_GRID - 1)
             gj = np.clip(((row[inside] - y0 + 0.5) * LIDAR_GRID / h).astype(np.int64), 0, LIDAR_GRID - 1)
             cells[gj * LIDAR_GRID + gi] = True
@@ -107,12 +113,29 @@ def heights_from_lidar(rpc_left, roi, clouds, crs=None, classes=None, drop_class
     if n_in == 0:
         raise RiverbedError(f"does not cover {where}: no point of the kept classes lands in it ({n_read} read)",
                             name)
+    lo, hi, n_out = robust_height_range(np.concatenate(kept))
     cover = float(cells.mean())
     if cover < LIDAR_MIN_COVER:
         raise RiverbedError(f"does not cover {where}: its {n_in} points there fall in {cover:.0%} of an "
                             f"{LIDAR_GRID}x{LIDAR_GRID} grid over it (at least {LIDAR_MIN_COVER:.0%} needed)", name)
     return (lo - margin_m, hi + margin_m), {"points": n_in, "points_read": n_read, "cover": cover,
-                                            "range": [lo, hi]}
+                                            "range": [lo, hi], "outliers": n_out}
+
+
+def robust_height_range(llh, max_points=None, seed=0):
+    """``(lo, hi, outliers)``: the height range (m) of the points ``llh`` (N, 3: lon, lat in degrees, height in m)
+    without their statistical outliers (:func:`~riverbed_cli.geometry.outliers.sor_inliers` on local east / north /
+    up metres, as seen from above), from a seeded sample of at most ``max_points`` (:data:`LIDAR_SOR_POINTS`)."""
+    max_points = LIDAR_SOR_POINTS if max_points is None else int(max_points)
+    if llh.shape[0] > max_points:
+        llh = llh[np.random.default_rng(seed).choice(llh.shape[0], max_points, replace=False)]
+    lat0 = float(np.median(llh[:, 1]))
+    east = (llh[:, 0] - float(np.median(llh[:, 0]))) * 111_320.0 * math.cos(math.radians(lat0))
+    north = (llh[:, 1] - lat0) * 110_574.0
+    xyz = np.stack([east, north, llh[:, 2] - float(np.median(llh[:, 2]))], axis=1)
+    keep = sor_inliers(xyz, np.ones(xyz.shape[0]))
+    h = llh[keep, 2] if keep.any() else llh[:, 2]
+    return float(h.min()), float(h.max()), int((~keep).sum())
 
 
 def heights_to_ellipsoid(heights, rpc_left, roi, vertical):
