@@ -448,6 +448,7 @@ def _manifest(sample, command, desc):
     fl, fr = desc["rpc_fit"]["left"]["check"], desc["rpc_fit"]["right"]["check"]
     lo, hi = desc["heights_m"]
     g = desc["dsm"]
+    bounds_txt = " ".join(f"{v:.0f}" for v in g["bounds"])  # whole metres
     lid = desc["lidar"]
     return f"""# Synthetic satellite stereo pair (size {spec.name}, seed {sample.seed})
 
@@ -476,13 +477,17 @@ by this project.
 - RPCs fitted by least squares on 21x21x7 ground points (heights {desc["rpc_fit"]["left"]["heights_m"]}),
   error on the 20x20x6 check grid: left rms {fl["rms_px"]:.4f} px (max {fl["max_px"]:.4f}), right rms
   {fr["rms_px"]:.4f} px (max {fr["max_px"]:.4f}).
-- Scene heights {lo:.2f} to {hi:.2f} m (ellipsoidal): `riverbed rectify --rpc left.tif left.tif right.tif
-  right.tif -o rect --heights {math.floor(lo)},{math.ceil(hi)}`.
+- Scene heights {lo:.2f} to {hi:.2f} m (ellipsoidal).
 
-Then `riverbed project lidar.laz rect/pair.yaml -o sparse.tif`, `riverbed match rect/left.tif rect/right.tif
---sparse sparse.tif -o disp.tif`, `riverbed dsm disp.tif rect/pair.yaml -o dsm.tif --bounds {g["bounds"][0]:g}
-{g["bounds"][1]:g} {g["bounds"][2]:g} {g["bounds"][3]:g} --resolution {g["resolution_m"]:g}` and `riverbed
-evaluate --dsm dsm.tif gt_dsm.tif` (docs/rpc_synthetic.md; `benchmarks/bench_rpc_synthetic.py` runs all of it).
+The whole chain, in this folder (docs/rpc_synthetic.md; `benchmarks/bench_rpc_synthetic.py` runs every method):
+
+```bash
+riverbed rectify --rpc left.tif left.tif right.tif right.tif -o rect --heights {math.floor(lo)},{math.ceil(hi)}
+riverbed project lidar.laz rect/pair.yaml -o sparse.tif
+riverbed match rect/left.tif rect/right.tif --sparse sparse.tif -o disp.tif
+riverbed dsm disp.tif rect/pair.yaml -o dsm.tif --bounds {bounds_txt} --resolution {g["resolution_m"]:g}
+riverbed evaluate --dsm dsm.tif gt_dsm.tif
+```
 """
 
 
