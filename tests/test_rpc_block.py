@@ -375,3 +375,23 @@ def test_lidar_height_range_ignores_unclassified_noise():
     # (the grid's 4 corners, whose neighbours are far, go too: SOR's floor of 1.5 times the typical spacing)
     assert out == 6 and lo == 500.0 and hi == pytest.approx(501.95)
     assert robust_height_range(llh)[:2] == (500.0, pytest.approx(501.95))
+
+
+def test_a_failed_pointing_correction_in_a_block_names_the_manifest_key(scene, tmp_path):
+    # a 100 x 100 ROI has too few tie points for the pointing correction: the block's message names the manifest's
+    # way of turning it off, not the rectify command's flag
+    base, (left, right, rpc, cloud), _ = scene
+    entry = {"left": str(left), "left_rpc": str(left), "right": str(right), "right_rpc": str(rpc),
+             "roi": [60, 60, 100, 100], "heights": [470, 530]}
+    manifest = {"defaults": {"resolution": 1}, "pairs": [{"name": "tiny", "rpc": entry, "cloud": str(cloud)}]}
+    (tmp_path / "tiny.yaml").write_text(yaml.safe_dump(manifest))
+    r = run(["block", tmp_path / "tiny.yaml", "-o", tmp_path / "out", "--workers", "0", "--json"])
+    assert r.exit_code == 1
+    (pair,) = json.loads(r.stdout)["pairs"]
+    assert (pair["status"], pair["stage"]) == ("failed", "rectify")
+    assert pair["error"].startswith(f"{left}: too few tie points (0) to estimate the RPC pointing error")
+    assert pair["error"].endswith(f"(with {right}; pointing: false in its rpc: entry rectifies without it)")
+    entry["pointing"] = False
+    (tmp_path / "tiny.yaml").write_text(yaml.safe_dump(manifest))
+    r = run(["block", tmp_path / "tiny.yaml", "-o", tmp_path / "out2", "--workers", "0", "--json"])
+    assert r.exit_code == 0, r.output

@@ -390,7 +390,8 @@ def right_share(rpc_left, rpc_right, roi, heights, right_size, n=11, n_heights=5
 
 def rectify_rpc_files(left_image, left_rpc, right_image, right_rpc, outdir, roi=None, dem=None, heights=None,
                       vertical=None, pointing=True, overwrite=False, max_pixels=MAX_PIXELS, lidar=None,
-                      lidar_crs=None, classes=None, drop_classes=(7, 18)):
+                      lidar_crs=None, classes=None, drop_classes=(7, 18),
+                      pointing_hint="--no-pointing-correction"):
     """Rectify an RPC pair over a ROI of the left image; write left.tif, right.tif and pair.yaml into ``outdir``.
 
     Parameters
@@ -413,6 +414,8 @@ def rectify_rpc_files(left_image, left_rpc, right_image, right_rpc, outdir, roi=
         ``"EPSG:5773"`` = EGM96).
     pointing : bool
         Measure the relative pointing error on tie points and remove it (the right image moved by rows).
+    pointing_hint : str
+        How the caller turns the correction off, named when it fails (a block manifest's ``pointing: false``).
     overwrite : bool
         Replace existing outputs.
     max_pixels : int
@@ -473,7 +476,7 @@ def rectify_rpc_files(left_image, left_rpc, right_image, right_rpc, outdir, roi=
             try:
                 offset, n_tie = estimate_row_offset(_grey(rect_left), _grey(rect_right), rect.disparity)
             except RiverbedError as e:
-                raise RiverbedError(f"{e} (with {right_image}; --no-pointing-correction rectifies without it)",
+                raise RiverbedError(f"{e} (with {right_image}; {pointing_hint} rectifies without it)",
                                     left_image) from None
             rect = with_row_offset(rect, offset)
             rect_right = _resample_window(ds_right, rect.H_right, rect.size, right_image)

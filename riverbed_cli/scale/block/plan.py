@@ -120,7 +120,7 @@ def rectify_rpc(job):
     rectify_rpc_files(r["left"], r["left_rpc"], r["right"], r["right_rpc"], folder, roi=r["roi"], dem=r["dem"],
                       heights=r["heights"], vertical=r["vertical"], pointing=r["pointing"], overwrite=True,
                       max_pixels=s["max_pixels"], lidar=lidar, lidar_crs=s["lidar_crs"], classes=s["classes"],
-                      drop_classes=s["drop_classes"])
+                      drop_classes=s["drop_classes"], pointing_hint="pointing: false in its rpc: entry")
     write_json(stamp, inputs)
     return folder / "pair.yaml"
 
