@@ -12,7 +12,7 @@ from ..geometry.rectify import parse_size
 from ..geometry.rpc_pair import parse_heights, parse_roi
 from ..scale.block import plan_block, run_block
 from ..scale.block.split import MIN_RIGHT_SHARE, write_split_manifest
-from .options import input_path, json_opt, overwrite_opt, print_json, progress_enabled
+from .options import input_path, json_opt, overwrite_opt, parsed_value, print_json, progress_enabled
 
 log = logging.getLogger(__name__)
 
@@ -36,17 +36,6 @@ def block_cmd():
     (riverbed block split-rpc --help)."""
 
 
-def _parsed(parser, option):
-    def callback(ctx, param, value):
-        if value is None:
-            return None
-        try:
-            return parser(value)
-        except ValueError as e:
-            raise RiverbedError(f"{option}: {e}") from None
-    return callback
-
-
 def _roi_size(text):
     """``"N"`` (square) or ``"WxH"`` -> (W, H) px."""
     text = str(text).strip()
@@ -67,17 +56,17 @@ def _roi_size(text):
               help="The block manifest to write (YAML; paths in it relative to its folder).")
 @click.option("--cloud", "clouds", multiple=True, required=True, type=input_path(),
               help="LiDAR of the scene (LAS/LAZ; repeatable): every pair's cloud.")
-@click.option("--size", default="2000", show_default=True, callback=_parsed(_roi_size, "--size"), metavar="N|WxH",
+@click.option("--size", default="2000", show_default=True, callback=parsed_value(_roi_size, "--size"), metavar="N|WxH",
               help="ROI size in pixels of the left image (e.g. 2000, or 2000x1500). The affine rectification's "
                    "residual grows as the size squared: 0.075 px at 2000 px on Pleiades, 0.1 px near 2300, 0.5 px "
                    "near 5200 (docs/rpc_roi_size.md).")
 @click.option("--overlap", type=click.IntRange(0), default=100, show_default=True,
               help="Pixels neighbouring ROIs share at least (their DSMs overlap by that much ground).")
-@click.option("--region", default=None, metavar="COL,ROW,W,H", callback=_parsed(parse_roi, "--region"),
+@click.option("--region", default=None, metavar="COL,ROW,W,H", callback=parsed_value(parse_roi, "--region"),
               help="Split only this region of the left image (px; default the whole image).")
 @click.option("--dem", type=input_path(), default=None,
               help="Each ROI's height range from this DEM (as rectify --rpc --dem); default: from the clouds.")
-@click.option("--heights", default=None, metavar="LO,HI", callback=_parsed(parse_heights, "--heights"),
+@click.option("--heights", default=None, metavar="LO,HI", callback=parsed_value(parse_heights, "--heights"),
               help="Each ROI's height range as given (m, ellipsoidal unless --vertical).")
 @click.option("--vertical", default=None, metavar="DATUM",
               help="Vertical datum of --dem when its file does not say, or of --heights (EPSG:5773 = EGM96).")

@@ -93,3 +93,16 @@ def setting_options(settings, defaults=None):
             f = opt(f)
         return f
     return decorate
+
+
+def parsed_value(parser, option):
+    """A click callback turning an option's text into a value with ``parser`` (None stays None); a ``ValueError``
+    becomes the one-line ``riverbed: error: OPTION: message``."""
+    def callback(ctx, param, value):
+        if value is None:
+            return None
+        try:
+            return parser(value)
+        except ValueError as e:
+            raise RiverbedError(f"{option}: {e}") from None
+    return callback

@@ -10,7 +10,7 @@ from ..errors import RiverbedError
 from ..geometry.rectify import check_alpha, parse_size, rectify_files
 from ..geometry.rpc_pair import parse_heights, parse_roi, rectify_rpc_files
 from ..io.images import MAX_PIXELS
-from .options import input_path, json_opt, overwrite_opt, print_json
+from .options import input_path, json_opt, overwrite_opt, parsed_value, print_json
 
 log = logging.getLogger(__name__)
 
@@ -31,17 +31,6 @@ def _alpha(ctx, param, value):
         raise click.BadParameter(str(e)) from None
 
 
-def _parsed(parser, option):
-    def callback(ctx, param, value):
-        if value is None:
-            return None
-        try:
-            return parser(value)
-        except ValueError as e:
-            raise RiverbedError(f"{option}: {e}") from None
-    return callback
-
-
 #: Options of one mode only: (parameter, option, mode it belongs to).
 PINHOLE_ONLY = (("alpha", "--alpha"), ("size", "--size"))
 RPC_ONLY = (("roi", "--roi"), ("dem", "--dem"), ("heights", "--heights"), ("vertical", "--vertical"),
@@ -59,12 +48,12 @@ RPC_ONLY = (("roi", "--roi"), ("dem", "--dem"), ("heights", "--heights"), ("vert
 @click.option("--rpc", "rpc", is_flag=True, default=False,
               help="Satellite images: LEFT_ORIENT and RIGHT_ORIENT are RPC models (any format; the image itself "
                    "for GeoTIFF RPC tags); docs/rpc.md.")
-@click.option("--roi", default=None, metavar="COL,ROW,W,H", callback=_parsed(parse_roi, "--roi"),
+@click.option("--roi", default=None, metavar="COL,ROW,W,H", callback=parsed_value(parse_roi, "--roi"),
               help="[--rpc] Region of the left image to rectify (px; default the whole image).")
 @click.option("--dem", type=input_path(), default=None,
               help="[--rpc] DEM over the ROI (geographic CRS, e.g. SRTM .hgt): the height range is its range "
                    "under the ROI +- 20 m.")
-@click.option("--heights", default=None, metavar="LO,HI", callback=_parsed(parse_heights, "--heights"),
+@click.option("--heights", default=None, metavar="LO,HI", callback=parsed_value(parse_heights, "--heights"),
               help="[--rpc] The terrain's height range instead of a DEM (m, ellipsoidal unless --vertical).")
 @click.option("--lidar", type=input_path(), multiple=True, metavar="CLOUD",
               help="[--rpc] LiDAR (LAS/LAZ, repeatable) instead of a DEM: the height range is that of its points "
