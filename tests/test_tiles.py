@@ -176,3 +176,22 @@ def test_tube_tiles_are_sized_for_the_tubes_only_for_sgm():
     tubes = plan_tiles(H, W, None, 0, 300, "auto", 64, False, budget=budget, widths=sgm)
     nominal = plan_tiles(H, W, None, 0, 300, "auto", 64, False, budget=budget, widths=ad)
     assert tubes.size > 2 * nominal.size
+
+
+def test_tiled_tube_matches_report_their_tubes(cones):
+    # One tile on the global range searches exactly the untiled match's tubes: the same statistics. Tiles on their
+    # LiDAR ranges clip the tubes to them: no pixel is left on the nominal range, and no tube is wider.
+    left, right, gt = cones
+    sparse = simulate_lidar(gt, 0.05, seed=0)
+    whole = match_pair(left, right, sparse, 0, 59, guide="riverbed", fusion="none")
+    one = match_tiled(left, right, sparse, 0, 59, guide="riverbed", fusion="none", tile=0, lidar_range=False)
+    assert whole.info["range"] == one.info["range"] == "tube"
+    assert one.info["tubes"] == whole.info["tubes"]
+    assert np.array_equal(one.disparity, whole.disparity, equal_nan=True)
+    tiled = match_tiled(left, right, sparse, 0, 59, guide="riverbed", fusion="none", tile=128, overlap=64)
+    t = tiled.info["tubes"]
+    assert tiled.info["range"] == "tube" and t["nominal"] == 60 and t["full_share"] == 0.0
+    assert 2 < t["mean_width"] <= whole.info["tubes"]["mean_width"] and t["max_width"] <= 60
+    ranges = match_tiled(left, right, sparse, 0, 59, guide="riverbed", fusion="none", tile=128, overlap=64,
+                         range="full")
+    assert ranges.info["range"] == "tile" and "tubes" not in ranges.info.to_dict()

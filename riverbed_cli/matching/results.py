@@ -47,7 +47,8 @@ class TiledMatchInfo(RecordMapping):
     """What a tiled match did (:func:`~riverbed_cli.scale.tiles.match_tiled`): :class:`MatchInfo`'s keys that
     hold for the whole image, plus ``tiles`` (count), ``tile`` (px), ``overlap`` (px), ``disparity_evaluations``
     (sum over tiles of crop pixels x disparities: the work done) and ``tile_ranges`` (tiles whose range came from
-    their LiDAR, their neighbours, or the global range)."""
+    their LiDAR, their neighbours, or the global range); with tubes ``range`` is ``tube`` and ``tubes`` the whole
+    image's tube statistics over the tiles' own pixels (as :class:`MatchInfo`'s)."""
 
     seconds: float
     stages: dict
@@ -62,6 +63,10 @@ class TiledMatchInfo(RecordMapping):
     overlap: int
     disparity_evaluations: int
     tile_ranges: dict
+    range: str = "tile"
+    tubes: dict = None
+
+    _optional = ("tubes",)
 
 
 @dataclass

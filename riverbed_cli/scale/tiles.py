@@ -58,6 +58,28 @@ def auto_tile(d_range, overlap=128, budget=TILE_BUDGET, smallest=128, largest=40
 
 
 @dataclass
+class TileTubes:
+    """The tubes of a tile's own pixels (not its overlap): ``width_sum`` (disparities searched), ``pixels``,
+    ``max_width`` and ``full`` (pixels on the whole image's nominal range)."""
+
+    width_sum: int
+    pixels: int
+    max_width: int
+    full: int
+
+
+def tiled_tube_stats(parts, d_min, d_max):
+    """The whole image's tube statistics (``riverbed match --json``'s ``tubes``) from its tiles'
+    :class:`TileTubes`; None when no tile searched tubes."""
+    parts = [q for q in parts if q is not None]
+    if not parts:
+        return None
+    n = sum(q.pixels for q in parts)
+    return {"mean_width": round(sum(q.width_sum for q in parts) / n, 3), "max_width": max(q.max_width for q in parts),
+            "nominal": int(d_max) - int(d_min) + 1, "full_share": round(sum(q.full for q in parts) / n, 5)}
+
+
+@dataclass
 class Tile:
     y0: int
     y1: int
@@ -205,8 +227,9 @@ def plan_tiles(height, width, sparse, d_min, d_max, tile=TILE_DEFAULT, overlap=O
 def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None, global_range=None):
     """Match one :class:`Tile` (sources sliced like numpy arrays: arrays, memory maps, :class:`WindowedRaster`).
 
-    Returns ``(block, evaluations, stages)``: the tile's own disparities (float32, ``t.y1 - t.y0`` x ``t.x1 -
-    t.x0``), the disparity evaluations done on its crop, and the stage timings. ``params.window`` should be fixed
+    Returns ``(block, evaluations, stages, tubes)``: the tile's own disparities (float32, ``t.y1 - t.y0`` x ``t.x1 -
+    t.x0``), the disparity evaluations done on its crop, the stage timings, and with tubes a
+    :class:`TileTubes` of the tile's own pixels (None on whole ranges). ``params.window`` should be fixed
     (not "auto") so every tile uses the same riverbed window; ``bits`` is the whole pair's effective bit depth.
     With tubes (``params.range``), ``tube_share`` (the whole image's LiDAR share) and ``global_range`` (the whole
     image's ``(d_min, d_max)``) make the crop's tubes the whole image's (:func:`lidar_tubes_window`), clipped to
@@ -244,7 +267,12 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
     block = res.disparity[t.y0 - ya:t.y1 - ya, t.x0 - a:t.x1 - a] + np.float32(off)
     tubes = res.info.get("tubes")
     n = int(lc.shape[0] * lc.shape[1] * (tubes["mean_width"] if tubes else (t.d_max - t.d_min + 1)))
-    return np.ascontiguousarray(block), n, res.info["stages"]
+    own = None
+    if range_map is not None and res.info["range"] == "tube":
+        w = (range_map[1] - range_map[0] + 1)[t.y0 - ya:t.y1 - ya, t.x0 - a:t.x1 - a]
+        g_lo, g_hi = global_range if global_range is not None else (t.d_min, t.d_max)
+        own = TileTubes(int(w.sum()), int(w.size), int(w.max()), int((w >= g_hi - g_lo + 1).sum()))
+    return np.ascontiguousarray(block), n, res.info["stages"], own
 
 
 def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, tile=TILE_DEFAULT,
@@ -288,8 +316,10 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
             out = np.full((H, W), np.nan, np.float32)
         stages = {}
         evaluations = 0
+        tube_parts = []
         for t in plan.tiles:
-            block, n, st = match_tile(left, right, sparse, t, overlap, p, bits, share, (d_min, d_max))
+            block, n, st, tube = match_tile(left, right, sparse, t, overlap, p, bits, share, (d_min, d_max))
+            tube_parts.append(tube)
             out[t.y0:t.y1, t.x0:t.x1] = block
             evaluations += n
             for k, v in st.items():
@@ -299,4 +329,7 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
     info = TiledMatchInfo(round(time.perf_counter() - t_all, 4), stages, p.guide, share,
                           p.guidance.window if guide.uses_window else None, d_min, d_max, [W, H], len(plan.tiles),
                           plan.size, overlap, int(evaluations), plan.to_dict()["tile_ranges"])
+    tubes = tiled_tube_stats(tube_parts, d_min, d_max)
+    info.range = "tube" if tubes is not None else ("tile" if sparse is not None and lidar_range else "full")
+    info.tubes = tubes
     return MatchResult(out, info)

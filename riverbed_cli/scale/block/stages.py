@@ -214,7 +214,7 @@ def tile_stage(job, proj, index):
     right = np.load(folder / WORK / "right.npy", mmap_mode="r")
     sparse = WindowedRaster(folder / "sparse.tif", "disparity")
     # the pair's LiDAR share and range: every tile takes the whole pair's tubes, as match_tiled does
-    disp, n, stages = match_tile(left, right, sparse, tile, s["overlap"], p, proj["bits"],
+    disp, n, stages, _ = match_tile(left, right, sparse, tile, s["overlap"], p, proj["bits"],
                                  proj["stats"]["lidar_share"], (proj["d_min"], proj["d_max"]))
     return {"index": index, "disparity": disp, "evaluations": n, "stages": stages,
             "seconds": round(time.perf_counter() - t0, 4)}
