@@ -90,7 +90,7 @@ def _sgm_pass(cost, out, dxs, dys, P1, P2, flip):
 
 
 @njit(cache=True, boundscheck=False, inline="always")
-def _tube_value(prev, wq, j, P1):
+def tube_value(prev, wq, j, P1):
     # min(L(j), L(j -+ 1) + P1) of the previous pixel's tube (wq wide) at its index j; outside it: the sentinel
     sent = np.int16(_SENTINEL)
     a = prev[j + 1] if 0 <= j < wq else sent
@@ -109,7 +109,7 @@ def _tube_step(prev, wq, cur, c, acc, P1, jump, mp, s):
     lo = min(w, max(0, -s))
     hi = max(lo, min(w, wq - s))
     for d in range(lo):
-        v = np.int16(c[d] + min(_tube_value(prev, wq, d + s, P1), jump) - mp)
+        v = np.int16(c[d] + min(tube_value(prev, wq, d + s, P1), jump) - mp)
         cur[d + 1] = v
         acc[d] += v
         m = min(m, v)
@@ -120,7 +120,7 @@ def _tube_step(prev, wq, cur, c, acc, P1, jump, mp, s):
         acc[d] += v
         m = min(m, v)
     for d in range(hi, w):
-        v = np.int16(c[d] + min(_tube_value(prev, wq, d + s, P1), jump) - mp)
+        v = np.int16(c[d] + min(tube_value(prev, wq, d + s, P1), jump) - mp)
         cur[d + 1] = v
         acc[d] += v
         m = min(m, v)

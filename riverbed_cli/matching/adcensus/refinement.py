@@ -27,6 +27,28 @@ from .cost import u8_image
 from .params import ADCensusParams
 
 
+@njit(cache=True, inline="always")
+def _lr_status_row(best, rbest, d_min, pad, lr_threshold, status):
+    # One row's left-right outcome from the left winners (indices d - d_min) and the right ones (rbest, reversed
+    # and padded): 0 consistent, 1 mismatch, 2 occlusion.
+    W = best.shape[0]
+    # back[x]: some right pixel's winner maps back to left pixel x (the epipolar line meets D_R)
+    back = np.zeros(W, dtype=np.bool_)
+    for xr in range(W):
+        rbv = rbest[W - 1 - xr + pad]
+        if rbv >= 0:
+            back[xr + d_min + rbv] = True
+    for x in range(W):
+        bi = best[x]
+        xr = x - (d_min + bi)
+        if xr < 0 or xr >= W:
+            # out of view: no right pixel to be occluded behind; filled like a mismatch (by colour), not with
+            # the smallest neighbouring disparity (measured: AD-Census dev bad3 7.99 -> 7.17 %)
+            status[x] = 1
+        elif abs(bi - rbest[W - 1 - xr + pad]) > lr_threshold:
+            status[x] = 1 if back[x] else 2
+
+
 @njit(cache=True, parallel=True)
 def wta_lr_kernel(fwd, bwd, d_min, lr_threshold):
     # Winner index of the left image, and status: 0 reliable, 1 mismatch, 2 occlusion.
@@ -64,21 +86,7 @@ def wta_lr_kernel(fwd, bwd, d_min, lr_threshold):
                 better = v < o
                 rc[i] = v if better else o
                 rb[i] = np.int32(i) if better else rb[i]
-        # back[x]: some right pixel's winner maps back to left pixel x (the epipolar line meets D_R)
-        back = np.zeros(W, dtype=np.bool_)
-        for xr in range(W):
-            rbv = rbest[W - 1 - xr + pad]
-            if rbv >= 0:
-                back[xr + d_min + rbv] = True
-        for x in range(W):
-            bi = best[y, x]
-            xr = x - (d_min + bi)
-            if xr < 0 or xr >= W:
-                # out of view: no right pixel to be occluded behind; filled like a mismatch (by colour), not with
-                # the smallest neighbouring disparity (measured: AD-Census dev bad3 7.99 -> 7.17 %)
-                status[y, x] = 1
-            elif abs(bi - rbest[W - 1 - xr + pad]) > lr_threshold:
-                status[y, x] = 1 if back[x] else 2
+        _lr_status_row(best[y], rbest, d_min, pad, lr_threshold, status[y])
     return best, status
 
 
@@ -120,18 +128,7 @@ def wta_lr_tube_kernel(fwd, bwd, d_min, lr_threshold, start, width, offset, n_di
                 better = v < rc[i]
                 rc[i] = v if better else rc[i]
                 rb[i] = np.int32(o + i) if better else rb[i]
-        back = np.zeros(W, dtype=np.bool_)
-        for xr in range(W):
-            rbv = rbest[W - 1 - xr + pad]
-            if rbv >= 0:
-                back[xr + d_min + rbv] = True
-        for x in range(W):
-            bi = best[y, x]
-            xr = x - (d_min + bi)
-            if xr < 0 or xr >= W:
-                status[y, x] = 1
-            elif abs(bi - rbest[W - 1 - xr + pad]) > lr_threshold:
-                status[y, x] = 1 if back[x] else 2
+        _lr_status_row(best[y], rbest, d_min, pad, lr_threshold, status[y])
     return best, status
 
 

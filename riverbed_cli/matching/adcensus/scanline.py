@@ -11,7 +11,7 @@ import numpy as np
 from numba import njit, prange
 
 from ...errors import RiverbedError
-from ..sgm import path_start
+from ..sgm import path_start, tube_value
 from .cost import u8_image
 
 _SENTINEL = 16384
@@ -57,6 +57,31 @@ def _row_penalties(flags, bad_l, p1tab, p2tab, P1, P2, pad):
         P2[j] = p2tab[cat]
 
 
+@njit(cache=True, inline="always")
+def _row_edges(left, right, y, py, first, step, tau, p1tab, p2tab, P1, P2, pad, fh, fv, bh, bv):
+    # Row y's colour edges towards the previous pixel of each path (horizontal: the column before in pass order;
+    # vertical: row py; 2 where a path starts) in the right (fh, fv) and left (bh, bv) images, and the penalty
+    # rows they select: P1/P2[path (0 horizontal, 1 vertical), left flag].
+    W = fh.shape[0]
+    for x in range(W):
+        qx = x - step
+        if qx < 0 or qx >= W:
+            fh[x] = 2
+            bh[x] = 0
+        else:
+            fh[x] = 1 if _colour_dist(right, y, x, y, qx) >= tau else 0
+            bh[x] = 1 if _colour_dist(left, y, x, y, qx) >= tau else 0
+        if first:
+            fv[x] = 2
+            bv[x] = 0
+        else:
+            fv[x] = 1 if _colour_dist(right, y, x, py, x) >= tau else 0
+            bv[x] = 1 if _colour_dist(left, y, x, py, x) >= tau else 0
+    for b in range(2):
+        _row_penalties(fh, b, p1tab, p2tab, P1[0, b], P2[0, b], pad)
+        _row_penalties(fv, b, p1tab, p2tab, P1[1, b], P2[1, b], pad)
+
+
 @njit(cache=True)
 def _so_pass(cost, out, left, right, d_min, p1tab, p2tab, tau, flip):
     # Two of the four paths in one raster pass: forward (flip False) runs left->right and top->bottom, the reverse
@@ -81,23 +106,7 @@ def _so_pass(cost, out, left, right, d_min, p1tab, p2tab, tau, flip):
         py = y - step
         vs = yy % 2
         vp = 1 - vs
-        for x in range(W):
-            qx = x - step
-            if qx < 0 or qx >= W:
-                fh[x] = 2
-                bh[x] = 0
-            else:
-                fh[x] = 1 if _colour_dist(right, y, x, y, qx) >= tau else 0
-                bh[x] = 1 if _colour_dist(left, y, x, y, qx) >= tau else 0
-            if yy == 0:
-                fv[x] = 2
-                bv[x] = 0
-            else:
-                fv[x] = 1 if _colour_dist(right, y, x, py, x) >= tau else 0
-                bv[x] = 1 if _colour_dist(left, y, x, py, x) >= tau else 0
-        for b in range(2):
-            _row_penalties(fh, b, p1tab, p2tab, P1[0, b], P2[0, b], pad)
-            _row_penalties(fv, b, p1tab, p2tab, P1[1, b], P2[1, b], pad)
+        _row_edges(left, right, y, py, yy == 0, step, tau, p1tab, p2tab, P1, P2, pad, fh, fv, bh, bv)
         hs = 0
         mh = np.int16(0)
         for xx in range(W):
@@ -132,16 +141,6 @@ def _so_two_passes(cost, fwd, bwd, left, right, d_min, p1tab, p2tab, tau):
 
 
 @njit(cache=True, inline="always")
-def _tube_value(prev, wq, j, p1):
-    # min(L(j), L(j -+ 1) + p1) of the previous pixel's tube (wq wide) at its index j; outside it: the sentinel
-    sent = np.int16(_SENTINEL)
-    a = prev[j + 1] if 0 <= j < wq else sent
-    b = prev[j] if 1 <= j <= wq else sent
-    e = prev[j + 2] if -1 <= j < wq - 1 else sent
-    return min(a, min(b, e) + p1)
-
-
-@njit(cache=True, inline="always")
 def _so_tube_step(prev, wq, cur, c, acc, p1, p2, mp, s):
     # _so_step between tubes: index d here is index d + s of the previous pixel's tube (wq wide, padded by the
     # sentinel at prev[0] and prev[wq + 1]); a disparity outside that tube is unreachable there, not zero.
@@ -150,7 +149,7 @@ def _so_tube_step(prev, wq, cur, c, acc, p1, p2, mp, s):
     lo = min(w, max(0, -s))
     hi = max(lo, min(w, wq - s))
     for d in range(lo):
-        v = min(_tube_value(prev, wq, d + s, p1[d]), mp + p2[d])
+        v = min(tube_value(prev, wq, d + s, p1[d]), mp + p2[d])
         v = np.int16(c[d] + v - mp)
         cur[d + 1] = v
         acc[d] += v
@@ -167,7 +166,7 @@ def _so_tube_step(prev, wq, cur, c, acc, p1, p2, mp, s):
             acc[d] += v
             m = min(m, v)
     for d in range(hi, w):
-        v = min(_tube_value(prev, wq, d + s, p1[d]), mp + p2[d])
+        v = min(tube_value(prev, wq, d + s, p1[d]), mp + p2[d])
         v = np.int16(c[d] + v - mp)
         cur[d + 1] = v
         acc[d] += v
@@ -200,23 +199,7 @@ def _so_pass_tube(flat, out, start, width, offset, dmax, n_disp, left, right, d_
         py = y - step
         vs = yy % 2
         vp = 1 - vs
-        for x in range(W):
-            qx = x - step
-            if qx < 0 or qx >= W:
-                fh[x] = 2
-                bh[x] = 0
-            else:
-                fh[x] = 1 if _colour_dist(right, y, x, y, qx) >= tau else 0
-                bh[x] = 1 if _colour_dist(left, y, x, y, qx) >= tau else 0
-            if yy == 0:
-                fv[x] = 2
-                bv[x] = 0
-            else:
-                fv[x] = 1 if _colour_dist(right, y, x, py, x) >= tau else 0
-                bv[x] = 1 if _colour_dist(left, y, x, py, x) >= tau else 0
-        for b in range(2):
-            _row_penalties(fh, b, p1tab, p2tab, P1[0, b], P2[0, b], pad)
-            _row_penalties(fv, b, p1tab, p2tab, P1[1, b], P2[1, b], pad)
+        _row_edges(left, right, y, py, yy == 0, step, tau, p1tab, p2tab, P1, P2, pad, fh, fv, bh, bv)
         hs = 0
         mh = np.int16(0)
         for xx in range(W):
