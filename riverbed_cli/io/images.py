@@ -254,3 +254,15 @@ def write_png_file(path, img):
         ok = False
     if not ok:
         raise RiverbedError("cannot write PNG", path)
+
+
+def header_size(path):
+    """``(W, H)`` of a raster from its header (GDAL), without decoding the pixels; None when GDAL cannot open it
+    (the caller then reads it the usual way, with its one-line errors)."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+            with rasterio.open(path) as ds:
+                return ds.width, ds.height
+    except rasterio.errors.RasterioError:
+        return None

@@ -3,16 +3,15 @@
 import glob
 import os
 import re
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
-import rasterio
 
 from ...errors import RiverbedError
 from ...geometry.rectify import check_alpha, parse_size
 from ...geometry.rpc_dem import dem_vertical
 from ...geometry.rpc_pair import MIN_ROI_PX, check_roi, parse_heights, parse_roi
+from ...io.images import header_size
 from ...io.textfiles import parse_yaml, read_text
 from ...settings import SettingError, show
 from .settings import default_settings, settings_spec
@@ -129,17 +128,6 @@ def _raw_frames(value, where, path, base):
     return out
 
 
-def _image_size(path):
-    """``(W, H)`` of an image from its header (GDAL), or None when GDAL cannot open it (the stage says why)."""
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
-            with rasterio.open(path) as ds:
-                return ds.width, ds.height
-    except rasterio.errors.RasterioIOError:
-        return None
-
-
 def _rpc_images(value, where, path, base):
     """The ``rpc:`` entry of a pair: two satellite images, their RPC models, a ROI of the left image and the
     terrain's height range (``riverbed rectify --rpc``'s inputs; docs/rpc.md)."""
@@ -172,7 +160,7 @@ def _rpc_images(value, where, path, base):
             roi = parse_roi(text)
         except ValueError as e:
             raise RiverbedError(f"{where}.rpc.roi: {e}", path) from None
-        size = _image_size(out["left"])
+        size = header_size(out["left"])  # None: the stage says why
         if size is not None:
             try:
                 check_roi(roi, size, out["left"], option="ROI")

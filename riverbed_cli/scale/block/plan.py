@@ -9,18 +9,16 @@ import os
 import re
 import shutil
 import time
-import warnings
 from dataclasses import asdict, dataclass, field
 from importlib import metadata
 from pathlib import Path
 
-import rasterio
 
 from ...errors import RiverbedError
 from ...geometry.rectify import rectify_files
 from ...geometry.rpc_pair import rectify_rpc_files
 from ...io.atomic import atomic_output
-from ...io.images import read_image
+from ...io.images import header_size, read_image
 from ...geometry.pairfile import load_pairfile
 from .manifest import RAW_KEYS, RPC_KEYS, Manifest, load_manifest
 
@@ -165,15 +163,10 @@ def riverbed_version():
         return "unknown"
 
 
-def _image_size(path):
-    """``(H, W)`` from an image header (GDAL), without decoding the pixels when it can."""
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
-            with rasterio.open(path) as ds:
-                return ds.height, ds.width
-    except Exception:  # noqa: BLE001 - GDAL cannot read it: decode it the usual way (one-line errors)
-        return read_image(path).shape[:2]
+def _image_shape(path):
+    """``(H, W)`` from an image header, or by decoding it (one-line errors) when GDAL cannot read it."""
+    size = header_size(path)
+    return (size[1], size[0]) if size is not None else read_image(path).shape[:2]
 
 
 def _stat(path, base):
@@ -299,7 +292,7 @@ def plan_block(manifest, outdir, overwrite=False):
                 for side in ("left", "right"):
                     if getattr(pair, side) is None:
                         raise RiverbedError(f"{side}: missing (a block needs the rectified images)", spec.pair)
-                shape = pair.image_size or _image_size(pair.left)
+                shape = pair.image_size or _image_shape(pair.left)
                 job.shape = tuple(int(v) for v in shape)
                 raw_files = [spec.raw[k] for k in RAW_KEYS] if spec.raw else []
                 files = [spec.pair, pair.left, pair.right, *spec.clouds, *raw_files]
