@@ -18,7 +18,6 @@ step 5; docs/rpc.md, "Large scenes").
 import argparse
 import json
 import os
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -30,22 +29,13 @@ from pyproj import Transformer
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_rpc_ventoux import HGT, VENTOUX, rectify, seen_mask, srtm_dem, write_srtm_lidar  # noqa: E402
+from bench_rpc_ventoux import HGT, VENTOUX, rectify, riverbed, seen_mask, srtm_dem, write_srtm_lidar  # noqa: E402
 
 from riverbed_cli.geometry.pairfile import load_pairfile  # noqa: E402
 from riverbed_cli.geometry.rpc_geometry import ground_sample_distance  # noqa: E402
 
 REGION = "0,250,500,250"
 SIZE, OVERLAP = "280x150", 50
-
-
-def riverbed(*args, ok=(0,)):
-    exe = Path(sys.executable).with_name("riverbed")
-    cmd = [str(exe) if exe.exists() else "riverbed", *map(str, args)]
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    if r.returncode not in ok:
-        raise RuntimeError(f"{' '.join(cmd)} failed ({r.returncode}): {r.stderr.strip()}")
-    return json.loads(r.stdout) if "--json" in cmd else None
 
 
 def read(path):

@@ -28,7 +28,6 @@ shares are of the rectified left image's pixels (``riverbed project``'s ``lidar_
 import argparse
 import json
 import math
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -36,7 +35,11 @@ from pathlib import Path
 import laspy
 import numpy as np
 
-from riverbed_cli.geometry.pairfile import load_pairfile
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_rpc_ventoux import riverbed  # noqa: E402  (runs the CLI as a user would)
+
+from riverbed_cli.geometry.pairfile import load_pairfile  # noqa: E402
 from riverbed_cli.io.disparity import write_disparity
 from riverbed_cli.sample.satellite import ground_truth_disparity, satellite_scene
 
@@ -54,16 +57,6 @@ METHODS = {
 }
 THIN_SHARE = 0.25
 HEIGHT_MARGIN = 5.0
-
-
-def riverbed(*args):
-    """Run ``riverbed ARGS`` (the script beside this Python, else on PATH); its parsed ``--json`` output, if any."""
-    exe = Path(sys.executable).with_name("riverbed")
-    cmd = [str(exe) if exe.exists() else "riverbed", *map(str, args)]
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    if r.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} failed ({r.returncode}): {r.stderr.strip()}")
-    return json.loads(r.stdout) if "--json" in cmd else None
 
 
 def thin_laz(src, dst, share, seed=0):

@@ -54,12 +54,13 @@ PICTURE = REPO / "docs" / "ventoux_dsm_hillshade.png"
 PICTURE_MAX_BYTES = 300 * 1024
 
 
-def riverbed(*args):
-    """Run ``riverbed ARGS`` (the script beside this Python, else on PATH); its parsed ``--json`` output, if any."""
+def riverbed(*args, ok=(0,)):
+    """Run ``riverbed ARGS`` (the script beside this Python, else on PATH) as a user would; its parsed ``--json``
+    output, if any. An exit code outside ``ok`` raises with the command's stderr."""
     exe = Path(sys.executable).with_name("riverbed")
     cmd = [str(exe) if exe.exists() else "riverbed", *map(str, args)]
     r = subprocess.run(cmd, capture_output=True, text=True)
-    if r.returncode != 0:
+    if r.returncode not in ok:
         raise RuntimeError(f"{' '.join(cmd)} failed ({r.returncode}): {r.stderr.strip()}")
     return json.loads(r.stdout) if "--json" in cmd else None
 

@@ -11,6 +11,7 @@ from riverbed_cli.matching.config import MatchConfig
 from riverbed_cli.matching.pipeline import match_pair
 from riverbed_cli.matching.registry import get_guide, get_matcher
 from riverbed_cli.matching.volume import TubeLayout
+from tube_volumes import gather
 from riverbed_cli.products.evaluate import evaluate_disparity
 from riverbed_cli.products.simulate import simulate_lidar
 
@@ -23,17 +24,6 @@ def blocky(rng, H, W, C=3, levels=40):
     img[:, W // 3:] += 90
     img[H // 2:, :] += 60
     return np.clip(img, 0, 255).astype(np.uint8)
-
-
-def gather(dense, layout):
-    """The tube entries of a dense (H, W, D) volume (index 0 at offset 0), as a flat tube volume."""
-    H, W = layout.shape
-    out = np.empty(layout.size, dense.dtype)
-    for y in range(H):
-        for x in range(W):
-            b, w, o = layout.start[y, x], layout.width[y, x], layout.offset[y, x]
-            out[b:b + w] = dense[y, x, o:o + w]
-    return out
 
 
 def narrow_tubes(rng, H, W, D, most=5):

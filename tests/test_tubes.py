@@ -8,19 +8,9 @@ from riverbed_cli.matching import census, diffusion, disparity, guidance, riverb
 from riverbed_cli.matching.pipeline import match_pair
 from riverbed_cli.matching.tubes import lidar_tubes
 from riverbed_cli.matching.volume import TubeLayout
+from tube_volumes import gather
 
 SENT = 10 ** 9
-
-
-def gather(dense, layout):
-    """The tube entries of a dense (H, W, D) volume, as a flat tube volume."""
-    H, W = layout.shape
-    out = np.empty(layout.size, dense.dtype)
-    for y in range(H):
-        for x in range(W):
-            b, w, o = layout.start[y, x], layout.width[y, x], layout.offset[y, x]
-            out[b:b + w] = dense[y, x, o:o + w]
-    return out
 
 
 def random_tubes(rng, H, W, D, narrow=True):
