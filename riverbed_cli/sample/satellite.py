@@ -40,7 +40,6 @@ Geometry
   (``lidar_sparse.laz``), LAS 1.4 in EPSG:32632 promoted to 3D (ellipsoidal heights), 1 mm steps.
 """
 
-import datetime
 import json
 import math
 import os
@@ -51,9 +50,7 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import laspy
 import numpy as np
-import pyproj
 import rasterio
 from rasterio.errors import NotGeoreferencedWarning
 from scipy.spatial.transform import Rotation
@@ -69,6 +66,10 @@ from .render import GAIN
 from .scan import simulate_scan
 from .spec import CRS, HEADING, NODATA, SizeSpec
 from .truth import ground_truth_dsm
+from .write import write_laz
+
+#: the LAZ header's generating software
+SOFTWARE = "riverbed sample --satellite"
 
 #: Files of a satellite sample, in the order they are written.
 SATELLITE_FILES = ("left.tif", "right.tif", "gt_dsm.tif", "lidar.laz", "lidar_sparse.laz", "scene.json",
@@ -367,35 +368,6 @@ def write_rpc_image(path, image, rpc):
             ds.write(bands)
 
 
-def write_lidar_laz(path, lidar, origin, keep=None, date=datetime.date(2022, 6, 14)):
-    """Write simulated LiDAR (``keep``: a mask of the points to write) as LAZ in EPSG:32632 with ellipsoidal
-    heights (the CRS promoted to 3D, a WKT VLR): LAS 1.4 point format 7, 1 mm steps, a fixed header date."""
-    keep = np.ones(len(lidar["xyz"]), bool) if keep is None else keep
-    xyz = lidar["xyz"][keep] + np.asarray(origin)
-    header = laspy.LasHeader(point_format=7, version="1.4")
-    lo = xyz.min(axis=0)
-    header.offsets = np.array([math.floor(lo[0] / 1000) * 1000, math.floor(lo[1] / 1000) * 1000,
-                               math.floor(lo[2] / 100) * 100], np.float64)
-    header.scales = np.array([0.001, 0.001, 0.001])
-    header.add_crs(pyproj.CRS.from_user_input(CRS).to_3d())
-    header.system_identifier = "riverbed synthetic ALS"
-    header.generating_software = "riverbed sample --satellite"
-    header.creation_date = date
-    header.global_encoding.gps_time_type = laspy.header.GpsTimeType.STANDARD
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-    las.intensity = lidar["intensity"][keep]
-    las.return_number = lidar["return_number"][keep]
-    las.number_of_returns = lidar["number_of_returns"][keep]
-    las.classification = lidar["classification"][keep]
-    las.scan_angle = np.round(lidar["scan_angle_deg"][keep] / 0.006).astype(np.int16)
-    las.point_source_id = lidar["point_source_id"][keep]
-    las.gps_time = lidar["gps_time"][keep]
-    rgb = lidar["rgb"][keep]
-    las.red, las.green, las.blue = rgb[:, 0], rgb[:, 1], rgb[:, 2]
-    las.write(str(path), do_compress=True, laz_backend=laspy.LazBackend.Lazrs)
-
-
 def _lidar_density(sample, keep):
     """Points per m² over the ground-truth DSM's valid cells (the pair's common footprint)."""
     g = sample.dsm_grid
@@ -508,8 +480,9 @@ def write_satellite(sample, outdir, overwrite=False, command=None):
         tags = {"riverbed_ground_truth": "surface height at cell centres", "riverbed_heights":
                 "ellipsoidal (WGS 84, m)", "riverbed_sample": f"satellite {sample.spec.name} seed {sample.seed}"}
         write_geotiff(tmp / "gt_dsm.tif", sample.dsm, sample.dsm_grid.transform, crs=CRS, nodata=NODATA, tags=tags)
-        write_lidar_laz(tmp / "lidar.laz", sample.lidar, sample.origin)
-        write_lidar_laz(tmp / "lidar_sparse.laz", sample.lidar, sample.origin, keep=sample.sparse)
+        write_laz(tmp / "lidar.laz", sample.lidar, sample.origin, crs_3d=True, software=SOFTWARE)
+        write_laz(tmp / "lidar_sparse.laz", sample.lidar, sample.origin, keep=sample.sparse, crs_3d=True,
+                  software=SOFTWARE)
         desc = satellite_description(sample, command)
         (tmp / "scene.json").write_text(json.dumps(desc, indent=1) + "\n", encoding="utf-8")
         (tmp / "MANIFEST.md").write_text(_manifest(sample, command, desc), encoding="utf-8")

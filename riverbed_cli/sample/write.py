@@ -205,35 +205,41 @@ def write_raw_frames(block, folder, command=None):
         write_orientation(folder / f"frame{k}.yaml", raw_orientation(block, k), comment=comment)
 
 
-def write_laz(path, lidar, origin, date=datetime.date(2022, 6, 14)):
-    """Write simulated LiDAR as LAZ (LAS 1.4, point format 7: GPS time and RGB), EPSG:32632 as a WKT VLR.
+def write_laz(path, lidar, origin, keep=None, crs_3d=False, software="riverbed sample",
+              date=datetime.date(2022, 6, 14)):
+    """Write simulated LiDAR (:func:`~riverbed_cli.sample.scan.simulate_scan`'s arrays; ``keep``: a mask of the
+    points to write, default all) as LAZ (LAS 1.4, point format 7: GPS time and RGB), EPSG:32632 as a WKT VLR
+    (``crs_3d``: promoted to 3D, the heights ellipsoidal, as an RPC pair needs).
 
     Offsets are the minimum rounded down to whole kilometres (heights: to 100 m), scales 1 mm; the header date
     is fixed so the file is reproducible.
     """
-    xyz = lidar["xyz"] + np.asarray(origin)
+    keep = slice(None) if keep is None else keep
+    xyz = lidar["xyz"][keep] + np.asarray(origin)
     header = laspy.LasHeader(point_format=7, version="1.4")
     lo = xyz.min(axis=0)
     header.offsets = np.array([math.floor(lo[0] / 1000) * 1000, math.floor(lo[1] / 1000) * 1000,
                                math.floor(lo[2] / 100) * 100], np.float64)
     header.scales = np.array([0.001, 0.001, 0.001])
-    header.add_crs(pyproj.CRS.from_user_input(CRS))
+    crs = pyproj.CRS.from_user_input(CRS)
+    header.add_crs(crs.to_3d() if crs_3d else crs)
     header.system_identifier = "riverbed synthetic ALS"
-    header.generating_software = "riverbed sample"
+    header.generating_software = software
     header.creation_date = date
     header.global_encoding.gps_time_type = laspy.header.GpsTimeType.STANDARD
     las = laspy.LasData(header)
     las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-    las.intensity = lidar["intensity"]
-    las.return_number = lidar["return_number"]
-    las.number_of_returns = lidar["number_of_returns"]
-    las.scan_direction_flag = lidar["scan_direction"].astype(np.uint8)
-    las.edge_of_flight_line = lidar["edge_of_flight_line"].astype(np.uint8)
-    las.classification = lidar["classification"]
-    las.scan_angle = np.round(lidar["scan_angle_deg"] / 0.006).astype(np.int16)
-    las.point_source_id = lidar["point_source_id"]
-    las.gps_time = lidar["gps_time"]
-    las.red, las.green, las.blue = lidar["rgb"][:, 0], lidar["rgb"][:, 1], lidar["rgb"][:, 2]
+    las.intensity = lidar["intensity"][keep]
+    las.return_number = lidar["return_number"][keep]
+    las.number_of_returns = lidar["number_of_returns"][keep]
+    las.scan_direction_flag = lidar["scan_direction"][keep].astype(np.uint8)
+    las.edge_of_flight_line = lidar["edge_of_flight_line"][keep].astype(np.uint8)
+    las.classification = lidar["classification"][keep]
+    las.scan_angle = np.round(lidar["scan_angle_deg"][keep] / 0.006).astype(np.int16)
+    las.point_source_id = lidar["point_source_id"][keep]
+    las.gps_time = lidar["gps_time"][keep]
+    rgb = lidar["rgb"][keep]
+    las.red, las.green, las.blue = rgb[:, 0], rgb[:, 1], rgb[:, 2]
     las.write(str(path), do_compress=True, laz_backend=laspy.LazBackend.Lazrs)
 
 
