@@ -149,3 +149,17 @@ def _threshold(spacing, n_sigma):
     med = float(np.median(finite))
     sigma = max(float(np.median(np.abs(finite - med))) * 1.4826, SOR_MIN_SIGMA * med)
     return spacing <= med + n_sigma * sigma
+
+
+def layer_winners(first, inlier, idx1, first_pix):
+    """Each pixel's projected point after outlier removal: its first-layer candidate (slots ``first``, at pixels
+    ``first_pix``) when that is an inlier, else its second-layer candidate (``idx1[pixel]``, -1 for none) when that
+    one is. Returns ``(winners, taken_back)``: the winning slots, and how many pixels their second layer took
+    back from an outlier."""
+    win = first.copy()
+    lost = ~inlier[first]
+    second = idx1[first_pix[lost]]
+    second_ok = second >= 0
+    second_ok[second_ok] = inlier[second[second_ok]]
+    win[lost] = np.where(second_ok, second, -1)
+    return win[win >= 0], int(second_ok.sum())

@@ -40,7 +40,7 @@ from ..records import RecordMapping
 from . import visibility as vis
 from .cameras import as_matrix, check_registration
 from .coverage import lidar_share
-from .outliers import SOR_K, SOR_SIGMA, sor_inliers_image
+from .outliers import SOR_K, SOR_SIGMA, layer_winners, sor_inliers_image
 from .rpc_geometry import project_cloud_rpc
 
 log = logging.getLogger(__name__)
@@ -338,14 +338,8 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
                                           store_z, pair.focal, SOR_K, SOR_SIGMA)
     n_outliers = int(n_cand - inlier[s0].sum() - inlier[s1].sum())
     t_sor = time.perf_counter()
-    win = s0.copy()
-    lost = ~inlier[s0]
-    second = idx1[pix0[lost]]
-    second_ok = second >= 0
-    second_ok[second_ok] = inlier[second[second_ok]]
-    win[lost] = np.where(second_ok, second, -1)
-    win = win[win >= 0]
-    same_pixel += int(inlier[s1].sum()) - int(second_ok.sum())
+    win, taken_back = layer_winners(s0, inlier, idx1, pix0)
+    same_pixel += int(inlier[s1].sum()) - taken_back
 
     # Winners behind the right camera, outside the right image or off the row are dropped, but only after they
     # have hidden what lies behind them in the left view.
@@ -371,18 +365,11 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
         slots = np.concatenate([s0[inlier[s0]], s1[inlier[s1]]])
         surface = vis.surface_grid(store_xyz[slots], surface_cell, surface_closing, surface_fill)
     opts = (footprint, tolerance, slope, hpr_gamma, edge_reach, surface, surface_margin)
-    visible = usable.copy()
-    if visibility != "none" and side in ("left", "both"):
-        visible &= _visible(visibility, rows, cols, d, xyz, pair.centres[0], (H, W), *opts)
-    n_occ_left = int(usable.sum() - visible.sum())
-    if visibility != "none" and side in ("right", "both"):
-        in_right = (code == 0) | (code == 3)  # points with a place in the right image hide others there
-        vr = np.ones(win.size, bool)
-        vr[in_right] = _visible(visibility, np.floor(yr[in_right] + 0.5).astype(np.int64),
-                                np.floor(xr[in_right] + 0.5).astype(np.int64), d[in_right], xyz[in_right],
-                                pair.centres[1], (H, W), *opts)
-        visible &= vr
-    n_occ_right = int(usable.sum() - visible.sum()) - n_occ_left
+    def visible_at(r, c, m, view):
+        return _visible(visibility, r, c, d[m], xyz[m], pair.centres[view], (H, W), *opts)
+
+    visible, n_occ_left, n_occ_right = vis.visible_in_both(usable, rows, cols, xr, yr, code, side,
+                                                           visible_at if visibility != "none" else None)
     t_vis = time.perf_counter()
 
     sparse = np.full((H, W), np.nan, np.float32)

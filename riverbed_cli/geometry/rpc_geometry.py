@@ -27,7 +27,7 @@ from ..errors import RiverbedError
 from ..io.lidar import class_mask, iter_lidar, lidar_info, resolve_crs
 from . import visibility as vis
 from .coverage import lidar_share
-from .outliers import SOR_K, SOR_SIGMA, sor_inliers_image
+from .outliers import SOR_K, SOR_SIGMA, layer_winners, sor_inliers_image
 from .rpc_dem import geoid_to_ellipsoid_transformer
 from .rpc_rectify import apply_h
 
@@ -333,14 +333,8 @@ def project_cloud_rpc(cloud_path, pair, classes=None, drop_classes=(7, 18), outl
     t_sor = time.perf_counter()
     # the highest inlier of each pixel wins; the second layer takes its pixel back from an outlier
     s0 = slot[first]
-    win = s0.copy()
-    lost = ~inlier[s0]
-    second = idx1[cand["pix"][s0[lost]]]
-    second_ok = second >= 0
-    second_ok[second_ok] = inlier[second[second_ok]]
-    win[lost] = np.where(second_ok, second, -1)
-    win = win[win >= 0]
-    same_pixel += int(inlier[slot[~first]].sum()) - int(second_ok.sum())
+    win, taken_back = layer_winners(s0, inlier, idx1, cand["pix"][s0])
+    same_pixel += int(inlier[slot[~first]].sum()) - taken_back
     w = {k: v[win] for k, v in cand.items()}
     code = w["code"]
     n_outside += int((code == 2).sum())
@@ -352,18 +346,11 @@ def project_cloud_rpc(cloud_path, pair, classes=None, drop_classes=(7, 18), outl
             f"{n_outside} outside the {W}x{H} images, {n_row} off the row, {n_outliers} outliers)", cloud_path)
     rows, cols = w["pix"] // W, w["pix"] % W
     d = w["xl"] - w["xr"]
-    visible = usable.copy()
-    if visibility == "zbuffer" and side in ("left", "both"):
-        visible &= vis.zbuffer_visible(rows, cols, d, (H, W), footprint, tolerance, slope, edge_reach)
-    n_occ_left = int(usable.sum() - visible.sum())
-    if visibility == "zbuffer" and side in ("right", "both"):
-        in_right = (code == 0) | (code == 3)
-        vr = np.ones(win.size, bool)
-        vr[in_right] = vis.zbuffer_visible(np.floor(w["yr"][in_right] + 0.5).astype(np.int64),
-                                           np.floor(w["xr"][in_right] + 0.5).astype(np.int64), d[in_right],
-                                           (H, W), footprint, tolerance, slope, edge_reach)
-        visible &= vr
-    n_occ_right = int(usable.sum() - visible.sum()) - n_occ_left
+    def visible_at(r, c, m, view):
+        return vis.zbuffer_visible(r, c, d[m], (H, W), footprint, tolerance, slope, edge_reach)
+
+    visible, n_occ_left, n_occ_right = vis.visible_in_both(usable, rows, cols, w["xr"], w["yr"], code, side,
+                                                           visible_at if visibility == "zbuffer" else None)
     t_vis = time.perf_counter()
 
     sparse = np.full((H, W), np.nan, np.float32)

@@ -475,3 +475,24 @@ def surface_visible(xyz, centre, surface, margin=SURFACE_MARGIN):
         return np.ones(xyz.shape[0], bool)
     return _surface_kernel(xyz, np.ascontiguousarray(centre, np.float64), grid, float(origin[0]),
                            float(origin[1]), float(cell), float(finite.max()), float(margin))
+
+
+def visible_in_both(usable, rows, cols, xr, yr, code, side, visible_at):
+    """Hidden point removal in the left view, the right one or both (``side``) for the projected points.
+
+    ``usable``: points that land in both images; ``rows``, ``cols`` their left pixels, ``xr``, ``yr`` their right
+    image positions and ``code`` their projection outcome (0 usable, 3 off the row: both still hide points in the
+    right image); ``visible_at(rows, cols, mask, view)`` tests the points ``mask`` at those pixels of view 0
+    (left) or 1 (right), or None for no test. Returns ``(visible, hidden_left, hidden_right)``.
+    """
+    visible = usable.copy()
+    if visible_at is not None and side in ("left", "both"):
+        visible &= visible_at(rows, cols, slice(None), 0)
+    n_left = int(usable.sum() - visible.sum())
+    if visible_at is not None and side in ("right", "both"):
+        in_right = (code == 0) | (code == 3)  # points with a place in the right image hide others there
+        vr = np.ones(usable.size, bool)
+        vr[in_right] = visible_at(np.floor(yr[in_right] + 0.5).astype(np.int64),
+                                  np.floor(xr[in_right] + 0.5).astype(np.int64), in_right, 1)
+        visible &= vr
+    return visible, n_left, int(usable.sum() - visible.sum()) - n_left
