@@ -326,10 +326,9 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
                 stages[k] = round(stages.get(k, 0.0) + v, 4)
             if progress:
                 progress(1)
+    tubes = tiled_tube_stats(tube_parts, d_min, d_max)
+    mode = "tube" if tubes is not None else ("tile" if sparse is not None and lidar_range else "full")
     info = TiledMatchInfo(round(time.perf_counter() - t_all, 4), stages, p.guide, share,
                           p.guidance.window if guide.uses_window else None, d_min, d_max, [W, H], len(plan.tiles),
-                          plan.size, overlap, int(evaluations), plan.to_dict()["tile_ranges"])
-    tubes = tiled_tube_stats(tube_parts, d_min, d_max)
-    info.range = "tube" if tubes is not None else ("tile" if sparse is not None and lidar_range else "full")
-    info.tubes = tubes
+                          plan.size, overlap, int(evaluations), plan.to_dict()["tile_ranges"], mode, tubes)
     return MatchResult(out, info)
