@@ -97,3 +97,50 @@ def test_linear_fill_is_exact_on_a_plane_and_agrees_with_scipy_where_the_triangu
     expect = ref(xs.ravel().astype(float), ys.ravel().astype(float)).reshape(40, 40)
     inside = np.isfinite(expect)
     np.testing.assert_allclose(densify(sparse, "linear")[inside], expect[inside], atol=1e-5)
+
+
+@pytest.mark.parametrize("layout", ["random", "grid", "clustered", "two rows"])
+def test_linear_fill_nearest_points_are_exact_and_the_fill_is_deterministic(layout):
+    # the greedy walk on the Delaunay graph finds each pixel's nearest LiDAR point: its distance equals the Euclidean
+    # distance transform's everywhere (ties may pick another point at the same distance); grid layouts are full of
+    # co-circular quadruples and pixels on shared triangle edges
+    from scipy import ndimage
+
+    from riverbed_cli.geometry.interpolation import linear_fill
+
+    rng = np.random.default_rng({"random": 0, "grid": 1, "clustered": 2, "two rows": 3}[layout])
+    H, W = 70, 90
+    sparse = np.full((H, W), np.nan, np.float32)
+    if layout == "random":
+        sparse.ravel()[rng.choice(H * W, 300, replace=False)] = rng.uniform(0, 40, 300)
+    elif layout == "grid":
+        sparse[3::7, 5::6] = rng.uniform(0, 40, sparse[3::7, 5::6].shape)
+    elif layout == "clustered":
+        sparse[10:16, 60:70] = rng.uniform(0, 40, (6, 10))
+        sparse[50, 5] = 7.0
+    else:  # two collinear runs: long slivers and pixels far outside the hull
+        sparse[20, 10:80:3] = rng.uniform(0, 40, sparse[20, 10:80:3].shape)
+        sparse[24, 15:75:5] = rng.uniform(0, 40, sparse[24, 15:75:5].shape)
+    fill = linear_fill(sparse)
+    edt = ndimage.distance_transform_edt(~np.isfinite(sparse))
+    np.testing.assert_allclose(fill.distance, edt, atol=1e-4)
+    rows, cols = np.nonzero(np.isfinite(sparse))
+    ys, xs = np.mgrid[0:H, 0:W]
+    np.testing.assert_allclose(np.hypot(rows[fill.anchor] - ys, cols[fill.anchor] - xs), fill.distance, atol=1e-4)
+    assert (fill.values[rows, cols] == sparse[rows, cols]).all() and np.isfinite(fill.values).all()
+    again = linear_fill(sparse)
+    assert (again.values == fill.values).all() and (again.anchor == fill.anchor).all()
+    # outside the hull each pixel takes its nearest point's value
+    outside = edt > 0
+    outside &= ~np.isfinite(densify_inside(sparse))
+    assert (fill.values[outside] == sparse[rows, cols][fill.anchor[outside]]).all()
+
+
+def densify_inside(sparse):
+    """The linear interpolation inside the closed hull of the LiDAR pixels by scipy (NaN outside)."""
+    from scipy.interpolate import LinearNDInterpolator
+
+    rr, cc = np.nonzero(np.isfinite(sparse))
+    ref = LinearNDInterpolator(np.c_[cc, rr].astype(float), sparse[rr, cc].astype(float))
+    ys, xs = np.mgrid[0:sparse.shape[0], 0:sparse.shape[1]]
+    return ref(xs.ravel().astype(float), ys.ravel().astype(float)).reshape(sparse.shape)

@@ -40,7 +40,7 @@ from numba import njit, prange
 from scipy.spatial import cKDTree
 
 from ..geometry.coverage import lidar_points
-from ..geometry.interpolation import interpolate_linear, nearest_lidar
+from ..geometry.interpolation import linear_fill
 from ..records import RecordMapping
 from .registry import register_fusion
 
@@ -70,19 +70,26 @@ class FusionOutput:
     stats: FusionStats = None
 
 
-def leave_one_out_residuals(rows, cols, values, neighbours=6):
+def leave_one_out_residuals(rows, cols, values, neighbours=6, support=None):
     """|value - prediction| of each LiDAR point by a plane through its ``neighbours`` nearest other points (px).
 
     The plane ``d = a x + b y + c`` is fitted by least squares centred on the point (a tiny ridge on the slopes keeps
-    collinear neighbours solvable); the prediction is ``c``. Returns ``(residuals, tree)`` (float64, cKDTree).
+    collinear neighbours solvable); the prediction is ``c``. Returns ``(residuals, tree)`` (float64, the points'
+    (row, col) cKDTree); with ``support``, ``(residuals, tree,
+    (distances, indices))``, each point's ``max(support, 2)`` nearest points (itself first) from the same query.
     """
     pts = np.stack([rows, cols], axis=1).astype(np.float64)
     tree = cKDTree(pts)
     k = min(int(neighbours), len(values) - 1)
-    _, idx = tree.query(pts, k=k + 1)
-    nb = idx[:, 1:]
-    return np.abs(_plane_intercepts(rows.astype(np.float64), cols.astype(np.float64), values.astype(np.float64),
-                                    np.ascontiguousarray(nb, dtype=np.int64)) - values), tree
+    q = k + 1 if support is None else max(k + 1, min(int(support), len(values)), 2)
+    dist, idx = tree.query(pts, k=q, workers=-1)
+    nb = idx[:, 1:k + 1]
+    res = np.abs(_plane_intercepts(rows.astype(np.float64), cols.astype(np.float64), values.astype(np.float64),
+                                   np.ascontiguousarray(nb, dtype=np.int64)) - values)
+    if support is None:
+        return res, tree
+    s = max(min(int(support), len(values)), 2)
+    return res, tree, (dist[:, :s], idx[:, :s])
 
 
 @njit(cache=True, parallel=True)
@@ -123,31 +130,37 @@ def _plane_intercepts(rows, cols, values, nb):
     return out
 
 
-def lidar_sigma(sparse, neighbours=6, support=4, floor=0.25, nearest=None):
+def lidar_sigma(sparse, neighbours=6, support=4, floor=0.25, fill=None):
     """Per-pixel error estimate (px) of the linear interpolation of ``sparse`` (module docstring).
 
     Returns ``(sigma, distance)``: (H, W) float32 sigma (px of disparity) and each pixel's distance (px) to its
-    nearest LiDAR pixel. With fewer than ``neighbours + 1`` LiDAR pixels nothing can be measured: every pixel gets
-    the span of the LiDAR disparities plus 1 px (the interpolation is taken to know little). ``nearest``: the
-    :func:`~riverbed_cli.geometry.interpolation.nearest_lidar` of ``sparse`` if already known.
+    nearest LiDAR point (from :func:`~riverbed_cli.geometry.interpolation.linear_fill`, or ``fill`` if already
+    made). With fewer than
+    ``neighbours + 1`` LiDAR pixels nothing can be measured: every pixel gets the span of the LiDAR disparities plus
+    1 px (the interpolation is taken to know little).
     """
     rows, cols, values = lidar_points(sparse)
-    shape = sparse.shape
-    index = np.full(shape, -1, np.int64)
-    index[rows, cols] = np.arange(len(values))
-    # every pixel takes its nearest LiDAR point's sigma (Euclidean distance transform, as the nearest fill)
-    dist, iy, ix = nearest_lidar(sparse) if nearest is None else nearest
+    fill = linear_fill(sparse) if fill is None else fill
     if len(values) < int(neighbours) + 1:
         span = float(values.max() - values.min()) + 1.0 if len(values) else 1.0
-        return np.full(shape, max(span, floor), np.float32), dist.astype(np.float32)
-    res, tree = leave_one_out_residuals(rows, cols, values, neighbours)
-    pts = np.stack([rows, cols], axis=1).astype(np.float64)
+        return np.full(sparse.shape, max(span, floor), np.float32), fill.distance
+    res, _, (nn, idx) = leave_one_out_residuals(rows, cols, values, neighbours, support)
     k = min(int(support), len(values))
-    nn, idx = tree.query(pts, k=max(k, 2))
     point_sigma = np.sqrt(np.mean(res[idx[:, :k]] ** 2, axis=1)) if k > 1 else res
     typical = max(1.0, float(np.median(nn[:, 1])))
-    sigma = np.maximum(point_sigma[index[iy, ix]], floor) * np.maximum(1.0, dist / (GROWTH * typical))
-    return sigma.astype(np.float32), dist.astype(np.float32)
+    return _pixel_sigma(fill.anchor, fill.distance, point_sigma, float(floor), GROWTH * typical), fill.distance
+
+
+@njit(cache=True, parallel=True)
+def _pixel_sigma(anchor, dist, point_sigma, floor, reach):
+    # sigma of the pixel's nearest point (at least floor), grown in proportion to the distance beyond reach
+    H, W = anchor.shape
+    out = np.empty((H, W), np.float32)
+    for y in prange(H):
+        for x in range(W):
+            s = max(point_sigma[anchor[y, x]], floor)
+            out[y, x] = np.float32(s * max(1.0, np.float64(dist[y, x]) / reach))
+    return out
 
 
 def estimate_stereo_sigma(stereo, lidar, sigma_l, consistent=None, share=0.3, smallest=0.2):
@@ -187,9 +200,9 @@ def fuse_disparity(stereo, status, sparse, gate=4.0, neighbours=6, support=4, fl
     FusionOutput
     """
     stereo = np.asarray(stereo, np.float32)
-    nearest = nearest_lidar(sparse)  # one distance transform for the interpolation's fill and the LiDAR's sigma
-    lidar = interpolate_linear(sparse, nearest)
-    sig_l, _ = lidar_sigma(sparse, neighbours, support, floor, nearest)
+    fill = linear_fill(sparse)  # the interpolation and each pixel's nearest point, for its sigma
+    lidar = fill.values
+    sig_l, _ = lidar_sigma(sparse, neighbours, support, floor, fill)
     fin = np.isfinite(stereo)
     consistent = fin if status is None else fin & (np.asarray(status) == 0)
     if stereo_sigma == "auto":
