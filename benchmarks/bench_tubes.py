@@ -6,9 +6,10 @@ Usage: python benchmarks/bench_tubes.py [DATA_DIR] [--skip-speed] [--skip-covera
    ground-truth pixels (not sampled as LiDAR) whose true disparity lies in their tube, the mean tube width, the share
    of pixels left on the full range. LiDAR is a seeded sample of the GT at a share of the *image* pixels
    (``simulate_lidar``), as in docs/benchmarks.md.
-2. Accuracy, full range against tubes, riverbed-guided SGM (same LiDAR).
+2. Accuracy, full range against tubes (8 and 4 paths), riverbed-guided SGM with the fusion default (same LiDAR).
 3. Speed as a user runs it: fresh ``riverbed match`` processes (``seconds`` from --json and whole-process wall time),
-   full range and tubes, against OpenCV StereoSGBM MODE_HH and MODE_SGBM_3WAY at the same nominal range, on the
+   full range and tubes (the default, the matcher alone, 4 paths), against OpenCV StereoSGBM MODE_HH and
+   MODE_SGBM_3WAY at the same nominal range, on the
    740 x 500 / 80-disparity speed pair and on the aerial pair padded to 1024 x 1024 (144 disparities).
 """
 
@@ -86,20 +87,31 @@ def coverage(data_dir, shares):
 
 def accuracy(data_dir, shares):
     print("\n### Accuracy: riverbed-guided SGM, full range against tubes (bad3 % / avg px)\n")
-    print("| scene | LiDAR | full range | tubes | tube mean width / nominal |")
-    print("|---|---:|---|---|---|")
+    print("| scene | LiDAR | full range | tubes | tubes, 4 paths | tube mean width / nominal |")
+    print("|---|---:|---|---|---|---|")
     for name, left, right, gt in scenes(data_dir):
         d_max = int(math.ceil(np.nanmax(gt))) + 4
         for share in shares:
             sparse = simulate_lidar(gt, share, seed=0)
             cells = []
-            for rng in ("full", "tube"):
-                res = match_pair(left, right, sparse, 0, d_max, range=rng)
+            for rng, paths in (("full", 8), ("tube", 8), ("tube", 4)):
+                res = match_pair(left, right, sparse, 0, d_max, range=rng, paths=paths)
                 m = evaluate_disparity(res.disparity, gt, exclude=sparse)
                 cells.append(f"{m['bad3']:.2f} / {m['avg']:.3f}")
                 t = res.info.get("tubes")
-            print(f"| {name} | {share * 100:.2f} % | {cells[0]} | {cells[1]} | "
+            print(f"| {name} | {share * 100:.2f} % | {' | '.join(cells)} | "
                   f"{t['mean_width']:.1f} / {t['nominal']} |", flush=True)
+
+
+# The default (tubes, 8 paths, fused) and what each part costs: the full range, the matcher alone (no fusion), and
+# 4 paths (OpenCV's SGBM_3WAY sweeps fewer directions than HH's 8).
+VARIANTS = [
+    ("range full", ["--range", "full"]),
+    ("range tube (default)", ["--range", "tube"]),
+    ("range tube, --fusion none", ["--range", "tube", "--fusion", "none"]),
+    ("range tube, --paths 4", ["--range", "tube", "--paths", "4"]),
+    ("range tube, --paths 4 --fusion none", ["--range", "tube", "--paths", "4", "--fusion", "none"]),
+]
 
 
 def run_cli(args, env):
@@ -129,12 +141,12 @@ def speed(data_dir, repeat):
             base = [os.path.join(tmp, "l.png"), os.path.join(tmp, "r.png"), "--sparse", os.path.join(tmp, "s.tif"),
                     "--min-disp", "0", "--max-disp", str(d_max), "--tile", "0", "-o", os.path.join(tmp, "d.tif")]
             run_cli(base, env)  # load Numba's cache once
-            for rng in ("full", "tube"):
-                runs = [run_cli(base + ["--range", rng], env) for _ in range(repeat)]
+            for name, extra in VARIANTS:
+                runs = [run_cli(base + extra, env) for _ in range(repeat)]
                 sec = float(np.median([r[0]["seconds"] for r in runs]))
                 wall = float(np.median([r[1] for r in runs]))
                 width = (runs[0][0].get("tubes") or {}).get("mean_width", d_max + 1)
-                print(f"| {label} | riverbed, range {rng} | {sec:.3f} | {wall:.2f} | {width:.1f} | "
+                print(f"| {label} | riverbed, {name} | {sec:.3f} | {wall:.2f} | {width:.1f} | "
                       f"{sec / hh:.2f} | {sec / w3:.2f} |", flush=True)
         print(f"| {label} | OpenCV MODE_HH | {hh:.3f} | | {d_max + 1} | 1.00 | {hh / w3:.2f} |")
         print(f"| {label} | OpenCV MODE_SGBM_3WAY | {w3:.3f} | | {d_max + 1} | {w3 / hh:.2f} | 1.00 |", flush=True)
