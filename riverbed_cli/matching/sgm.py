@@ -131,7 +131,8 @@ def _tube_step(prev, wq, cur, c, acc, P1, jump, mp, s):
 @njit(cache=True)
 def _sgm_pass_tube(flat, out, start, width, offset, dmax, dxs, dys, P1, P2, flip):
     # _sgm_pass on a tube volume: pixel (y, x) holds width[y, x] disparities from d_min + offset[y, x] at
-    # flat[start[y, x]:]; ring-buffer rows are dmax + 2 wide, a pixel uses its first width + 2.
+    # flat[start[y, x]:] (and out, int16, at the same place); ring-buffer rows are dmax + 2 wide, a pixel uses its
+    # first width + 2.
     H, W = start.shape
     nd = dxs.shape[0]
     P1 = np.int16(P1)
@@ -139,7 +140,6 @@ def _sgm_pass_tube(flat, out, start, width, offset, dmax, dxs, dys, P1, P2, flip
     sent = np.int16(_SENTINEL)
     L = np.full((nd, 3, W, dmax + 2), sent, dtype=np.int16)
     Lmin = np.zeros((nd, 3, W), dtype=np.int16)
-    acc_all = np.empty(dmax, dtype=np.int16)
     for yy in range(H):
         y = H - 1 - yy if flip else yy
         slot = yy % 3
@@ -149,7 +149,7 @@ def _sgm_pass_tube(flat, out, start, width, offset, dmax, dxs, dys, P1, P2, flip
             w = np.int64(width[y, x])
             op = np.int64(offset[y, x])
             c = flat[b:b + w]
-            acc = acc_all[:w]
+            acc = out[b:b + w]  # the half-sum accumulates in place (int16 view: it stays <= 32767)
             acc[:] = 0
             for k in range(nd):
                 px = xx - dxs[k]
@@ -171,9 +171,6 @@ def _sgm_pass_tube(flat, out, start, width, offset, dmax, dxs, dys, P1, P2, flip
                     else:
                         m = _tube_step(prev, wq, cur, c, acc, P1, np.int16(mp + P2), mp, sh)
                 Lmin[k, slot, xx] = m
-            o = out[b:b + w]
-            for d in range(w):
-                o[d] = np.uint16(acc[d])
 
 
 @njit(cache=True, parallel=True)
@@ -243,8 +240,9 @@ def sgm_aggregate_passes(cost, p1, p2, paths=8, max_cost=None, tubes=None):
     else:
         if cost.size != tubes.size:
             raise RiverbedError(f"tube volume of {cost.size} costs does not match its layout ({tubes.size})")
-        _sgm_two_passes_tube(cost, fwd, bwd, tubes.start, tubes.width, tubes.offset, int(tubes.max_width), dxs, dys,
-                             np.int32(p1), np.int32(p2))
+        # the passes add path costs into int16 views of the uint16 results (a half-sum is <= 32767: same bits)
+        _sgm_two_passes_tube(cost, fwd.view(np.int16), bwd.view(np.int16), tubes.start, tubes.width, tubes.offset,
+                             int(tubes.max_width), dxs, dys, np.int32(p1), np.int32(p2))
     return fwd, bwd
 
 
