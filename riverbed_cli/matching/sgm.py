@@ -67,13 +67,13 @@ def _sgm_pass(cost, out, dxs, dys, P1, P2, flip):
     # Ring buffer of the last three rows of path costs (16-path directions reach two rows back).
     L = np.full((nd, 3, W, D + 2), np.int16(_SENTINEL), dtype=np.int16)
     Lmin = np.zeros((nd, 3, W), dtype=np.int16)
-    acc = np.empty(D, dtype=np.int16)
     for yy in range(H):
         y = H - 1 - yy if flip else yy
         slot = yy % 3
         for xx in range(W):
             x = W - 1 - xx if flip else xx
             c = cost[y, x]
+            acc = out[y, x]  # the half-sum accumulates in place (int16 view: it stays <= 32767)
             acc[:] = 0
             for k in range(nd):
                 px = xx - dxs[k]
@@ -84,9 +84,6 @@ def _sgm_pass(cost, out, dxs, dys, P1, P2, flip):
                     mp = Lmin[k, py % 3, px]
                     m = _path_step(L[k, py % 3, px], L[k, slot, xx], c, acc, P1, np.int16(mp + P2), mp)
                 Lmin[k, slot, xx] = m
-            o = out[y, x]
-            for d in range(D):
-                o[d] = np.uint16(acc[d])
 
 
 @njit(cache=True, boundscheck=False, inline="always")
@@ -235,12 +232,12 @@ def sgm_aggregate_passes(cost, p1, p2, paths=8, max_cost=None, tubes=None):
     dys = np.array([d[1] for d in fwd_dirs], dtype=np.int64)
     fwd = np.empty(cost.shape, dtype=np.uint16)
     bwd = np.empty(cost.shape, dtype=np.uint16)
+    # the passes add path costs into int16 views of the uint16 results (a half-sum is <= 32767: the same bits)
     if tubes is None:
-        _sgm_two_passes(cost, fwd, bwd, dxs, dys, np.int32(p1), np.int32(p2))
+        _sgm_two_passes(cost, fwd.view(np.int16), bwd.view(np.int16), dxs, dys, np.int32(p1), np.int32(p2))
     else:
         if cost.size != tubes.size:
             raise RiverbedError(f"tube volume of {cost.size} costs does not match its layout ({tubes.size})")
-        # the passes add path costs into int16 views of the uint16 results (a half-sum is <= 32767: same bits)
         _sgm_two_passes_tube(cost, fwd.view(np.int16), bwd.view(np.int16), tubes.start, tubes.width, tubes.offset,
                              int(tubes.max_width), dxs, dys, np.int32(p1), np.int32(p2))
     return fwd, bwd
