@@ -106,11 +106,12 @@ def accuracy(data_dir, shares):
 # The default (tubes, 8 paths, fused) and what each part costs: the full range, the matcher alone (no fusion), and
 # 4 paths (OpenCV's SGBM_3WAY sweeps fewer directions than HH's 8).
 VARIANTS = [
-    ("range full", ["--range", "full"]),
-    ("range tube (default)", ["--range", "tube"]),
-    ("range tube, --fusion none", ["--range", "tube", "--fusion", "none"]),
-    ("range tube, --paths 4", ["--range", "tube", "--paths", "4"]),
-    ("range tube, --paths 4 --fusion none", ["--range", "tube", "--paths", "4", "--fusion", "none"]),
+    ("range full", ["--range", "full"], {"range": "full"}),
+    ("range tube (default)", ["--range", "tube"], {"range": "tube"}),
+    ("range tube, --fusion none", ["--range", "tube", "--fusion", "none"], {"range": "tube", "fusion": "none"}),
+    ("range tube, --paths 4", ["--range", "tube", "--paths", "4"], {"range": "tube", "paths": 4}),
+    ("range tube, --paths 4 --fusion none", ["--range", "tube", "--paths", "4", "--fusion", "none"],
+     {"range": "tube", "paths": 4, "fusion": "none"}),
 ]
 
 
@@ -122,17 +123,17 @@ def run_cli(args, env):
 
 
 def speed(data_dir, repeat):
-    print("\n### Speed: fresh `riverbed match` processes (median of runs), OpenCV in this process\n")
+    print("\n### Speed: fresh `riverbed match` processes and warm in this process (median of runs, round-robin), "
+          "OpenCV in this process\n")
     cases = [("740x500 Reindeer, 0..79, 5 % LiDAR", *speed_pair(data_dir), 79)]
     if (Path(data_dir) / AERIAL).is_dir():
         left, right, gt = aerial(data_dir, pad_to=1024)
         cases.append(("1024x1024 Dublin aerial, 0..143, 1 % LiDAR", left, right, simulate_lidar(gt, 0.01, 0), 143))
-    print("| pair | method | seconds (--json) | wall s | mean tube width | vs OpenCV HH | vs OpenCV 3WAY |")
-    print("|---|---|---:|---:|---:|---:|---:|")
+    print("| pair | method | seconds (--json) | wall s | warm s | mean tube width | vs OpenCV HH | vs OpenCV 3WAY | "
+          "warm vs HH | warm vs 3WAY |")
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for label, left, right, sparse, d_max in cases:
-        hh = np.median([opencv_sgbm(left, right, 0, d_max, cv2.STEREO_SGBM_MODE_HH)[1] for _ in range(repeat)])
-        w3 = np.median([opencv_sgbm(left, right, 0, d_max, cv2.STEREO_SGBM_MODE_SGBM_3WAY)[1]
-                        for _ in range(repeat)])
+        opencv = {cv2.STEREO_SGBM_MODE_HH: [], cv2.STEREO_SGBM_MODE_SGBM_3WAY: []}
         with tempfile.TemporaryDirectory() as tmp:
             for n, img in (("l.png", left), ("r.png", right)):
                 cv2.imwrite(os.path.join(tmp, n), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
@@ -141,15 +142,30 @@ def speed(data_dir, repeat):
             base = [os.path.join(tmp, "l.png"), os.path.join(tmp, "r.png"), "--sparse", os.path.join(tmp, "s.tif"),
                     "--min-disp", "0", "--max-disp", str(d_max), "--tile", "0", "-o", os.path.join(tmp, "d.tif")]
             run_cli(base, env)  # load Numba's cache once
-            for name, extra in VARIANTS:
-                runs = [run_cli(base + extra, env) for _ in range(repeat)]
-                sec = float(np.median([r[0]["seconds"] for r in runs]))
-                wall = float(np.median([r[1] for r in runs]))
-                width = (runs[0][0].get("tubes") or {}).get("mean_width", d_max + 1)
-                print(f"| {label} | riverbed, {name} | {sec:.3f} | {wall:.2f} | {width:.1f} | "
-                      f"{sec / hh:.2f} | {sec / w3:.2f} |", flush=True)
-        print(f"| {label} | OpenCV MODE_HH | {hh:.3f} | | {d_max + 1} | 1.00 | {hh / w3:.2f} |")
-        print(f"| {label} | OpenCV MODE_SGBM_3WAY | {w3:.3f} | | {d_max + 1} | {w3 / hh:.2f} | 1.00 |", flush=True)
+            # round-robin (each round: OpenCV, then every variant once), so that the machine's drift hits all alike
+            runs = {name: [] for name, _, _ in VARIANTS}
+            warm = {name: [] for name, _, _ in VARIANTS}
+            for _, _, kw in VARIANTS:
+                match_pair(left, right, sparse, 0, d_max, **kw)  # this process's kernels loaded
+            for _ in range(repeat):
+                for mode, times in opencv.items():
+                    times.append(opencv_sgbm(left, right, 0, d_max, mode)[1])
+                for name, extra, kw in VARIANTS:
+                    runs[name].append(run_cli(base + extra, env))
+                    warm[name].append(match_pair(left, right, sparse, 0, d_max, **kw).info["seconds"])
+            hh = float(np.median(opencv[cv2.STEREO_SGBM_MODE_HH]))
+            w3 = float(np.median(opencv[cv2.STEREO_SGBM_MODE_SGBM_3WAY]))
+            for name, _, _ in VARIANTS:
+                runs_v = runs[name]
+                sec = float(np.median([r[0]["seconds"] for r in runs_v]))
+                wall = float(np.median([r[1] for r in runs_v]))
+                width = (runs_v[0][0].get("tubes") or {}).get("mean_width", d_max + 1)
+                sw = float(np.median(warm[name]))
+                print(f"| {label} | riverbed, {name} | {sec:.3f} | {wall:.2f} | {sw:.3f} | {width:.1f} | "
+                      f"{sec / hh:.2f} | {sec / w3:.2f} | {sw / hh:.2f} | {sw / w3:.2f} |", flush=True)
+        print(f"| {label} | OpenCV MODE_HH | {hh:.3f} | | {hh:.3f} | {d_max + 1} | 1.00 | {hh / w3:.2f} | | |")
+        print(f"| {label} | OpenCV MODE_SGBM_3WAY | {w3:.3f} | | {w3:.3f} | {d_max + 1} | {w3 / hh:.2f} | 1.00 | | |",
+              flush=True)
 
 
 def main():
