@@ -141,12 +141,12 @@ def delaunay_triangles(rows, cols, shape, edges=False):
     sub = cv2.Subdiv2D((-20 * W, -20 * H, 41 * W, 41 * H))
     # inserted along a Z-order curve: each point is located from a near one (2x faster than row order, 4x than random)
     sub.insert(np.stack([cols, rows], axis=1).astype(np.float32)[np.argsort(_z_order(rows, cols), kind="stable")])
-    tri = sub.getTriangleList().reshape(-1, 3, 2).astype(np.float64)
+    tri = np.asarray(sub.getTriangleList(), np.float64).reshape(-1, 3, 2)  # () when the points are collinear
     inside = ((tri[..., 0] >= 0) & (tri[..., 0] < W) & (tri[..., 1] >= 0) & (tri[..., 1] < H)).all(axis=(1,))
     tri = tri[inside]
     if not edges:
         return tri[..., 0], tri[..., 1]
-    e = sub.getEdgeList().reshape(-1, 2, 2).astype(np.float64)
+    e = np.asarray(sub.getEdgeList(), np.float64).reshape(-1, 2, 2)
     e = e[((e[..., 0] >= 0) & (e[..., 0] < W) & (e[..., 1] >= 0) & (e[..., 1] < H)).all(axis=1)]
     linear = rows.astype(np.int64) * W + cols
     ends = np.searchsorted(linear, np.rint(e[..., 1]).astype(np.int64) * W + np.rint(e[..., 0]).astype(np.int64))
