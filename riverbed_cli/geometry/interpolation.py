@@ -142,21 +142,24 @@ def delaunay_triangles(rows, cols, shape, edges=False):
     # inserted along a Z-order curve: each point is located from a near one (2x faster than row order, 4x than random)
     sub.insert(np.stack([cols, rows], axis=1).astype(np.float32)[np.argsort(_z_order(rows, cols), kind="stable")])
     tri = np.asarray(sub.getTriangleList(), np.float64).reshape(-1, 3, 2)  # () when the points are collinear
-    inside = ((tri[..., 0] >= 0) & (tri[..., 0] < W) & (tri[..., 1] >= 0) & (tri[..., 1] < H)).all(axis=(1,))
-    tri = tri[inside]
+    tri = tri[_in_image(tri, W, H)]
     if not edges:
         return tri[..., 0], tri[..., 1]
     e = np.asarray(sub.getEdgeList(), np.float64).reshape(-1, 2, 2)
-    e = e[((e[..., 0] >= 0) & (e[..., 0] < W) & (e[..., 1] >= 0) & (e[..., 1] < H)).all(axis=1)]
-    linear = rows.astype(np.int64) * W + cols
-    ends = np.searchsorted(linear, np.rint(e[..., 1]).astype(np.int64) * W + np.rint(e[..., 0]).astype(np.int64))
-    return tri[..., 0], tri[..., 1], ends
+    e = e[_in_image(e, W, H)]
+    return tri[..., 0], tri[..., 1], point_index(rows, cols, W, e[..., 1], e[..., 0])
 
 
-def _corner_points(tx, ty, rows, cols, W):
-    # the triangles' corners as indices into the row-major point list
-    linear = rows.astype(np.int64) * W + cols
-    return np.searchsorted(linear, np.rint(ty).astype(np.int64) * W + np.rint(tx).astype(np.int64))
+def _in_image(corners, W, H):
+    # the shapes (rows of (x, y) corners) with every corner in the image: Subdiv2D's virtual vertices lie far outside
+    x, y = corners[..., 0], corners[..., 1]
+    return ((x >= 0) & (x < W) & (y >= 0) & (y < H)).all(axis=-1)
+
+
+def point_index(rows, cols, W, ys, xs):
+    """Index into the row-major LiDAR pixel list ``(rows, cols)`` of the pixels at ``(ys, xs)`` (each one of them)."""
+    return np.searchsorted(rows.astype(np.int64) * W + cols, np.rint(ys).astype(np.int64) * W
+                           + np.rint(xs).astype(np.int64))
 
 
 def _adjacency(ends, n):
@@ -198,7 +201,7 @@ def linear_fill(sparse):
     if rows.size >= 3:
         tx, ty, ends = delaunay_triangles(rows, cols, sparse.shape, edges=True)
         if tx.shape[0]:  # collinear points: no triangle, nearest is all there is
-            tp = _corner_points(tx, ty, rows, cols, W)
+            tp = point_index(rows, cols, W, ty, tx)
             _raster_triangles(np.ascontiguousarray(tx), np.ascontiguousarray(ty), values[tp].astype(np.float64),
                               tp, out)
     if len(ends):
@@ -208,7 +211,7 @@ def linear_fill(sparse):
         _nearest_walk(rows.astype(np.int64), cols.astype(np.int64), ptr, nbr, anchor, dist)
     else:  # one or two points (or none joined): the distance transform
         d, (iy, ix) = ndimage.distance_transform_edt(~valid, return_indices=True)
-        anchor = np.searchsorted(rows.astype(np.int64) * W + cols, iy * W + ix).astype(np.int32)
+        anchor = point_index(rows, cols, W, iy, ix).astype(np.int32)
         dist = d.astype(np.float32)
     out[rows, cols] = values
     outside = np.isnan(out)

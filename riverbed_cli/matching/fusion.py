@@ -70,26 +70,28 @@ class FusionOutput:
     stats: FusionStats = None
 
 
-def leave_one_out_residuals(rows, cols, values, neighbours=6, support=None):
+def leave_one_out_residuals(rows, cols, values, neighbours=6):
     """|value - prediction| of each LiDAR point by a plane through its ``neighbours`` nearest other points (px).
 
     The plane ``d = a x + b y + c`` is fitted by least squares centred on the point (a tiny ridge on the slopes keeps
     collinear neighbours solvable); the prediction is ``c``. Returns ``(residuals, tree)`` (float64, the points'
-    (row, col) cKDTree); with ``support``, ``(residuals, tree,
-    (distances, indices))``, each point's ``max(support, 2)`` nearest points (itself first) from the same query.
+    (row, col) cKDTree).
     """
-    pts = np.stack([rows, cols], axis=1).astype(np.float64)
-    tree = cKDTree(pts)
     k = min(int(neighbours), len(values) - 1)
-    q = k + 1 if support is None else max(k + 1, min(int(support), len(values)), 2)
-    dist, idx = tree.query(pts, k=q, workers=-1)
-    nb = idx[:, 1:k + 1]
-    res = np.abs(_plane_intercepts(rows.astype(np.float64), cols.astype(np.float64), values.astype(np.float64),
-                                   np.ascontiguousarray(nb, dtype=np.int64)) - values)
-    if support is None:
-        return res, tree
-    s = max(min(int(support), len(values)), 2)
-    return res, tree, (dist[:, :s], idx[:, :s])
+    (_, idx), tree = _nearest_points(rows, cols, k + 1)
+    return _residuals(rows, cols, values, idx[:, 1:]), tree
+
+
+def _nearest_points(rows, cols, k):
+    # each point's k nearest points (itself first): ((distances, indices), the cKDTree)
+    tree = cKDTree(np.stack([rows, cols], axis=1).astype(np.float64))
+    return tree.query(tree.data, k=k, workers=-1), tree
+
+
+def _residuals(rows, cols, values, nb):
+    # leave_one_out_residuals given each point's neighbours nb (indices, itself excluded)
+    return np.abs(_plane_intercepts(rows.astype(np.float64), cols.astype(np.float64), values.astype(np.float64),
+                                    np.ascontiguousarray(nb, dtype=np.int64)) - values)
 
 
 @njit(cache=True, parallel=True)
@@ -135,17 +137,18 @@ def lidar_sigma(sparse, neighbours=6, support=4, floor=0.25, fill=None):
 
     Returns ``(sigma, distance)``: (H, W) float32 sigma (px of disparity) and each pixel's distance (px) to its
     nearest LiDAR point (from :func:`~riverbed_cli.geometry.interpolation.linear_fill`, or ``fill`` if already
-    made). With fewer than
-    ``neighbours + 1`` LiDAR pixels nothing can be measured: every pixel gets the span of the LiDAR disparities plus
-    1 px (the interpolation is taken to know little).
+    made). With fewer than ``neighbours + 1`` LiDAR pixels nothing can be measured: every pixel gets the span of the
+    LiDAR disparities plus 1 px (the interpolation is taken to know little).
     """
     rows, cols, values = lidar_points(sparse)
     fill = linear_fill(sparse) if fill is None else fill
     if len(values) < int(neighbours) + 1:
         span = float(values.max() - values.min()) + 1.0 if len(values) else 1.0
         return np.full(sparse.shape, max(span, floor), np.float32), fill.distance
-    res, _, (nn, idx) = leave_one_out_residuals(rows, cols, values, neighbours, support)
-    k = min(int(support), len(values))
+    # one query for the planes' neighbours and the support's nearest points
+    kn, k = min(int(neighbours), len(values) - 1), min(int(support), len(values))
+    (nn, idx), _ = _nearest_points(rows, cols, max(kn + 1, k, 2))
+    res = _residuals(rows, cols, values, idx[:, 1:kn + 1])
     point_sigma = np.sqrt(np.mean(res[idx[:, :k]] ** 2, axis=1)) if k > 1 else res
     typical = max(1.0, float(np.median(nn[:, 1])))
     return _pixel_sigma(fill.anchor, fill.distance, point_sigma, float(floor), GROWTH * typical), fill.distance
