@@ -13,18 +13,11 @@ from riverbed_cli.io.disparity import read_disparity, write_disparity
 from riverbed_cli.matching import adcensus as A
 from riverbed_cli.matching.census import census_transform
 from riverbed_cli.matching.pipeline import match_pair
+from tube_volumes import blocky, scanline_ref
 from riverbed_cli.products.evaluate import evaluate_disparity
 from riverbed_cli.products.simulate import simulate_lidar
 
 DATA = Path(__file__).parent / "data" / "cones"
-
-
-def blocky(rng, H, W, C=3, levels=40):
-    """Random image with flat-ish blocks (long arms) and sharp edges (short arms)."""
-    img = rng.integers(0, levels, (H, W, C)).astype(np.int32)
-    img[:, W // 3:] += 90
-    img[H // 2:, :] += 60
-    return np.clip(img, 0, 255).astype(np.uint8)
 
 
 # --------------------------------------------------------------------------------------------------- references
@@ -91,38 +84,6 @@ def cost_ref(left, right, cl, cr, d_min, d_max, lam_ad, lam_c, scale, outside):
                 out[:, x, i] = (np.floor(scale * (1 - np.exp(-ad / lam_ad)) + 0.5)
                                 + np.floor(scale * (1 - np.exp(-ham / lam_c)) + 0.5))
     return out.astype(np.uint16)
-
-
-def so_ref(cost, left, right, d_min, p1t, p2t, tau):
-    """Four-path scanline optimisation with colour-dependent penalties, every recursion written out."""
-    H, W, D = cost.shape
-    L = left.reshape(H, W, -1).astype(int)
-    R = right.reshape(H, W, -1).astype(int)
-    C = cost.astype(np.int64)
-    total = np.zeros((H, W, D), np.int64)
-    for dx, dy in [(1, 0), (0, 1), (-1, 0), (0, -1)]:
-        Lr = np.zeros((H, W, D), np.int64)
-        for y in (range(H) if dy >= 0 else range(H - 1, -1, -1)):
-            for x in (range(W) if dx >= 0 else range(W - 1, -1, -1)):
-                py, px = y - dy, x - dx
-                if not (0 <= py < H and 0 <= px < W):
-                    Lr[y, x] = C[y, x]
-                    continue
-                d1 = np.abs(L[y, x] - L[py, px]).max()
-                prev = Lr[py, px]
-                mp = prev.min()
-                for i in range(D):
-                    xr, pxr = x - d_min - i, x - d_min - i - dx
-                    d2 = np.abs(R[y, xr] - R[py, pxr]).max() if (0 <= xr < W and 0 <= pxr < W) else d1
-                    cat = int(d1 >= tau) + int(d2 >= tau)
-                    best = min(prev[i], mp + p2t[cat])
-                    if i > 0:
-                        best = min(best, prev[i - 1] + p1t[cat])
-                    if i < D - 1:
-                        best = min(best, prev[i + 1] + p1t[cat])
-                    Lr[y, x, i] = C[y, x, i] + best - mp
-        total += Lr
-    return total
 
 
 def wta_lr_ref(S, d_min, thr):
@@ -242,7 +203,7 @@ def test_scanline_optimisation_matches_reference(d_min):
     fwd, bwd = A.scanline_optimize(cost, left, right, d_min, 1.0, 3.0, 15, 100)
     p1, p2 = A.so_penalties(1.0, 3.0, 100)
     assert list(p1) == [100, 25, 10] and list(p2) == [300, 75, 30]
-    ref = so_ref(cost, left, right, d_min, p1.astype(int), p2.astype(int), 15)
+    ref = scanline_ref(cost, left, right, d_min, p1.astype(int), p2.astype(int), 15)
     np.testing.assert_array_equal(fwd.astype(np.int64) + bwd, ref)
 
 

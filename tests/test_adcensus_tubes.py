@@ -11,59 +11,13 @@ from riverbed_cli.matching.config import MatchConfig
 from riverbed_cli.matching.pipeline import match_pair
 from riverbed_cli.matching.registry import get_guide, get_matcher
 from riverbed_cli.matching.volume import TubeLayout
-from tube_volumes import gather
+from tube_volumes import blocky, gather, scanline_ref
 from riverbed_cli.products.evaluate import evaluate_disparity
 from riverbed_cli.products.simulate import simulate_lidar
-
-UNREACHABLE = 10 ** 9
-
-
-def blocky(rng, H, W, C=3, levels=40):
-    """Random image with flat-ish blocks (long arms) and sharp edges (short arms)."""
-    img = rng.integers(0, levels, (H, W, C)).astype(np.int32)
-    img[:, W // 3:] += 90
-    img[H // 2:, :] += 60
-    return np.clip(img, 0, 255).astype(np.uint8)
-
 
 def narrow_tubes(rng, H, W, D, most=5):
     lo = rng.integers(0, D, (H, W))
     return lo, np.minimum(D - 1, lo + rng.integers(0, most, (H, W)))
-
-
-def so_tube_ref(cost, lo, hi, left, right, d_min, p1t, p2t, tau):
-    """Four-path scanline optimisation with colour-dependent penalties, every recursion written out; a disparity
-    outside the previous pixel's tube is unreachable there. Returns the sum of the paths (valid inside the tubes)."""
-    H, W, D = cost.shape
-    L = left.reshape(H, W, -1).astype(int)
-    R = right.reshape(H, W, -1).astype(int)
-    C = cost.astype(np.int64)
-    total = np.zeros((H, W, D), np.int64)
-    for dx, dy in [(1, 0), (0, 1), (-1, 0), (0, -1)]:
-        Lr = np.full((H, W, D), UNREACHABLE, np.int64)
-        for y in (range(H) if dy >= 0 else range(H - 1, -1, -1)):
-            for x in (range(W) if dx >= 0 else range(W - 1, -1, -1)):
-                py, px = y - dy, x - dx
-                tube = range(lo[y, x], hi[y, x] + 1)
-                if not (0 <= py < H and 0 <= px < W):
-                    for i in tube:
-                        Lr[y, x, i] = C[y, x, i]
-                    continue
-                d1 = np.abs(L[y, x] - L[py, px]).max()
-                prev = Lr[py, px]  # UNREACHABLE outside the previous pixel's tube
-                mp = prev[lo[py, px]:hi[py, px] + 1].min()
-                for i in tube:
-                    xr, pxr = x - d_min - i, x - d_min - i - dx
-                    d2 = np.abs(R[y, xr] - R[py, pxr]).max() if (0 <= xr < W and 0 <= pxr < W) else d1
-                    cat = int(d1 >= tau) + int(d2 >= tau)
-                    best = min(prev[i], mp + p2t[cat])
-                    if i > 0:
-                        best = min(best, prev[i - 1] + p1t[cat])
-                    if i < D - 1:
-                        best = min(best, prev[i + 1] + p1t[cat])
-                    Lr[y, x, i] = C[y, x, i] + best - mp
-        total += np.where(Lr < UNREACHABLE, Lr, 0)
-    return total
 
 
 @pytest.mark.parametrize("d_min", [0, -2, 3])
@@ -76,7 +30,7 @@ def test_tube_scanline_optimisation_equals_the_brute_force_reference(d_min):
     layout = TubeLayout.from_bounds(lo + d_min, hi + d_min, d_min)
     fwd, bwd = A.scanline_optimize(gather(cost, layout), left, right, d_min, 1.0, 3.0, 15, 100, tubes=layout)
     p1, p2 = A.so_penalties(1.0, 3.0, 100)
-    ref = so_tube_ref(cost, lo, hi, left, right, d_min, p1.astype(int), p2.astype(int), 15)
+    ref = scanline_ref(cost, left, right, d_min, p1.astype(int), p2.astype(int), 15, lo, hi)
     np.testing.assert_array_equal(fwd.astype(np.int64) + bwd, gather(ref, layout))
     # the same inputs on tubes as wide as the range give the dense optimisation, bit for bit
     full = TubeLayout.from_bounds(np.full((H, W), d_min), np.full((H, W), d_min + D - 1), d_min)

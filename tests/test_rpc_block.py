@@ -55,6 +55,19 @@ def flat_lidar(path, step=3.0, margin=10, h=H0, extra=None):
     return path
 
 
+def corner_only(path, px):
+    """The cloud at ``path`` cut, in place, to its points over the left image's first ``px`` x ``px`` pixels; returns
+    how many it keeps."""
+    import laspy
+
+    las = laspy.read(path)
+    lon, lat = Transformer.from_crs("EPSG:32631", "EPSG:4326", always_xy=True).transform(las.x, las.y)
+    c, rw = LEFT.project(lon, lat, np.asarray(las.z))
+    las.points = las.points[(c < px) & (rw < px)]
+    las.write(str(path))
+    return len(las.points)
+
+
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
     """The synthetic pair, its LiDAR and the split manifest of 4 ROIs (140 x 140, overlap >= 40 px)."""
@@ -217,13 +230,7 @@ def test_heights_from_the_pairs_lidar_and_rpc_pair_files_in_a_block(scene, tmp_p
     assert s["heights_from"].startswith("LiDAR lidar.laz (") and "points under the ROI, 500.0..500.0 m) +- 20 m" \
         in s["heights_from"]
     part = flat_lidar(tmp_path / "corner.laz", margin=0)
-    # the corner cloud: only the points over the left image's first 60 x 60 px
-    import laspy
-    las = laspy.read(part)
-    lon, lat = Transformer.from_crs("EPSG:32631", "EPSG:4326", always_xy=True).transform(las.x, las.y)
-    c, rw = LEFT.project(lon, lat, np.asarray(las.z))
-    las.points = las.points[(c < 60) & (rw < 60)]
-    las.write(str(part))
+    kept = corner_only(part, 60)  # the corner cloud: only the points over the left image's first 60 x 60 px
     rel = lambda p: Path(p).relative_to(base).as_posix() if Path(p).is_relative_to(base) else str(p)  # noqa: E731
     rpc_entry = {"left": rel(left), "left_rpc": rel(left), "right": rel(right), "right_rpc": rel(rpc)}
     manifest = {"defaults": {"resolution": 0.5}, "pairs": [
@@ -238,7 +245,7 @@ def test_heights_from_the_pairs_lidar_and_rpc_pair_files_in_a_block(scene, tmp_p
     assert status == {"lidar_heights": ("done", None), "from_file": ("done", None), "uncovered": ("failed", "rectify")}
     bad = next(p for p in s["pairs"] if p["name"] == "uncovered")
     assert bad["error"] == (f"{part}: does not cover the ROI 120,120,120,120 of the left image: no point of the kept "
-                            f"classes lands in it ({len(las.points)} read)")
+                            f"classes lands in it ({kept} read)")
     assert r.stderr.endswith(f"riverbed: error: pair uncovered failed in rectify: {bad['error']}\n")
     pair = load_pairfile(tmp_path / "out" / "pairs" / "lidar_heights" / "rectified" / "pair.yaml", accept_rpc=True)
     assert pair.heights == pytest.approx((H0 - 20, H0 + 20), abs=2e-3)
@@ -330,11 +337,7 @@ def test_rectify_lidar_bad_inputs(scene, tmp_path):
     assert r.exit_code == 1 and r.output.startswith(f"riverbed: error: {junk}: ") and r.output.count("\n") == 1
     # a cloud that covers only a corner of the ROI
     corner = flat_lidar(tmp_path / "corner.laz", margin=0)
-    las = laspy.read(corner)
-    lon, lat = Transformer.from_crs("EPSG:32631", "EPSG:4326", always_xy=True).transform(las.x, las.y)
-    c, rw = LEFT.project(lon, lat, np.asarray(las.z))
-    las.points = las.points[(c < 80) & (rw < 80)]
-    las.write(str(corner))
+    corner_only(corner, 80)
     r = run([*args, "--lidar", corner])
     # 27 x 27 points on 80 x 80 px: 3 x 3 of the 8 x 8 cells of 30 x 30 px
     assert (r.exit_code, r.output) == (1, f"riverbed: error: {corner}: does not cover the ROI 0,0,240,240 of the left "
