@@ -13,9 +13,9 @@ from tube_volumes import gather
 SENT = 10 ** 9
 
 
-def random_tubes(rng, H, W, D, narrow=True):
+def random_tubes(rng, H, W, D, narrow=True, most=5):
     lo = rng.integers(0, D, (H, W)) if narrow else np.zeros((H, W), int)
-    hi = np.minimum(D - 1, lo + rng.integers(0, 5, (H, W))) if narrow else np.full((H, W), D - 1)
+    hi = np.minimum(D - 1, lo + rng.integers(0, most, (H, W))) if narrow else np.full((H, W), D - 1)
     return lo, hi
 
 
@@ -44,13 +44,16 @@ def sgm_reference(cost, lo, hi, P1, P2, dirs):
     return total
 
 
+# (11, 5): tubes of 1-5 of 11 disparities. (80, 40): tubes of up to 40 (several vector chunks, sgm.LANES) whose
+# offsets differ by up to 79, past the guard of the ring buffer (the scalar steps).
 @pytest.mark.parametrize("paths", [4, 8, 16])
 @pytest.mark.parametrize("seed", [0, 1])
-def test_tube_sgm_equals_the_brute_force_reference(paths, seed):
+@pytest.mark.parametrize("D, most", [(11, 5), (80, 40)])
+def test_tube_sgm_equals_the_brute_force_reference(paths, seed, D, most):
     rng = np.random.default_rng(seed)
-    H, W, D = 7, 9, 11
+    H, W = 7, 9
     cost = rng.integers(0, 60, (H, W, D)).astype(np.uint16)
-    lo, hi = random_tubes(rng, H, W, D)
+    lo, hi = random_tubes(rng, H, W, D, most=most)
     layout = TubeLayout.from_bounds(lo, hi, 0)
     fwd, bwd = sgm.sgm_aggregate_passes(gather(cost, layout), 7, 40, paths, tubes=layout)
     dirs = sgm.path_directions(paths)

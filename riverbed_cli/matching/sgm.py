@@ -6,13 +6,16 @@ paths. Costs and sums stay in ``uint16``.
 
 Implementation: half of the directions are swept in one raster-order pass (top-left to bottom-right), the other half in
 the reverse pass; each pass keeps the path costs of the last rows in a small ring buffer, so the cost volume is read
-once per pass and the inner loop over disparities vectorises. The two passes are independent and run in parallel.
+once per pass; a step works on whole chunks of ``LANES`` disparities at once (:mod:`.lanes`), dense and tube volumes
+alike. The two passes are independent and run in parallel.
 """
 
 import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
+from .lanes import LANES, SENTINEL, lanes_copy, lanes_fill, lanes_first, lanes_step
+from .volume import volume_layout
 
 # Directions (dx, dy) swept in the forward raster pass; the reverse pass sweeps their opposites.
 _FORWARD_DIRS = {
@@ -29,22 +32,13 @@ def path_directions(paths):
     return fwd + [(-dx, -dy) for dx, dy in fwd]
 
 
-# Path costs live in int16 (16 SIMD lanes): every path cost is at most max_cost + P2, and check_sgm_bounds keeps
+# Path costs live in int16: every path cost is at most max_cost + P2, and check_sgm_bounds keeps
 # paths * (max_cost + P2) <= 65535, so a path cost is <= 16383 and each half-sum (half the paths) <= 32767.
-_SENTINEL = 16384  # above any path cost; sentinel + P1 still fits int16
-
-
-@njit(cache=True, boundscheck=False)
-def _path_step(prev, cur, c, acc, P1, jump, mp):
-    # One SGM step along a path for all disparities; prev/cur are padded by a sentinel at both ends.
-    m = np.int16(_SENTINEL)
-    for d in range(c.shape[0]):
-        v = min(prev[d + 1], min(prev[d], prev[d + 2]) + P1)
-        v = np.int16(c[d] + min(v, jump) - mp)
-        cur[d + 1] = v
-        acc[d] += v
-        m = min(m, v)
-    return m
+_SENTINEL = SENTINEL  # above any path cost; sentinel + P1 still fits int16
+# Each ring-buffer entry: _GUARD sentinels (never written), the path costs in whole chunks of LANES (the sentinel past
+# the tube), then one chunk of sentinels. A step reads its neighbour's entry shifted by the difference of their tube
+# offsets; within these bounds every disparity outside the neighbour's tube reads the sentinel, with no test.
+_GUARD = LANES
 
 
 @njit(cache=True, boundscheck=False)
@@ -58,34 +52,6 @@ def path_start(cur, c, acc):
     return m
 
 
-@njit(cache=True)
-def _sgm_pass(cost, out, dxs, dys, P1, P2, flip):
-    H, W, D = cost.shape
-    nd = dxs.shape[0]
-    P1 = np.int16(P1)
-    P2 = np.int16(P2)
-    # Ring buffer of the last three rows of path costs (16-path directions reach two rows back).
-    L = np.full((nd, 3, W, D + 2), np.int16(_SENTINEL), dtype=np.int16)
-    Lmin = np.zeros((nd, 3, W), dtype=np.int16)
-    for yy in range(H):
-        y = H - 1 - yy if flip else yy
-        slot = yy % 3
-        for xx in range(W):
-            x = W - 1 - xx if flip else xx
-            c = cost[y, x]
-            acc = out[y, x]  # the half-sum accumulates in place (int16 view: it stays <= 32767)
-            acc[:] = 0
-            for k in range(nd):
-                px = xx - dxs[k]
-                py = yy - dys[k]
-                if px < 0 or px >= W or py < 0:
-                    m = path_start(L[k, slot, xx], c, acc)
-                else:
-                    mp = Lmin[k, py % 3, px]
-                    m = _path_step(L[k, py % 3, px], L[k, slot, xx], c, acc, P1, np.int16(mp + P2), mp)
-                Lmin[k, slot, xx] = m
-
-
 @njit(cache=True, boundscheck=False, inline="always")
 def tube_value(prev, wq, j, P1):
     # min(L(j), L(j -+ 1) + P1) of the previous pixel's tube (wq wide) at its index j; outside it: the sentinel
@@ -97,95 +63,107 @@ def tube_value(prev, wq, j, P1):
 
 
 @njit(cache=True, boundscheck=False)
-def _tube_step(prev, wq, cur, c, acc, P1, jump, mp, s):
-    # One step between tubes: disparity index d here is index d + s of the previous pixel's tube (wq wide); a
-    # disparity outside that tube is unreachable there (the sentinel), not zero. prev is padded (prev[0] and
-    # prev[wq + 1] hold the sentinel), so where d + s and its neighbours lie in [-1, wq] no check is needed.
-    w = c.shape[0]
-    m = np.int16(_SENTINEL)
-    lo = min(w, max(0, -s))
-    hi = max(lo, min(w, wq - s))
-    for d in range(lo):
-        v = np.int16(c[d] + min(tube_value(prev, wq, d + s, P1), jump) - mp)
-        cur[d + 1] = v
-        acc[d] += v
+def _step_scalar(L, acc, cur, cost, b, w, span, prev, wq, s, P1, jump, mp, first):
+    # The step of _sgm_pass one disparity at a time, for what its vector steps cannot reach: the last pixels of the
+    # volume (their lanes would read past its end) and shifts past the guard of the neighbour's entry.
+    sent = np.int16(_SENTINEL)
+    m = sent
+    for i in range(span):
+        if i >= w:
+            v = sent
+        elif first:
+            v = np.int16(cost[b + i])
+        else:
+            v = np.int16(cost[b + i] + min(tube_value(L[prev - 1:], wq, i + s, P1), jump) - mp)
+        L[cur + i] = v
+        acc[i] += v
         m = min(m, v)
-    for d in range(lo, hi):  # the overlap: as _path_step, shifted
-        v = min(prev[d + s + 1], min(prev[d + s], prev[d + s + 2]) + P1)
-        v = np.int16(c[d] + min(v, jump) - mp)
-        cur[d + 1] = v
-        acc[d] += v
-        m = min(m, v)
-    for d in range(hi, w):
-        v = np.int16(c[d] + min(tube_value(prev, wq, d + s, P1), jump) - mp)
-        cur[d + 1] = v
-        acc[d] += v
-        m = min(m, v)
-    cur[w + 1] = np.int16(_SENTINEL)
     return m
 
 
-@njit(cache=True)
-def _sgm_pass_tube(flat, out, start, width, offset, dmax, dxs, dys, P1, P2, flip):
-    # _sgm_pass on a tube volume: pixel (y, x) holds width[y, x] disparities from d_min + offset[y, x] at
-    # flat[start[y, x]:] (and out, int16, at the same place); ring-buffer rows are dmax + 2 wide, a pixel uses its
-    # first width + 2.
-    H, W = start.shape
+@njit(cache=True, boundscheck=False)
+def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, flip):
+    # Half of the paths over a dense volume (D > 0: pixel (y, x) holds D disparities at (y * W + x) * D) or a tube
+    # volume (D == 0: pixel (y, x) holds width[y, x] disparities from d_min + offset[y, x] at start[y, x]); the
+    # half-sum goes to out (int16, same layout). Steps between pixels of different offsets compare equal
+    # disparities; a disparity outside the neighbour's tube is unreachable there (the sentinel).
     nd = dxs.shape[0]
     P1 = np.int16(P1)
     P2 = np.int16(P2)
     sent = np.int16(_SENTINEL)
-    L = np.full((nd, 3, W, dmax + 2), sent, dtype=np.int16)
-    Lmin = np.zeros((nd, 3, W), dtype=np.int16)
+    zero = np.int16(0)
+    C = (wmax + LANES - 1) // LANES
+    R = _GUARD + (C + 1) * LANES
+    # ring buffer of the last three rows of path costs (16-path directions reach two rows back), flat
+    L = np.full(nd * 3 * W * R, sent, dtype=np.int16)
+    Lmin = np.zeros(nd * 3 * W, dtype=np.int16)
+    acc = np.zeros(C * LANES, dtype=np.int16)
+    n = flat.shape[0]
     for yy in range(H):
         y = H - 1 - yy if flip else yy
         slot = yy % 3
         for xx in range(W):
             x = W - 1 - xx if flip else xx
-            b = start[y, x]
-            w = np.int64(width[y, x])
-            op = np.int64(offset[y, x])
-            c = flat[b:b + w]
-            acc = out[b:b + w]  # the half-sum accumulates in place (int16 view: it stays <= 32767)
-            acc[:] = 0
+            if D > 0:
+                b = (y * W + x) * D
+                w = D
+                op = 0
+            else:
+                b = start[y, x]
+                w = np.int64(width[y, x])
+                op = np.int64(offset[y, x])
+            span = (w + LANES - 1) // LANES * LANES
+            safe = b + span <= n  # every lane's cost and result lie inside the volume
+            for i in range(0, span, LANES):
+                lanes_fill(acc, i, zero)
             for k in range(nd):
                 px = xx - dxs[k]
                 py = yy - dys[k]
-                cur = L[k, slot, xx]
+                cur = ((k * 3 + slot) * W + xx) * R + _GUARD
                 if px < 0 or px >= W or py < 0:
-                    m = path_start(cur, c, acc)
-                    cur[w + 1] = sent
-                else:
-                    qy = H - 1 - py if flip else py
-                    qx = W - 1 - px if flip else px
-                    wq = np.int64(width[qy, qx])
-                    sh = op - np.int64(offset[qy, qx])
-                    mp = Lmin[k, py % 3, px]
-                    prev = L[k, py % 3, px]
-                    if sh == 0 and wq >= w:
-                        m = _path_step(prev, cur, c, acc, P1, np.int16(mp + P2), mp)
-                        cur[w + 1] = sent
+                    if safe:
+                        m = sent
+                        for i in range(0, span, LANES):
+                            m = min(m, lanes_first(L, acc, cur + i, flat, b + i, i, w - i))
                     else:
-                        m = _tube_step(prev, wq, cur, c, acc, P1, np.int16(mp + P2), mp, sh)
-                Lmin[k, slot, xx] = m
+                        m = _step_scalar(L, acc, cur, flat, b, w, span, cur, w, 0, P1, sent, zero, True)
+                else:
+                    q = (k * 3 + py % 3) * W + px
+                    if D > 0:
+                        wq = D
+                        s = 0
+                    else:
+                        qy = H - 1 - py if flip else py
+                        qx = W - 1 - px if flip else px
+                        wq = np.int64(width[qy, qx])
+                        s = op - np.int64(offset[qy, qx])
+                    mp = Lmin[q]
+                    jump = np.int16(mp + P2)
+                    prev = q * R + _GUARD
+                    if safe and 1 - _GUARD <= s <= (wq + LANES - 1) // LANES * LANES + LANES - 1 - span:
+                        m = sent
+                        for i in range(0, span, LANES):
+                            m = min(m, lanes_step(L, acc, cur + i, flat, b + i, i, w - i, prev + s - 1 + i, P1,
+                                                  jump, mp))
+                    else:
+                        m = _step_scalar(L, acc, cur, flat, b, w, span, prev, wq, s, P1, jump, mp, False)
+                lanes_fill(L, cur + span, sent)
+                Lmin[(k * 3 + slot) * W + xx] = m
+            if safe:
+                for i in range(0, span, LANES):
+                    lanes_copy(acc, i, out, b + i, w - i)
+            else:
+                for i in range(w):
+                    out[b + i] = acc[i]
 
 
 @njit(cache=True, parallel=True)
-def _sgm_two_passes_tube(flat, fwd, bwd, start, width, offset, dmax, dxs, dys, P1, P2):
+def _sgm_two_passes(flat, fwd, bwd, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2):
     for t in prange(2):
         if t == 0:
-            _sgm_pass_tube(flat, fwd, start, width, offset, dmax, dxs, dys, P1, P2, False)
+            _sgm_pass(flat, fwd, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, False)
         else:
-            _sgm_pass_tube(flat, bwd, start, width, offset, dmax, dxs, dys, P1, P2, True)
-
-
-@njit(cache=True, parallel=True)
-def _sgm_two_passes(cost, fwd, bwd, dxs, dys, P1, P2):
-    for t in prange(2):
-        if t == 0:
-            _sgm_pass(cost, fwd, dxs, dys, P1, P2, False)
-        else:
-            _sgm_pass(cost, bwd, dxs, dys, P1, P2, True)
+            _sgm_pass(flat, bwd, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, True)
 
 
 @njit(cache=True, parallel=True)
@@ -233,13 +211,11 @@ def sgm_aggregate_passes(cost, p1, p2, paths=8, max_cost=None, tubes=None):
     fwd = np.empty(cost.shape, dtype=np.uint16)
     bwd = np.empty(cost.shape, dtype=np.uint16)
     # the passes add path costs into int16 views of the uint16 results (a half-sum is <= 32767: the same bits)
-    if tubes is None:
-        _sgm_two_passes(cost, fwd.view(np.int16), bwd.view(np.int16), dxs, dys, np.int32(p1), np.int32(p2))
-    else:
-        if cost.size != tubes.size:
-            raise RiverbedError(f"tube volume of {cost.size} costs does not match its layout ({tubes.size})")
-        _sgm_two_passes_tube(cost, fwd.view(np.int16), bwd.view(np.int16), tubes.start, tubes.width, tubes.offset,
-                             int(tubes.max_width), dxs, dys, np.int32(p1), np.int32(p2))
+    shape = tubes.shape if tubes is not None else cost.shape[:2]
+    flat, W, D, start, width, offset = volume_layout(cost, shape, tubes)
+    wmax = int(tubes.max_width) if tubes is not None else D
+    _sgm_two_passes(flat, fwd.reshape(-1).view(np.int16), bwd.reshape(-1).view(np.int16), shape[0], W, D, start,
+                    width, offset, wmax, dxs, dys, np.int32(p1), np.int32(p2))
     return fwd, bwd
 
 
