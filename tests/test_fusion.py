@@ -86,10 +86,10 @@ def test_leave_one_out_residuals_are_exact_on_a_plane_and_see_a_step():
     ys, xs = np.mgrid[0:10, 0:10]
     rows, cols = ys.ravel() * 5, xs.ravel() * 5
     plane = 3.0 + 0.1 * cols - 0.2 * rows
-    res, _ = leave_one_out_residuals(rows, cols, plane)
+    res = leave_one_out_residuals(rows, cols, plane)
     assert res.max() < 1e-2  # the tiny ridge on the slopes only
     step = plane + np.where(cols >= 25, 10.0, 0.0)
-    res, _ = leave_one_out_residuals(rows, cols, step)
+    res = leave_one_out_residuals(rows, cols, step)
     near = (cols == 20) | (cols == 25)
     assert res[near].min() > 1.0 and np.median(res[cols <= 10]) < 1e-2
 

@@ -37,10 +37,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit, prange
-from scipy.spatial import cKDTree
 
 from ..geometry.coverage import lidar_points
-from ..geometry.interpolation import linear_fill
+from ..geometry.interpolation import delaunay_graph, linear_fill, nearest_points
 from ..records import RecordMapping
 from .registry import register_fusion
 
@@ -70,22 +69,19 @@ class FusionOutput:
     stats: FusionStats = None
 
 
-def leave_one_out_residuals(rows, cols, values, neighbours=6):
-    """|value - prediction| of each LiDAR point by a plane through its ``neighbours`` nearest other points (px).
+def leave_one_out_residuals(rows, cols, values, neighbours=6, graph=None):
+    """|value - prediction| of each LiDAR point by a plane through its ``neighbours`` nearest other points (px),
+    float64.
 
     The plane ``d = a x + b y + c`` is fitted by least squares centred on the point (a tiny ridge on the slopes keeps
-    collinear neighbours solvable); the prediction is ``c``. Returns ``(residuals, tree)`` (float64, the points'
-    (row, col) cKDTree).
+    collinear neighbours solvable); the prediction is ``c``. The nearest points come from the points' Delaunay graph
+    (:func:`~riverbed_cli.geometry.interpolation.nearest_points`), ``graph`` ``(ptr, nbr)`` if already made.
     """
     k = min(int(neighbours), len(values) - 1)
-    (_, idx), tree = _nearest_points(rows, cols, k + 1)
-    return _residuals(rows, cols, values, idx[:, 1:]), tree
-
-
-def _nearest_points(rows, cols, k):
-    # each point's k nearest points (itself first): ((distances, indices), the cKDTree)
-    tree = cKDTree(np.stack([rows, cols], axis=1).astype(np.float64))
-    return tree.query(tree.data, k=k, workers=-1), tree
+    if graph is None:
+        graph = delaunay_graph(rows, cols, (int(np.max(rows)) + 1, int(np.max(cols)) + 1))
+    _, idx = nearest_points(rows, cols, k + 1, *graph)
+    return _residuals(rows, cols, values, idx[:, 1:])
 
 
 def _residuals(rows, cols, values, nb):
@@ -145,9 +141,9 @@ def lidar_sigma(sparse, neighbours=6, support=4, floor=0.25, fill=None):
     if len(values) < int(neighbours) + 1:
         span = float(values.max() - values.min()) + 1.0 if len(values) else 1.0
         return np.full(sparse.shape, max(span, floor), np.float32), fill.distance
-    # one query for the planes' neighbours and the support's nearest points
+    # one search for the planes' neighbours and the support's nearest points
     kn, k = min(int(neighbours), len(values) - 1), min(int(support), len(values))
-    (nn, idx), _ = _nearest_points(rows, cols, max(kn + 1, k, 2))
+    nn, idx = nearest_points(rows, cols, max(kn + 1, k, 2), fill.ptr, fill.nbr)
     res = _residuals(rows, cols, values, idx[:, 1:kn + 1])
     point_sigma = np.sqrt(np.mean(res[idx[:, :k]] ** 2, axis=1)) if k > 1 else res
     typical = max(1.0, float(np.median(nn[:, 1])))
