@@ -99,6 +99,7 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
     Lmin = np.zeros(nd * 3 * W, dtype=np.int16)
     acc = np.zeros(C * LANES, dtype=np.int16)
     n = flat.shape[0]
+    starts, widths, offsets = start.reshape(-1), width.reshape(-1), offset.reshape(-1)
     for yy in range(H):
         y = H - 1 - yy if flip else yy
         slot = yy % 3
@@ -109,9 +110,10 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
                 w = D
                 op = 0
             else:
-                b = start[y, x]
-                w = np.int64(width[y, x])
-                op = np.int64(offset[y, x])
+                pix = np.uint64(y * W + x)  # unsigned flat indices: no negative-index wrap-around code
+                b = starts[pix]
+                w = np.int64(widths[pix])
+                op = np.int64(offsets[pix])
             span = (w + LANES - 1) // LANES * LANES
             safe = b + span <= n  # every lane's cost and result lie inside the volume
             for i in range(0, span, LANES):
@@ -135,8 +137,9 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
                     else:
                         qy = H - 1 - py if flip else py
                         qx = W - 1 - px if flip else px
-                        wq = np.int64(width[qy, qx])
-                        s = op - np.int64(offset[qy, qx])
+                        qi = np.uint64(qy * W + qx)
+                        wq = np.int64(widths[qi])
+                        s = op - np.int64(offsets[qi])
                     mp = Lmin[q]
                     jump = np.int16(mp + P2)
                     prev = q * R + _GUARD
