@@ -1,8 +1,9 @@
-"""Interpolation of sparse LiDAR disparities without the images: nearest and linear (Delaunay) fills.
+"""Interpolation of sparse LiDAR disparities without the images: the linear (Delaunay) fill, each pixel's nearest
+LiDAR point, each point's nearest points.
 
-Used by the LiDAR-only baselines (:mod:`riverbed_cli.products.densify`) and by the fusion
-(:mod:`riverbed_cli.matching.fusion`). The left image is the reference, ``d = x_left - x_right`` (px); NaN marks no
-LiDAR.
+Used by the LiDAR-only baselines (:mod:`riverbed_cli.products.densify`, which also has the nearest fill) and by the
+fusion (:mod:`riverbed_cli.matching.fusion`). No SciPy here: ``riverbed match`` does not load it. The left image is
+the reference, ``d = x_left - x_right`` (px); NaN marks no LiDAR.
 """
 
 import math
@@ -11,7 +12,6 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from numba import njit, prange
-from scipy import ndimage
 
 from ..errors import RiverbedError
 
@@ -25,22 +25,6 @@ def checked_points(sparse):
     if not valid.any():
         raise RiverbedError("sparse map has no valid disparities")
     return sparse, valid
-
-
-def nearest_lidar(sparse):
-    """Each pixel's distance (px, float64) to its nearest LiDAR pixel and that pixel's row and column:
-    ``(distance, rows, cols)``, (H, W) each (Euclidean distance transform)."""
-    sparse, valid = checked_points(sparse)
-    dist, (iy, ix) = ndimage.distance_transform_edt(~valid, return_indices=True)
-    return dist, iy, ix
-
-
-def interpolate_nearest(sparse, nearest=None):
-    """Every pixel takes the disparity of its nearest LiDAR pixel. (H, W) float32. ``nearest``: the
-    :func:`nearest_lidar` of ``sparse`` if already known."""
-    sparse, _ = checked_points(sparse)
-    _, iy, ix = nearest_lidar(sparse) if nearest is None else nearest
-    return sparse[iy, ix].astype(np.float32)
 
 
 @njit(cache=True, inline="always")
@@ -114,6 +98,23 @@ def _nearest_walk(rows, cols, ptr, nbr, anchor, dist):
                         moved = True
             anchor[y, x] = cur
             dist[y, x] = np.float32(math.sqrt(best))
+
+
+@njit(cache=True, parallel=True)
+def _nearest_brute(rows, cols, anchor, dist):
+    # each pixel's nearest of a few points (ties: the lower index)
+    H, W = anchor.shape
+    for y in prange(H):
+        for x in range(W):
+            best = -1
+            bd = 0
+            for i in range(rows.shape[0]):
+                d = (rows[i] - y) ** 2 + (cols[i] - x) ** 2
+                if best < 0 or d < bd:
+                    best = i
+                    bd = d
+            anchor[y, x] = best
+            dist[y, x] = np.float32(math.sqrt(bd))
 
 
 def _z_order(rows, cols):
@@ -298,10 +299,10 @@ def linear_fill(sparse):
         dist = np.empty((H, W), np.float32)
         ptr, nbr = _adjacency(np.ascontiguousarray(ends, dtype=np.int64), rows.size)
         _nearest_walk(rows.astype(np.int64), cols.astype(np.int64), ptr, nbr, anchor, dist)
-    else:  # one or two points (or none joined): the distance transform
-        d, (iy, ix) = ndimage.distance_transform_edt(~valid, return_indices=True)
-        anchor = point_index(rows, cols, sparse.shape, iy, ix)
-        dist = d.astype(np.float32)
+    else:  # one or two points: each pixel compares them
+        anchor = np.empty((H, W), np.int32)
+        dist = np.empty((H, W), np.float32)
+        _nearest_brute(rows.astype(np.int64), cols.astype(np.int64), anchor, dist)
     out[rows, cols] = values
     outside = np.isnan(out)
     out[outside] = values[anchor[outside]]

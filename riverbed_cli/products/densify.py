@@ -20,13 +20,30 @@ import math
 
 import numpy as np
 from numba import njit, prange
+from scipy import ndimage
 
 from ..errors import RiverbedError
 from ..geometry.coverage import lidar_rows, lidar_share
-from ..geometry.interpolation import checked_points, interpolate_linear, interpolate_nearest
+from ..geometry.interpolation import checked_points, interpolate_linear
 from ..matching.diffusion import bilateral_weight
 
 METHODS = ("nearest", "linear", "guided")
+
+
+def nearest_lidar(sparse):
+    """Each pixel's distance (px, float64) to its nearest LiDAR pixel and that pixel's row and column:
+    ``(distance, rows, cols)``, (H, W) each (Euclidean distance transform)."""
+    sparse, valid = checked_points(sparse)
+    dist, (iy, ix) = ndimage.distance_transform_edt(~valid, return_indices=True)
+    return dist, iy, ix
+
+
+def interpolate_nearest(sparse, nearest=None):
+    """Every pixel takes the disparity of its nearest LiDAR pixel. (H, W) float32. ``nearest``: the
+    :func:`nearest_lidar` of ``sparse`` if already known."""
+    sparse, _ = checked_points(sparse)
+    _, iy, ix = nearest_lidar(sparse) if nearest is None else nearest
+    return sparse[iy, ix].astype(np.float32)
 
 
 @njit(cache=True, parallel=True)
