@@ -9,6 +9,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
+from .lanes import LANES, lanes_find, lanes_sum
 
 
 @njit(cache=True, inline="always")
@@ -20,14 +21,21 @@ def _pick(s, D, o, d_min, subpixel):
         if s[i] < bv:
             bv = s[i]
             bi = i
-    val = np.float32(d_min + o + bi)
+    return bi, _refine(s, D, bi, d_min + o, subpixel)
+
+
+@njit(cache=True, inline="always")
+def _refine(s, D, bi, d0, subpixel):
+    # the disparity d0 + bi of winner bi (the first minimum of the D costs s), parabola-refined inside the range
+    val = np.float32(d0 + bi)
     if subpixel and bi > 0 and bi < D - 1:
-        a = s[bi - 1]
-        c = s[bi + 1]
+        a = np.int64(s[bi - 1])
+        bv = np.int64(s[bi])
+        c = np.int64(s[bi + 1])
         den = a - 2 * bv + c
         if den > 0:
             val += np.float32(0.5 * (a - c) / den)
-    return bi, val
+    return val
 
 
 @njit(cache=True, inline="always")
@@ -76,16 +84,19 @@ def _select_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold, keep):
 
 @njit(cache=True, parallel=True)
 def _select_tube_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold, keep, start, width, offset):
-    # _select_kernel on a tube volume: pixel (y, x) holds width[y, x] disparities from d_min + offset[y, x]
+    # _select_kernel on a tube volume: pixel (y, x) holds width[y, x] disparities from d_min + offset[y, x]. The sums
+    # and the winner come a chunk of LANES disparities at a time (the sums fit uint16: sgm.check_sgm_bounds).
     H, W = start.shape
+    n = fwd.shape[0]
     dmax = 0
     for y in range(H):
         for x in range(W):
             dmax = max(dmax, np.int64(width[y, x]))
+    span_max = (dmax + LANES - 1) // LANES * LANES
     disp = np.empty((H, W), dtype=np.float32)
     status = np.zeros((H, W if keep else 1), dtype=np.int8)  # keep: 1 where the check fails
     for y in prange(H):
-        s = np.empty(dmax, dtype=np.int32)
+        s = np.empty(span_max, dtype=np.uint16)
         best_left = np.empty(W, dtype=np.int64)  # winner as d - d_min
         right_cost = np.full(W, 2147483647, dtype=np.int64)
         right_best = np.zeros(W, dtype=np.int64)
@@ -93,9 +104,20 @@ def _select_tube_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold, keep,
             b = start[y, x]
             D = np.int64(width[y, x])
             o = np.int64(offset[y, x])
-            for i in range(D):
-                s[i] = np.int32(fwd[b + i]) + np.int32(bwd[b + i])
-            bi, disp[y, x] = _pick(s, D, o, d_min, subpixel)
+            span = (D + LANES - 1) // LANES * LANES
+            if b + span <= n:  # every lane inside the volume
+                bv = np.uint16(65535)
+                for i in range(0, span, LANES):
+                    bv = min(bv, lanes_sum(fwd, bwd, b + i, s, i, D - i))
+                bi = 0
+                while lanes_find(s, bi, bv) == LANES:
+                    bi += LANES
+                bi += lanes_find(s, bi, bv)
+                disp[y, x] = _refine(s, D, bi, d_min + o, subpixel)
+            else:
+                for i in range(D):
+                    s[i] = fwd[b + i] + bwd[b + i]
+                bi, disp[y, x] = _pick(s, D, o, d_min, subpixel)
             best_left[x] = o + bi
             if lr_check:
                 _vote_right(s, D, x, o, d_min, W, right_cost, right_best)

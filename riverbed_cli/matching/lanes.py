@@ -60,7 +60,7 @@ def _valid(builder, lanes):
     return builder.icmp_signed("<", _LANE_INDEX, _splat(builder, lanes, ir.VectorType(_I64, LANES)))
 
 
-def _reduce_min(builder, v):
+def _reduce_min(builder, v, signed=True):
     # a tree of halving shuffles: portable across LLVM versions (no reduction intrinsic needed)
     n = LANES
     while n > 1:
@@ -68,7 +68,7 @@ def _reduce_min(builder, v):
         undef = ir.Constant(v.type, ir.Undefined)
         hi = builder.shuffle_vector(v, undef, ir.Constant(ir.VectorType(ir.IntType(32), LANES),
                                                            [i + n if i < n else i for i in range(LANES)]))
-        v = _smin(builder, v, hi)
+        v = builder.select(builder.icmp_signed("<", v, hi) if signed else builder.icmp_unsigned("<", v, hi), v, hi)
     return builder.extract_element(v, ir.Constant(ir.IntType(32), 0))
 
 
@@ -150,5 +150,38 @@ def lanes_copy(typingctx, src, si, dst, di, lanes):
                            _load(context, builder, dt, dst_, di_))
         _store(context, builder, dt, dst_, di_, v)
         return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def lanes_sum(typingctx, a, b, ai, out, oi, lanes):
+    """``out[oi + d] = a[ai + d] + b[ai + d]`` (uint16 arrays; the sum must fit, as SGM's half-sums do) for
+    ``d < lanes``, 65535 past them; returns the minimum over the lanes (uint16)."""
+    sig = types.uint16(a, b, ai, out, oi, lanes)
+
+    def codegen(context, builder, signature, args):
+        a_, b_, ai_, out_, oi_, lanes_ = args
+        at, bt, _, ot = signature.args[:4]
+        v = builder.add(_load(context, builder, at, a_, ai_), _load(context, builder, bt, b_, ai_))
+        v = builder.select(_valid(builder, lanes_), v, ir.Constant(_V16, [65535] * LANES))
+        _store(context, builder, ot, out_, oi_, v)
+        return _reduce_min(builder, v, signed=False)
+
+    return sig, codegen
+
+
+@intrinsic
+def lanes_find(typingctx, arr, index, value):
+    """The first lane ``d`` with ``arr[index + d] == value`` (a 16-bit array), ``LANES`` if none (int64)."""
+    sig = types.int64(arr, index, value)
+
+    def codegen(context, builder, signature, args):
+        arr_, index_, value_ = args
+        v = _load(context, builder, signature.args[0], arr_, index_)
+        hit = builder.icmp_unsigned("==", v, _splat(builder, value_))
+        bits = builder.bitcast(hit, ir.IntType(LANES))
+        first = builder.cttz(bits, ir.Constant(ir.IntType(1), 0))  # LANES where no lane hits
+        return builder.zext(first, _I64)
 
     return sig, codegen
