@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numba import njit, prange
 
 from ..errors import RiverbedError
 from ..records import RecordMapping
@@ -85,17 +86,37 @@ def lidar_tubes(sparse, d_min, d_max, reach=2.0, margin=2.0, levels=3, level_mar
     share = lidar_share(sparse) if share is None else share
     spacing = 1.0 / math.sqrt(max(share, 1e-12))
     cell = max(1, int(cell))
-    ch, cw = -(-H // cell), -(-W // cell)
-    pad = np.full((ch * cell, cw * cell), np.nan, np.float32)
-    pad[:H, :W] = sparse
-    blocks = pad.reshape(ch, cell, cw, cell)
-    with np.errstate(invalid="ignore"):
-        cmin = np.where(np.isfinite(blocks), blocks, np.inf).min(axis=(1, 3))
-        cmax = np.where(np.isfinite(blocks), blocks, -np.inf).max(axis=(1, 3))
+    cmin, cmax = _cell_extrema(sparse, cell)
     tlo, thi = cell_tubes(cmin, cmax, d_min, d_max, spacing, reach, margin, levels, level_margin, cell, max_spacing)
-    lo[:] = np.repeat(np.repeat(tlo, cell, axis=0), cell, axis=1)[:H, :W]
-    hi[:] = np.repeat(np.repeat(thi, cell, axis=0), cell, axis=1)[:H, :W]
+    _expand_cells(tlo.astype(np.int32), thi.astype(np.int32), cell, lo, hi)
     return lo, hi
+
+
+@njit(cache=True)
+def _cell_extrema(sparse, cell):
+    # min and max of the finite values of each cell x cell cell (+inf / -inf: none)
+    H, W = sparse.shape
+    ch, cw = -(-H // cell), -(-W // cell)
+    cmin = np.full((ch, cw), np.inf, np.float32)
+    cmax = np.full((ch, cw), -np.inf, np.float32)
+    for y in range(H):
+        for x in range(W):
+            v = sparse[y, x]
+            if np.isfinite(v):
+                cy, cx = y // cell, x // cell
+                cmin[cy, cx] = min(cmin[cy, cx], v)
+                cmax[cy, cx] = max(cmax[cy, cx], v)
+    return cmin, cmax
+
+
+@njit(cache=True, parallel=True)
+def _expand_cells(tlo, thi, cell, lo, hi):
+    # every pixel takes its cell's tube
+    H, W = lo.shape
+    for y in prange(H):
+        for x in range(W):
+            lo[y, x] = tlo[y // cell, x // cell]
+            hi[y, x] = thi[y // cell, x // cell]
 
 
 def cell_tubes(cmin, cmax, d_min, d_max, spacing, reach=2.0, margin=2.0, levels=3, level_margin=4.0, cell=4,

@@ -8,6 +8,7 @@ described by a :class:`TubeLayout`.
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from ..errors import RiverbedError
 
@@ -72,18 +73,31 @@ class TubeLayout:
     @classmethod
     def from_bounds(cls, lo, hi, d_min):
         """The layout of tubes ``[lo, hi]`` (inclusive disparities, (H, W) int arrays)."""
-        lo = np.asarray(lo, np.int64)
-        width = (np.asarray(hi, np.int64) - lo + 1).astype(np.int32)
-        start = np.zeros(width.shape, np.int64)
-        flat = start.reshape(-1)
-        np.cumsum(width.reshape(-1)[:-1], out=flat[1:])
-        size = int(start.reshape(-1)[-1] + width.reshape(-1)[-1]) if width.size else 0
-        return cls(np.ascontiguousarray(lo - int(d_min), np.int32), np.ascontiguousarray(width), start, size,
-                   int(width.max()) if width.size else 0)
+        offset, width, start, size = _layout(np.ascontiguousarray(lo, np.int32), np.ascontiguousarray(hi, np.int32),
+                                             int(d_min))
+        return cls(offset, width, start, int(size), int(width.max()) if width.size else 0)
 
     @property
     def shape(self):
         return self.width.shape
+
+
+@njit(cache=True)
+def _layout(lo, hi, d_min):
+    # offsets, widths and start indices (row-major running sum of the widths) of tubes [lo, hi], and the total
+    H, W = lo.shape
+    offset = np.empty((H, W), np.int32)
+    width = np.empty((H, W), np.int32)
+    start = np.empty((H, W), np.int64)
+    size = 0
+    for y in range(H):
+        for x in range(W):
+            offset[y, x] = lo[y, x] - d_min
+            w = hi[y, x] - lo[y, x] + 1
+            width[y, x] = w
+            start[y, x] = size
+            size += w
+    return offset, width, start, size
 
 
 _NONE = np.zeros((0, 0), np.int64)
