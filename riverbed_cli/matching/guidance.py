@@ -54,21 +54,22 @@ def _claim(j, rows, cols, guide, half, a, b, e_lo, e_hi, owner, dissim):
     # Offer LiDAR point j's window to its pixels; a pixel keeps the most similar point (ties: lower index), so the
     # result does not depend on the order in which points are offered. Works on the exponent e of eq. 2
     # (W = 1 - exp(-e), increasing in e): no exp in the loop; pixels with e outside [e_lo, e_hi] are not homogeneous.
+    # Branch-free (a select, no jump per pixel): a LiDAR pixel (dissim 0) is never taken, as e > e_lo >= 0 there.
     H, W, C = guide.shape
     r0 = rows[j]
     c0 = cols[j]
     for r in range(max(0, r0 - half), min(H, r0 + half + 1)):
         for c in range(max(0, c0 - half), min(W, c0 + half + 1)):
-            if dissim[r, c] == 0.0:
-                continue  # a LiDAR pixel keeps its own disparity
             dd = 0.0
             for ch in range(C):
                 t = guide[r, c, ch] - guide[r0, c0, ch]
                 dd += t * t
             e = ((r - r0) ** 2 + (c - c0) ** 2) * a + dd * b
-            if e_lo < e <= e_hi and (e < dissim[r, c] or (e == dissim[r, c] and j < owner[r, c])):
-                dissim[r, c] = e
-                owner[r, c] = j
+            d = dissim[r, c]
+            o = owner[r, c]
+            take = (e_lo < e) & (e <= e_hi) & ((e < d) | ((e == d) & (j < o)))
+            dissim[r, c] = e if take else d
+            owner[r, c] = j if take else o
 
 
 @njit(cache=True, parallel=True)
