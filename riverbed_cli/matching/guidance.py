@@ -50,21 +50,32 @@ def auto_window(share, target=4.0, smallest=5, largest=25):
 
 
 @njit(cache=True, inline="always")
-def _claim(j, rows, cols, guide, half, a, b, e_lo, e_hi, owner, dissim):
+def _claim(j, rows, cols, planes, half, a, b, e_lo, e_hi, owner, dissim, dd):
     # Offer LiDAR point j's window to its pixels; a pixel keeps the most similar point (ties: lower index), so the
     # result does not depend on the order in which points are offered. Works on the exponent e of eq. 2
     # (W = 1 - exp(-e), increasing in e): no exp in the loop; pixels with e outside [e_lo, e_hi] are not homogeneous.
-    # Branch-free (a select, no jump per pixel): a LiDAR pixel (dissim 0) is never taken, as e > e_lo >= 0 there.
-    H, W, C = guide.shape
+    # planes: the guide channel by channel (C, H, W), so that a window row's colour distances (dd, scratch) and its
+    # claims are loops over contiguous pixels that vectorise; a claim is a select, no branch (a LiDAR pixel, dissim
+    # 0, is never taken: e > e_lo >= 0 there).
+    C, H, W = planes.shape
     r0 = rows[j]
     c0 = cols[j]
+    ca = max(0, c0 - half)
+    n = np.uint64(min(W, c0 + half + 1) - ca)
+    uca = np.uint64(ca)
     for r in range(max(0, r0 - half), min(H, r0 + half + 1)):
-        for c in range(max(0, c0 - half), min(W, c0 + half + 1)):
-            dd = 0.0
-            for ch in range(C):
-                t = guide[r, c, ch] - guide[r0, c0, ch]
-                dd += t * t
-            e = ((r - r0) ** 2 + (c - c0) ** 2) * a + dd * b
+        for i in range(n):
+            dd[i] = 0.0
+        for ch in range(C):
+            ref = planes[ch, r0, c0]
+            for i in range(n):
+                t = planes[ch, r, uca + i] - ref
+                dd[i] += t * t
+        dr2 = (r - r0) ** 2
+        for i in range(n):
+            c = uca + i
+            dc = np.int64(c) - c0
+            e = (dr2 + dc * dc) * a + dd[i] * b
             d = dissim[r, c]
             o = owner[r, c]
             take = (e_lo < e) & (e <= e_hi) & ((e < d) | ((e == d) & (j < o)))
@@ -77,6 +88,11 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
     # rows are sorted (row-major order of the points). The image is cut into horizontal bands; points whose window
     # stays inside one band are offered in parallel (bands share no pixel), the others afterwards in sequence.
     H, W, C = guide.shape
+    planes = np.empty((C, H, W), np.float32)
+    for y in prange(H):
+        for x in range(W):
+            for ch in range(C):
+                planes[ch, y, x] = guide[y, x, ch]
     owner = np.full((H, W), -1, dtype=np.int32)
     dissim = np.full((H, W), np.inf, dtype=np.float64)  # float64 while comparing, so ties are real ties
     n = rows.shape[0]
@@ -98,12 +114,14 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
     for k in prange(nb):
         lo = np.searchsorted(rows, edges[k] + half)
         hi = np.searchsorted(rows, edges[k + 1] - half)
+        dd = np.empty(2 * half + 1, np.float64)
         for j in range(lo, hi):
             inner[j] = True
-            _claim(j, rows, cols, guide, half, a, b, e_lo, e_hi, owner, dissim)
+            _claim(j, rows, cols, planes, half, a, b, e_lo, e_hi, owner, dissim, dd)
+    dd = np.empty(2 * half + 1, np.float64)
     for j in range(n):
         if not inner[j]:
-            _claim(j, rows, cols, guide, half, a, b, e_lo, e_hi, owner, dissim)
+            _claim(j, rows, cols, planes, half, a, b, e_lo, e_hi, owner, dissim, dd)
     # exponent -> W (0 stays 0 at LiDAR pixels, inf stays inf where there is no owner)
     w = np.where(np.isinf(dissim), np.inf, -np.expm1(-dissim))
     return owner, w.astype(np.float32)
