@@ -90,18 +90,24 @@ def _census_cost_kernel(cl, cr, d_min, cost, outside, scale):
 
 @njit(cache=True, parallel=True)
 def _census_tube_kernel(cl, cr, d_min, flat, start, width, offset, outside, scale):
+    # Per pixel, the disparities whose right pixel lies in the image form one run [i0, i1): outside it the constant,
+    # inside a loop with no test (unsigned indices: no negative-index wrap-around either), which vectorises.
     H, W = cl.shape
     for y in prange(H):
+        row = cr[y]
         for x in range(W):
             a = cl[y, x]
-            b = start[y, x]
-            d0 = d_min + np.int64(offset[y, x])
-            for i in range(width[y, x]):
-                xr = x - (d0 + i)
-                if xr < 0 or xr >= W:
-                    flat[b + i] = outside
-                else:
-                    flat[b + i] = popcount64(a ^ cr[y, xr]) * scale
+            b = np.uint64(start[y, x])
+            w = np.int64(width[y, x])
+            top = x - d_min - np.int64(offset[y, x])  # right column of index 0; index i reads top - i
+            i0 = min(w, max(0, top - W + 1))
+            i1 = max(i0, min(w, top + 1))
+            for i in range(i0):
+                flat[b + np.uint64(i)] = outside
+            for i in range(i0, i1):
+                flat[b + np.uint64(i)] = popcount64(a ^ row[np.uint64(top - i)]) * scale
+            for i in range(i1, w):
+                flat[b + np.uint64(i)] = outside
 
 
 def census_cost(census_left, census_right, d_min, d_max, outside_cost, scale=1, tubes=None):
