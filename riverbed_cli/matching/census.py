@@ -76,16 +76,23 @@ def census_transform(grey, window=(9, 7)):
 
 @njit(cache=True, parallel=True)
 def _census_cost_kernel(cl, cr, d_min, cost, outside, scale):
+    # as _census_tube_kernel: the in-image disparities as one run with no test
     H, W, D = cost.shape
+    flat = cost.reshape(-1)
     for y in prange(H):
+        row = cr[y]
         for x in range(W):
             a = cl[y, x]
-            for i in range(D):
-                xr = x - (d_min + i)
-                if xr < 0 or xr >= W:
-                    cost[y, x, i] = outside
-                else:
-                    cost[y, x, i] = popcount64(a ^ cr[y, xr]) * scale
+            b = np.uint64((y * W + x) * D)
+            top = x - d_min  # right column of index 0; index i reads top - i
+            i0 = min(D, max(0, top - W + 1))
+            i1 = max(i0, min(D, top + 1))
+            for i in range(i0):
+                flat[b + np.uint64(i)] = outside
+            for i in range(i0, i1):
+                flat[b + np.uint64(i)] = popcount64(a ^ row[np.uint64(top - i)]) * scale
+            for i in range(i1, D):
+                flat[b + np.uint64(i)] = outside
 
 
 @njit(cache=True, parallel=True)
