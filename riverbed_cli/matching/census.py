@@ -74,47 +74,40 @@ def census_transform(grey, window=(9, 7)):
     return _census_kernel(pad, H, W, w // 2, h // 2)
 
 
+@njit(cache=True, inline="always")
+def _pixel_costs(flat, b, w, top, a, row, outside, scale):
+    # The w costs of one pixel (census a) from flat[b]: index i compares the right row's column top - i. The
+    # disparities whose column lies in the image form one run [i0, i1): outside it the constant, inside a loop with
+    # no test (unsigned indices: no negative-index wrap-around either), which vectorises.
+    W = row.shape[0]
+    i0 = min(w, max(0, top - W + 1))
+    i1 = max(i0, min(w, top + 1))
+    for i in range(i0):
+        flat[b + np.uint64(i)] = outside
+    for i in range(i0, i1):
+        flat[b + np.uint64(i)] = popcount64(a ^ row[np.uint64(top - i)]) * scale
+    for i in range(i1, w):
+        flat[b + np.uint64(i)] = outside
+
+
 @njit(cache=True, parallel=True)
 def _census_cost_kernel(cl, cr, d_min, cost, outside, scale):
-    # as _census_tube_kernel: the in-image disparities as one run with no test
     H, W, D = cost.shape
     flat = cost.reshape(-1)
     for y in prange(H):
         row = cr[y]
         for x in range(W):
-            a = cl[y, x]
-            b = np.uint64((y * W + x) * D)
-            top = x - d_min  # right column of index 0; index i reads top - i
-            i0 = min(D, max(0, top - W + 1))
-            i1 = max(i0, min(D, top + 1))
-            for i in range(i0):
-                flat[b + np.uint64(i)] = outside
-            for i in range(i0, i1):
-                flat[b + np.uint64(i)] = popcount64(a ^ row[np.uint64(top - i)]) * scale
-            for i in range(i1, D):
-                flat[b + np.uint64(i)] = outside
+            _pixel_costs(flat, np.uint64((y * W + x) * D), D, x - d_min, cl[y, x], row, outside, scale)
 
 
 @njit(cache=True, parallel=True)
 def _census_tube_kernel(cl, cr, d_min, flat, start, width, offset, outside, scale):
-    # Per pixel, the disparities whose right pixel lies in the image form one run [i0, i1): outside it the constant,
-    # inside a loop with no test (unsigned indices: no negative-index wrap-around either), which vectorises.
     H, W = cl.shape
     for y in prange(H):
         row = cr[y]
         for x in range(W):
-            a = cl[y, x]
-            b = np.uint64(start[y, x])
-            w = np.int64(width[y, x])
-            top = x - d_min - np.int64(offset[y, x])  # right column of index 0; index i reads top - i
-            i0 = min(w, max(0, top - W + 1))
-            i1 = max(i0, min(w, top + 1))
-            for i in range(i0):
-                flat[b + np.uint64(i)] = outside
-            for i in range(i0, i1):
-                flat[b + np.uint64(i)] = popcount64(a ^ row[np.uint64(top - i)]) * scale
-            for i in range(i1, w):
-                flat[b + np.uint64(i)] = outside
+            _pixel_costs(flat, np.uint64(start[y, x]), np.int64(width[y, x]), x - d_min - np.int64(offset[y, x]),
+                         cl[y, x], row, outside, scale)
 
 
 def census_cost(census_left, census_right, d_min, d_max, outside_cost, scale=1, tubes=None):

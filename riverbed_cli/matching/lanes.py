@@ -11,6 +11,9 @@ Conventions shared by all steps: arrays are 1-D, indices are element indices (in
 valid lanes (``<= 0``: none; ``>= LANES``: all), and every access touches ``LANES`` consecutive elements from the
 index (+2 for the previous path costs), which the caller keeps inside the arrays. Path costs are int16; costs
 (uint8 or uint16) are widened to int16. The vector type is generic: LLVM lowers it to whatever SIMD the CPU has.
+
+Numba's cache keys a kernel on its own source file only: after editing this module, delete the cached kernels of the
+modules that use it (``riverbed_cli/matching/__pycache__/{sgm,disparity}.*.nb[ic]``), or they keep the old steps.
 """
 
 from llvmlite import ir
