@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import njit, prange
+from numba import get_num_threads, njit, prange
 
 from ..errors import RiverbedError
 
@@ -214,23 +214,26 @@ def nearest_points(rows, cols, k, ptr, nbr):
             ptr = np.arange(n + 1, dtype=np.int64) * (n - 1)
             nbr = np.array([j for i in range(n) for j in range(n) if j != i], np.int64)
         deg = int(np.diff(ptr).max()) if n else 0
-        _graph_knn(rows, cols, np.asarray(ptr, np.int64), np.asarray(nbr, np.int64), 1 + k * deg, dist, idx)
+        _graph_knn(rows, cols, np.asarray(ptr, np.int64), np.asarray(nbr, np.int64), 1 + k * deg,
+                   max(1, min(n, 4 * get_num_threads())), dist, idx)
     return dist, idx
 
 
 @njit(cache=True, parallel=True)
-def _graph_knn(rows, cols, ptr, nbr, cap, dist, idx):
-    # nearest_points: per point, grow the candidates (neighbours of the points found) and take the nearest unused one
+def _graph_knn(rows, cols, ptr, nbr, cap, nblocks, dist, idx):
+    # nearest_points: per point, grow the candidates (neighbours of the points found) and take the nearest unused one;
+    # a stamp per point (the point whose search saw it last) tells seen candidates in one lookup
     n, k = idx.shape
-    block = 256
-    for b in prange((n + block - 1) // block):
+    for bk in prange(nblocks):
+        stamp = np.full(n, -1, np.int64)
         cand = np.empty(cap, np.int64)
         cd = np.empty(cap, np.int64)
         used = np.empty(cap, np.bool_)
-        for i in range(b * block, min(n, (b + 1) * block)):
+        for i in range(bk * n // nblocks, (bk + 1) * n // nblocks):
             cand[0] = i
             cd[0] = 0
             used[0] = False
+            stamp[i] = i
             m = 1
             for j in range(k):
                 best = -1
@@ -243,12 +246,8 @@ def _graph_knn(rows, cols, ptr, nbr, cap, dist, idx):
                 dist[i, j] = math.sqrt(cd[best])
                 for e in range(ptr[p], ptr[p + 1]):
                     q = nbr[e]
-                    seen = False
-                    for c in range(m):
-                        if cand[c] == q:
-                            seen = True
-                            break
-                    if not seen:
+                    if stamp[q] != i:
+                        stamp[q] = i
                         dy = rows[q] - rows[i]
                         dx = cols[q] - cols[i]
                         cand[m] = q
