@@ -83,16 +83,12 @@ def _select_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold, keep):
 
 
 @njit(cache=True, parallel=True)
-def _select_tube_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold, keep, start, width, offset):
-    # _select_kernel on a tube volume: pixel (y, x) holds width[y, x] disparities from d_min + offset[y, x]. The sums
-    # and the winner come a chunk of LANES disparities at a time (the sums fit uint16: sgm.check_sgm_bounds).
+def _select_tube_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold, keep, start, width, offset, wmax):
+    # _select_kernel on a tube volume: pixel (y, x) holds width[y, x] (<= wmax) disparities from d_min + offset[y, x].
+    # The sums and the winner come a chunk of LANES disparities at a time (the sums fit uint16: sgm.check_sgm_bounds).
     H, W = start.shape
     n = fwd.shape[0]
-    dmax = 0
-    for y in range(H):
-        for x in range(W):
-            dmax = max(dmax, np.int64(width[y, x]))
-    span_max = (dmax + LANES - 1) // LANES * LANES
+    span_max = (wmax + LANES - 1) // LANES * LANES
     disp = np.empty((H, W), dtype=np.float32)
     status = np.zeros((H, W if keep else 1), dtype=np.int8)  # keep: 1 where the check fails
     for y in prange(H):
@@ -110,9 +106,11 @@ def _select_tube_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold, keep,
                 for i in range(0, span, LANES):
                     bv = min(bv, lanes_sum(fwd, bwd, b + i, s, i, D - i))
                 bi = 0
-                while lanes_find(s, bi, bv) == LANES:
+                f = lanes_find(s, 0, bv)
+                while f == LANES:  # the first chunk holding the minimum
                     bi += LANES
-                bi += lanes_find(s, bi, bv)
+                    f = lanes_find(s, bi, bv)
+                bi += f
                 disp[y, x] = _refine(s, D, bi, d_min + o, subpixel)
             else:
                 for i in range(D):
@@ -165,7 +163,7 @@ def select_disparity(aggregated, d_min, subpixel=True, lr_check=False, lr_thresh
             raise RiverbedError(f"tube volume of {aggregated.size} costs does not match its layout ({tubes.size})")
         disp, status = _select_tube_kernel(aggregated, aggregated2, int(d_min), bool(subpixel),
                                            bool(lr_check or return_status), int(lr_threshold), bool(return_status),
-                                           tubes.start, tubes.width, tubes.offset)
+                                           tubes.start, tubes.width, tubes.offset, int(tubes.max_width))
     else:
         disp, status = _select_kernel(aggregated, aggregated2, int(d_min), bool(subpixel),
                                       bool(lr_check or return_status), int(lr_threshold), bool(return_status))
