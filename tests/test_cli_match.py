@@ -137,3 +137,22 @@ def test_16_bit_and_grey_inputs_match_like_8_bit(work):
         r = run(["match", str(work / a), str(work / b), "--max-disp", "59", "-o", str(work / out)])
         assert r.exit_code == 0, r.output
     np.testing.assert_array_equal(read_disparity(work / "d8.tif"), read_disparity(work / "d16.tif"))
+
+
+_HUGEPAGE_PROBE = (
+    "import riverbed_cli.cli, numpy\n"
+    "try:\n    from numpy._core.multiarray import _set_madvise_hugepage\n"
+    "except ImportError:\n    from numpy.core.multiarray import _set_madvise_hugepage\n"
+    "print(_set_madvise_hugepage(True))"
+)
+
+
+@pytest.mark.parametrize("user, expected", [(None, "False"), ("1", "True")])
+def test_command_line_turns_numpy_huge_pages_off_unless_the_user_set_them(user, expected):
+    # first-touching the cost volumes in huge pages is slower on THP-madvise hosts (riverbed_cli/cli/__init__.py);
+    # the user's own NUMPY_MADVISE_HUGEPAGE wins
+    env = {k: v for k, v in __import__("os").environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
+    if user is not None:
+        env["NUMPY_MADVISE_HUGEPAGE"] = user
+    out = subprocess.run([sys.executable, "-c", _HUGEPAGE_PROBE], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == expected
