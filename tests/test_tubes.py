@@ -225,3 +225,85 @@ def test_range_map_from_the_command_line_and_its_bad_inputs(cones, tmp_path):
         assert r.exit_code == 1, (name, r.output)
         assert r.stderr.startswith(f"riverbed: error: {path}: {message}"), (name, r.stderr)
         assert len(r.stderr.strip().splitlines()) == 1 and not bad_out.exists()
+
+
+def test_hole_bounds_hand_made_cases():
+    from riverbed_cli.matching.tubes import hole_bounds
+
+    coarse = np.full((10, 20), np.nan, np.float32)
+    coarse[:, :5] = 10.0  # consistent coarse disparities on the left, none on the right
+    coarse[0, 0] = 12.0
+    lo, hi = hole_bounds(coarse, (21, 41), 0, 63, factor=2, window=1, margin=3.0)
+    assert lo.shape == (21, 41)
+    assert (lo[10, 2], hi[10, 2]) == (17, 23)  # 2 x 10 -+ 3
+    assert (lo[0, 0], hi[0, 0]) == (17, 27)  # the window holds 10 and 12: 2 x 12 + 3
+    assert (lo[10, 40], hi[10, 40]) == (0, 63)  # no coarse disparity in the window: the nominal range
+    assert (lo[20, 11], hi[20, 11]) == (17, 23)  # the last full-resolution row takes the last coarse row
+    lo, hi = hole_bounds(coarse, (20, 40), 0, 20, factor=2, window=1, margin=3.0)
+    assert hi[10, 2] == 20 and lo[10, 2] == 17  # clipped to the nominal range
+
+
+def test_lidar_tubes_report_the_pixels_no_lidar_reaches():
+    H, W = 120, 160
+    sparse = np.full((H, W), np.nan, np.float32)
+    sparse[20:60:3, 20:60:3] = 30.0
+    lo, hi, hole = lidar_tubes(sparse, 0, 127, levels=2, return_holes=True)
+    assert hole[110, 150] and (lo[110, 150], hi[110, 150]) == (0, 127)
+    assert not hole[40, 40] and (lo[40, 40], hi[40, 40]) == (28, 32)
+    assert ((hi - lo + 1)[hole] == 128).all()
+    sparse = np.full((400, 400), np.nan, np.float32)
+    sparse[20:400:180, 20:400:180] = 30.0  # sparser than max_spacing: no pixel is bounded, none is a hole
+    assert not lidar_tubes(sparse, 0, 63, return_holes=True)[2].any()
+
+
+def test_coarse_holes_bound_the_pixels_without_lidar_on_a_real_pair(cones):
+    from riverbed_cli.matching.config import MatchConfig
+    from riverbed_cli.matching.pipeline import fill_tube_holes
+    from riverbed_cli.products.simulate import simulate_lidar
+
+    left, right, gt = cones
+    sparse = simulate_lidar(gt, 0.05, seed=0)
+    sparse[100:300, 150:330] = np.nan  # a LiDAR hole (water, a shadow, a sensor gap) over the cones
+    lo, hi, hole = lidar_tubes(sparse, 0, 59, return_holes=True)
+    assert 0.05 < hole.mean() < 0.07
+    config = MatchConfig().replace(tube={"holes": "coarse"})
+    clo, chi = fill_tube_holes(left, right, lo, hi, hole, 0, 59, config)
+    assert (clo[~hole] == lo[~hole]).all() and (chi[~hole] == hi[~hole]).all()  # the LiDAR's tubes are kept
+    ev = hole & np.isfinite(gt)
+    inside = (gt[ev] >= clo[ev]) & (gt[ev] <= chi[ev])
+    assert inside.mean() > 0.995  # the coarse ranges hold the truth
+    assert (chi - clo + 1)[hole].mean() < 30  # against 60 on the nominal range
+    full = match_pair(left, right, sparse, 0, 59, fusion="none")
+    coarse = match_pair(left, right, sparse, 0, 59, config, fusion="none")
+    assert full.info["tubes"]["full_share"] > 0.05 and coarse.info["tubes"]["full_share"] == 0.0
+    e_full, e_coarse = (np.abs(r.disparity - gt)[ev] for r in (full, coarse))
+    assert (e_coarse > 3).mean() <= (e_full > 3).mean() + 0.005
+    assert np.nanmean(e_coarse) <= np.nanmean(e_full) * 1.02
+    # the default is the nominal range in holes, as before
+    assert np.array_equal(full.disparity, match_pair(left, right, sparse, 0, 59, fusion="none",
+                                                     tube={"holes": "full"}).disparity, equal_nan=True)
+
+
+def test_coarse_holes_from_the_command_line_untiled_only(cones, tmp_path):
+    from click.testing import CliRunner
+
+    from riverbed_cli.cli.main import cli
+    from riverbed_cli.io.disparity import read_disparity, write_disparity
+    from riverbed_cli.products.simulate import simulate_lidar
+
+    left, right, gt = cones
+    sparse = simulate_lidar(gt, 0.05, seed=0)
+    sparse[100:300, 150:330] = np.nan
+    write_disparity(tmp_path / "s.tif", sparse)
+    base = ["match", "tests/data/cones/im2.png", "tests/data/cones/im6.png", "--sparse", str(tmp_path / "s.tif"),
+            "--min-disp", "0", "--max-disp", "59", "--tube-holes", "coarse"]
+    ok = CliRunner().invoke(cli, base + ["--tile", "0", "-o", str(tmp_path / "d.tif"), "--json"])
+    assert ok.exit_code == 0, ok.output
+    assert '"full_share": 0.0' in ok.output and np.isfinite(read_disparity(tmp_path / "d.tif")).all()
+    tiled = CliRunner().invoke(cli, base + ["--tile", "128", "-o", str(tmp_path / "t.tif")])
+    assert tiled.exit_code == 1
+    assert tiled.output.strip().splitlines()[-1] == ("riverbed: error: --tube-holes coarse works on an untiled "
+                                                    "match for now; pass --tile 0")
+    assert not (tmp_path / "t.tif").exists()
+    bad = CliRunner().invoke(cli, base[:-1] + ["nearest", "--tile", "0", "-o", str(tmp_path / "b.tif")])
+    assert bad.exit_code != 0 and "expected one of full, coarse, got 'nearest'" in bad.output

@@ -38,6 +38,8 @@ FORMS = ("additive", "product")
 CONFIDENCES = ("lr", "none")
 GUIDE_STAGES = ("aggregated", "initial")
 RANGES = ("auto", "tube", "tile", "full")
+#: what pixels with no LiDAR within a tube's reach search: the nominal range, or a coarse stereo match's range
+TUBE_HOLES = ("full", "coarse")
 #: fusions of the matched disparity with the LiDAR (``matching/fusion.py``); ``auto`` is not one of them: it picks
 FUSION_NAMES = ("none", "confidence")
 FUSION_CHOICES = ("auto",) + FUSION_NAMES
@@ -136,6 +138,7 @@ class TubeConfig:
     level_margin: float = 4.0  # margin added per level (px): farther LiDAR, wider tube
     cell: int = 4  # cell side (px) in which LiDAR extrema are gathered
     max_spacing: float = 40.0  # LiDAR sparser than this (mean spacing, px) bounds no pixel: the nominal range
+    holes: str = "full"  # pixels with no LiDAR within reach: the nominal range (full) or a coarse match's (coarse)
 
 
 @dataclass(frozen=True)
@@ -299,9 +302,12 @@ _TUBE_HELP = {"reach": "Tube: radius of the first level, in mean LiDAR spacings.
               "levels": "Tube: levels (radius doubling) before a pixel falls back to the nominal range.",
               "level_margin": "Tube: margin added per level (px).",
               "cell": "Tube: cell side (px) in which LiDAR extrema are gathered.",
-              "max_spacing": "Tube: LiDAR sparser than this mean spacing (px) bounds no pixel (nominal range)."}
+              "max_spacing": "Tube: LiDAR sparser than this mean spacing (px) bounds no pixel (nominal range).",
+              "holes": "Tube: what pixels with no LiDAR within reach search: full (the nominal range) or coarse (the "
+                       "range of an unguided match of the pair at half resolution, as tSGM; untiled matches only; "
+                       "docs/tubes.md)."}
 _TUBE_CHECKS = {"reach": _POS, "margin": number(0), "levels": integer(1, 12), "level_margin": number(0),
-                "cell": integer(1, 64), "max_spacing": _POS}
+                "cell": integer(1, 64), "max_spacing": _POS, "holes": choice(TUBE_HOLES)}
 
 _FUSE_HELP = {"gate": "Fusion: stereo and LiDAR agree within this many standard deviations.",
               "neighbours": "Fusion: LiDAR points of the leave-one-out plane fit that measures the LiDAR's error.",

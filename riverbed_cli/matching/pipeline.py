@@ -10,6 +10,7 @@ import math
 import time
 from dataclasses import asdict
 
+import cv2
 import numpy as np
 
 from ..errors import RiverbedError
@@ -18,7 +19,7 @@ from .config import MatchConfig
 from .guidance import lidar_share
 from .registry import get_fusion, get_guide, get_matcher
 from .results import MatchInfo, MatchResult
-from .tubes import lidar_tubes, tube_stats
+from .tubes import HOLE_FACTOR, hole_bounds, lidar_tubes, tube_stats
 from .volume import TubeLayout
 
 log = logging.getLogger(__name__)
@@ -133,6 +134,38 @@ def check_range_map(range_map, shape, d_min, d_max):
     return out_lo, out_hi
 
 
+#: the coarse match of the tube rule's holes: unguided census SGM on the whole range, left-right checked
+_COARSE = {"matcher": "sgm", "guide": "none", "range": "full", "fusion": "none", "lr_check": True}
+
+
+def coarse_hole_ranges(left, right, d_min, d_max, config):
+    """Per-pixel ranges ``(lo, hi)`` (inclusive int32, full resolution) from an unguided match of the pair at
+    ``1 / HOLE_FACTOR`` resolution, for the tube rule's holes (:func:`~riverbed_cli.matching.tubes.hole_bounds`).
+
+    The coarse match is census SGM over the nominal range divided by the factor, with the left-right check (its
+    failures bound nothing) and no guidance, tubes or fusion; the other settings are ``config``'s. A pair smaller
+    than 16 px at that scale gets the nominal range.
+    """
+    f = HOLE_FACTOR
+    H, W = left.shape[:2]
+    h, w = H // f, W // f
+    if min(h, w) < 16:
+        return np.full((H, W), d_min, np.int32), np.full((H, W), d_max, np.int32)
+    small = [cv2.resize(np.ascontiguousarray(im), (w, h), interpolation=cv2.INTER_AREA) for im in (left, right)]
+    res = match_pair(small[0], small[1], None, int(math.floor(d_min / f)), int(math.ceil(d_max / f)), config,
+                     **_COARSE)
+    return hole_bounds(res.disparity, (H, W), d_min, d_max, f)
+
+
+def fill_tube_holes(left, right, lo, hi, hole, d_min, d_max, config):
+    """The tubes ``(lo, hi)`` with the ``hole`` pixels (no LiDAR within reach) given the coarse match's ranges when
+    ``config.tube.holes`` is ``coarse`` (:func:`coarse_hole_ranges`); unchanged otherwise."""
+    if config.tube.holes != "coarse" or not hole.any():
+        return lo, hi
+    clo, chi = coarse_hole_ranges(left, right, d_min, d_max, config)
+    return np.where(hole, clo, lo), np.where(hole, chi, hi)
+
+
 def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, range_map=None, **overrides):
     """Dense disparity of a rectified pair, optionally guided by sparse LiDAR disparities.
 
@@ -188,7 +221,8 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
         if range_map is not None:
             lo, hi = check_range_map(range_map, shape, d_min, d_max)
         else:
-            lo, hi = lidar_tubes(sparse, d_min, d_max, share=share, **asdict(config.tube))
+            lo, hi, hole = lidar_tubes(sparse, d_min, d_max, share=share, return_holes=True, **asdict(config.tube))
+            lo, hi = fill_tube_holes(left, right, lo, hi, hole, d_min, d_max, config)
         layout = TubeLayout.from_bounds(lo, hi, d_min)
         stats = tube_stats(layout, d_min, d_max)
         if stats.full_share < 1.0:  # tubes as wide as the range everywhere: the full-range volume, exactly
@@ -227,6 +261,8 @@ def warm_up(matcher="sgm", guide_names=("none", "gauss", "riverbed"), config=Non
     if config is not None:
         match_pair(left, right, sparse if get_guide(config.guide).needs_sparse or config.range != "full" else None,
                    0, 7, config)
+        if config.tube.holes == "coarse" and config.range != "full":  # the coarse match of the tube rule's holes
+            match_pair(left, right, None, 0, 7, config, **_COARSE)
         return
     for guide in guide_names:
         match_pair(left, right, sparse, 0, 7, guide=guide, matcher=matcher)

@@ -10,6 +10,13 @@ than its spacing go unsampled and their disparity can lie outside every nearby p
 the tubes held the truth at 91 % of the pixels), so every pixel searches the nominal range.
 Across a depth edge the window holds both surfaces, so the tube spans both.
 
+*Holes* (``holes="coarse"``, opt-in): where no LiDAR lies within the last level (water, shadows, a sensor gap; on
+the speed pair the foreground whose disparity lies beyond the nominal range) the pixel's range comes from a coarse
+stereo match instead of the nominal range, as SURE's tSGM takes its ranges from a coarser pyramid level: the pair
+at half resolution, unguided census SGM, the min and max of its left-right consistent disparities within
+``HOLE_WINDOW`` coarse pixels, widened by ``HOLE_MARGIN`` px (:func:`hole_bounds`; the pipeline runs the coarse
+match). A hole pixel whose window holds no consistent coarse disparity keeps the nominal range.
+
 A tube volume holds each pixel's tube only, one after the other in a flat array
 (:class:`~riverbed_cli.matching.volume.TubeLayout`): its size is the sum of the tube widths.
 """
@@ -23,6 +30,7 @@ from numba import njit, prange
 
 from ..errors import RiverbedError
 from ..records import RecordMapping
+from .config import TUBE_HOLES as HOLES
 from .guidance import lidar_share
 
 
@@ -37,6 +45,14 @@ class TubeStats(RecordMapping):
     full_share: float
 
 
+#: coarse matches for holes: the pair downsampled by this factor
+HOLE_FACTOR = 2
+#: half side (coarse px) of the window whose coarse disparities bound a hole pixel's range
+HOLE_WINDOW = 4
+#: disparity margin (px, full resolution) around those coarse extrema
+HOLE_MARGIN = 8.0
+
+
 def _window_extrema(cmin, cmax, r):
     # min / max over (2r + 1)^2 cells, the window cut at the image border (a replicated border changes no extremum)
     kernel = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
@@ -46,7 +62,7 @@ def _window_extrema(cmin, cmax, r):
 
 
 def lidar_tubes(sparse, d_min, d_max, reach=2.0, margin=2.0, levels=3, level_margin=4.0, cell=4, share=None,
-                max_spacing=40.0):
+                max_spacing=40.0, holes="full", return_holes=False):
     """Per-pixel disparity tubes from sparse LiDAR disparities (module docstring).
 
     Parameters
@@ -67,12 +83,20 @@ def lidar_tubes(sparse, d_min, d_max, reach=2.0, margin=2.0, levels=3, level_mar
         LiDAR share (default: :func:`~riverbed_cli.matching.guidance.lidar_share` of ``sparse``).
     max_spacing : float
         Mean LiDAR spacing (px) beyond which every pixel searches the nominal range.
+    holes : {"full", "coarse"}
+        What pixels with no LiDAR within reach search; this function gives them the nominal range either way (the
+        coarse ranges need the images: :func:`hole_bounds`, applied by the pipeline).
+    return_holes : bool
+        Also return the (H, W) bool mask of those pixels (none when the LiDAR is sparser than ``max_spacing``:
+        then no pixel is bounded by it).
 
     Returns
     -------
     lo, hi : (H, W) int32
         Inclusive tube ends (disparity px).
     """
+    if holes not in HOLES:
+        raise RiverbedError(f"tube holes must be one of {', '.join(HOLES)}, got {holes!r}")
     sparse = np.asarray(sparse, dtype=np.float32)
     H, W = sparse.shape
     d_min, d_max = int(d_min), int(d_max)
@@ -81,15 +105,58 @@ def lidar_tubes(sparse, d_min, d_max, reach=2.0, margin=2.0, levels=3, level_mar
     valid = np.isfinite(sparse)
     lo = np.full((H, W), d_min, np.int32)
     hi = np.full((H, W), d_max, np.int32)
+    hole = np.zeros((H, W), bool)
     if not valid.any():
-        return lo, hi
+        return (lo, hi, hole) if return_holes else (lo, hi)
     share = lidar_share(sparse) if share is None else share
     spacing = 1.0 / math.sqrt(max(share, 1e-12))
     cell = max(1, int(cell))
     cmin, cmax = _cell_extrema(sparse, cell)
-    tlo, thi = cell_tubes(cmin, cmax, d_min, d_max, spacing, reach, margin, levels, level_margin, cell, max_spacing)
+    tlo, thi, reached = _cell_tubes(cmin, cmax, d_min, d_max, spacing, reach, margin, levels, level_margin, cell,
+                                    max_spacing)
     _expand_cells(tlo.astype(np.int32), thi.astype(np.int32), cell, lo, hi)
-    return lo, hi
+    if not return_holes:
+        return lo, hi
+    if spacing <= max_spacing:
+        hole = ~np.repeat(np.repeat(reached, cell, axis=0), cell, axis=1)[:H, :W]
+    return lo, hi, hole
+
+
+def hole_bounds(coarse, shape, d_min, d_max, factor=HOLE_FACTOR, window=HOLE_WINDOW, margin=HOLE_MARGIN):
+    """Per-pixel ranges from a coarse disparity map, for the pixels the LiDAR leaves on the nominal range.
+
+    Parameters
+    ----------
+    coarse : (h, w) float
+        Disparities of the left image downsampled by ``factor`` (coarse px, ``d = x_left - x_right``; NaN where
+        the coarse match failed its left-right check). Coarse pixel ``(i, j)`` covers full-resolution pixels
+        ``(factor i .. factor i + factor - 1, ...)``; pixels past the last coarse row or column take the last.
+    shape : (H, W)
+        Full-resolution image size.
+    d_min, d_max : int
+        Nominal range (inclusive, full-resolution px); the ranges are clipped to it.
+    factor, window, margin
+        Downsampling factor, half side (coarse px) of the window of coarse disparities, and the margin (px) added
+        on both sides of their extrema times ``factor``.
+
+    Returns
+    -------
+    lo, hi : (H, W) int32
+        Inclusive range ends; the nominal range where the window holds no valid coarse disparity.
+    """
+    H, W = shape
+    coarse = np.asarray(coarse, np.float32)
+    ok = np.isfinite(coarse)
+    cmin, cmax = _window_extrema(np.where(ok, coarse, np.inf), np.where(ok, coarse, -np.inf), int(window))
+    ys = np.minimum(np.arange(H) // factor, coarse.shape[0] - 1)
+    xs = np.minimum(np.arange(W) // factor, coarse.shape[1] - 1)
+    cmin, cmax = cmin[np.ix_(ys, xs)], cmax[np.ix_(ys, xs)]
+    known = np.isfinite(cmin)
+    lo = np.where(known, np.floor(np.where(known, cmin, 0) * factor - margin), d_min)
+    hi = np.where(known, np.ceil(np.where(known, cmax, 0) * factor + margin), d_max)
+    lo = np.clip(lo, d_min, d_max).astype(np.int32)
+    hi = np.clip(hi, d_min, d_max).astype(np.int32)
+    return lo, np.maximum(hi, lo)
 
 
 @njit(cache=True)
@@ -120,15 +187,21 @@ def _expand_cells(tlo, thi, cell, lo, hi):
 
 
 def cell_tubes(cmin, cmax, d_min, d_max, spacing, reach=2.0, margin=2.0, levels=3, level_margin=4.0, cell=4,
-               max_spacing=40.0):
+               max_spacing=40.0, holes="full"):
     """The tube rule on cells: ``cmin``/``cmax`` the LiDAR extrema per ``cell`` x ``cell`` cell (+-inf: none);
-    returns the cells' inclusive tube ends (int64), clipped to ``[d_min, d_max]``."""
+    returns the cells' inclusive tube ends (int64), clipped to ``[d_min, d_max]`` (cells with no LiDAR within reach:
+    the whole range, whatever ``holes`` says; see :func:`lidar_tubes`)."""
+    return _cell_tubes(cmin, cmax, d_min, d_max, spacing, reach, margin, levels, level_margin, cell, max_spacing)[:2]
+
+
+def _cell_tubes(cmin, cmax, d_min, d_max, spacing, reach, margin, levels, level_margin, cell, max_spacing):
+    # cell_tubes, and which cells had LiDAR within reach
     ch, cw = cmin.shape
     done = np.zeros((ch, cw), bool)
     tlo = np.full((ch, cw), d_min, np.int64)
     thi = np.full((ch, cw), d_max, np.int64)
     if spacing > max_spacing:
-        return tlo, thi
+        return tlo, thi, done
     for k in range(int(levels)):
         r = max(1, int(math.ceil(reach * spacing * 2 ** k / cell)))
         wlo, whi = _window_extrema(cmin, cmax, r)
@@ -139,7 +212,7 @@ def cell_tubes(cmin, cmax, d_min, d_max, spacing, reach=2.0, margin=2.0, levels=
         done |= new
         if done.all():
             break
-    return np.clip(tlo, d_min, d_max), np.clip(thi, d_min, d_max)
+    return np.clip(tlo, d_min, d_max), np.clip(thi, d_min, d_max), done
 
 
 def cell_widths_from_points(rows, cols, values, shape, d_min, d_max, share, tube):
@@ -165,18 +238,19 @@ def tube_reach_px(share, reach=2.0, levels=3, cell=4, **_):
     return (r + 1) * max(1, int(cell))
 
 
-def lidar_tubes_window(sparse, y0, y1, x0, x1, d_min, d_max, share, tube):
+def lidar_tubes_window(sparse, y0, y1, x0, x1, d_min, d_max, share, tube, return_holes=False):
     """:func:`lidar_tubes` of the window ``[y0:y1, x0:x1]`` of a whole-image sparse map (an array or anything
     sliced like one, e.g. a windowed raster), equal to the whole image's tubes there: the LiDAR is read with the
-    rule's reach around the window, on cells aligned with the image's. ``tube`` holds the rule's settings."""
+    rule's reach around the window, on cells aligned with the image's. ``tube`` holds the rule's settings; with
+    ``return_holes`` also the window's mask of pixels with no LiDAR within reach."""
     H, W = sparse.shape[:2]
     cell = max(1, int(tube["cell"]))
     R = tube_reach_px(share, **tube)
     ya, xa = max(0, (y0 - R) // cell * cell), max(0, (x0 - R) // cell * cell)
     yb, xb = min(H, y1 + R), min(W, x1 + R)
     crop = np.asarray(sparse[ya:yb, xa:xb], np.float32)
-    lo, hi = lidar_tubes(crop, d_min, d_max, share=share, **tube)
-    return lo[y0 - ya:y1 - ya, x0 - xa:x1 - xa], hi[y0 - ya:y1 - ya, x0 - xa:x1 - xa]
+    out = lidar_tubes(crop, d_min, d_max, share=share, return_holes=return_holes, **tube)
+    return tuple(a[y0 - ya:y1 - ya, x0 - xa:x1 - xa] for a in out)
 
 
 def tube_stats(layout, d_min, d_max):

@@ -24,7 +24,7 @@ from ..io.images import to_guide
 from ..io.windowed import bounded_raster_cache, image_bits, sparse_points_any
 from ..matching.config import OVERLAP_DEFAULT, TILE_DEFAULT
 from ..matching.guidance import lidar_share, lidar_share_of_points
-from ..matching.pipeline import make_config, match_pair, resolve_disparity_range, resolve_range
+from ..matching.pipeline import fill_tube_holes, make_config, match_pair, resolve_disparity_range, resolve_range
 from ..matching.registry import get_guide, get_matcher
 from ..matching.tubes import cell_widths_from_points, lidar_tubes_window
 from ..matching.results import MatchResult, TiledMatchInfo
@@ -224,6 +224,10 @@ def plan_tiles(height, width, sparse, d_min, d_max, tile=TILE_DEFAULT, overlap=O
     return TilePlan(plan(tile), tile, True)
 
 
+#: the coarse matches of the tube rule's holes (tube_holes coarse) would differ from tile to tile
+HOLES_UNTILED = "--tube-holes coarse works on an untiled match for now; pass --tile 0"
+
+
 def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None, global_range=None):
     """Match one :class:`Tile` (sources sliced like numpy arrays: arrays, memory maps, :class:`WindowedRaster`).
 
@@ -259,7 +263,11 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
     if mode == "tube" and sparse is not None:
         g_lo, g_hi = global_range if global_range is not None else (t.d_min, t.d_max)
         share = tube_share if tube_share is not None else lidar_share(sc)
-        lo, hi = lidar_tubes_window(sparse, ya, yb, a, b, g_lo, g_hi, share, asdict(p.tube))
+        lo, hi, hole = lidar_tubes_window(sparse, ya, yb, a, b, g_lo, g_hi, share, asdict(p.tube), return_holes=True)
+        if p.tube.holes == "coarse" and hole.any():
+            if (ya, yb, a, b, off) != (0, H, 0, W, 0):
+                raise RiverbedError(HOLES_UNTILED)
+            lo, hi = fill_tube_holes(lc, rc, lo, hi, hole, g_lo, g_hi, p)
         lo = np.clip(lo, t.d_min, t.d_max) - off
         hi = np.clip(hi, t.d_min, t.d_max) - off
         range_map = (lo, hi)
