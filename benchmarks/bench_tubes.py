@@ -1,13 +1,15 @@
 """LiDAR tubes (riverbed match --range tube) against the full range and OpenCV StereoSGBM, measured in one run.
 
-Usage: python benchmarks/bench_tubes.py [DATA_DIR] [--skip-speed] [--skip-coverage] [--repeat 3]
+Usage: python benchmarks/bench_tubes.py [DATA_DIR] [--skip-speed] [--skip-coverage] [--skip-holes] [--repeat 3]
 
 1. Coverage of the tube rule (and alternatives) on the Middlebury dev scenes and the dev aerial pair: the share of
    ground-truth pixels (not sampled as LiDAR) whose true disparity lies in their tube, the mean tube width, the share
    of pixels left on the full range. LiDAR is a seeded sample of the GT at a share of the *image* pixels
    (``simulate_lidar``), as in docs/benchmarks.md.
 2. Accuracy, full range against tubes (8 and 4 paths), riverbed-guided SGM with the fusion default (same LiDAR).
-3. Speed as a user runs it: fresh ``riverbed match`` processes (``seconds`` from --json and whole-process wall time),
+3. LiDAR holes: pixels with no LiDAR within reach on the nominal range (the default) against the range of a coarse
+   match (``--tube-holes coarse``): coverage, width and errors in holes cut into the LiDAR.
+4. Speed as a user runs it: fresh ``riverbed match`` processes (``seconds`` from --json and whole-process wall time),
    full range and tubes (the default, the matcher alone, 4 paths), against OpenCV StereoSGBM MODE_HH and
    MODE_SGBM_3WAY at the same nominal range, on the
    740 x 500 / 80-disparity speed pair and on the aerial pair padded to 1024 x 1024 (144 disparities).
@@ -32,7 +34,8 @@ from datasets import DEV_SCENES, middlebury, speed_pair  # noqa: E402
 
 from riverbed_cli.io.disparity import read_disparity, write_disparity  # noqa: E402
 from riverbed_cli.io.images import read_image  # noqa: E402
-from riverbed_cli.matching.pipeline import match_pair  # noqa: E402
+from riverbed_cli.matching.config import MatchConfig  # noqa: E402
+from riverbed_cli.matching.pipeline import fill_tube_holes, match_pair  # noqa: E402
 from riverbed_cli.matching.tubes import lidar_tubes  # noqa: E402
 from riverbed_cli.products.evaluate import evaluate_disparity  # noqa: E402
 from riverbed_cli.products.simulate import simulate_lidar  # noqa: E402
@@ -103,6 +106,38 @@ def accuracy(data_dir, shares):
                   f"{t['mean_width']:.1f} / {t['nominal']} |", flush=True)
 
 
+def holes(data_dir, share=0.05, seed=1):
+    print("\n### LiDAR holes: the nominal range against the coarse match's range (`--tube-holes coarse`)\n")
+    print(f"LiDAR: {share * 100:g} % of the image pixels sampled from the GT (seed 0), then removed inside 4 discs of "
+          "radius 0.2 min(H, W) (seed 1): the pixels with no LiDAR within the tube rule's reach are the holes. "
+          "Errors over the GT pixels in the holes (bad3 % / avg px); coverage: their true disparity inside their "
+          "range.\n")
+    print("| scene | holes % of the image | GT px in holes | coverage full / coarse % | width in holes full / coarse "
+          "| matcher, full | matcher, coarse | fused, full | fused, coarse |")
+    print("|---|---:|---:|---|---|---|---|---|---|")
+    rng = np.random.default_rng(seed)
+    for name, left, right, gt in scenes(data_dir):
+        H, W = gt.shape
+        d_max = int(math.ceil(np.nanmax(gt))) + 4
+        mask = np.zeros((H, W), np.uint8)
+        for _ in range(4):
+            cv2.circle(mask, (int(rng.integers(W)), int(rng.integers(H))), int(0.2 * min(H, W)), 1, -1)
+        sparse = simulate_lidar(gt, share, seed=0)
+        sparse[mask.astype(bool)] = np.nan
+        lo, hi, hole = lidar_tubes(sparse, 0, d_max, return_holes=True)
+        clo, chi = fill_tube_holes(left, right, lo, hi, hole, 0, d_max, MatchConfig().replace(tube={"holes": "coarse"}))
+        ev = hole & np.isfinite(gt)
+        cov = 100 * ((gt[ev] >= clo[ev]) & (gt[ev] <= chi[ev])).mean()
+        cells = []
+        for fusion in ("none", "auto"):
+            for h in ("full", "coarse"):
+                e = np.abs(match_pair(left, right, sparse, 0, d_max, fusion=fusion, tube={"holes": h}).disparity -
+                           gt)[ev]
+                cells.append(f"{100 * np.mean(e > 3):.2f} / {np.nanmean(e):.3f}")
+        print(f"| {name} | {100 * hole.mean():.1f} | {ev.sum()} | 100.00 / {cov:.2f} | {d_max + 1} / "
+              f"{(chi - clo + 1)[hole].mean():.1f} | {' | '.join(cells)} |", flush=True)
+
+
 # The default (tubes, 8 paths, fused) and what each part costs: the full range, the matcher alone (no fusion), and
 # 4 paths (OpenCV's SGBM_3WAY sweeps fewer directions than HH's 8).
 VARIANTS = [
@@ -112,6 +147,10 @@ VARIANTS = [
     ("range tube, --paths 4", ["--range", "tube", "--paths", "4"], {"range": "tube", "paths": 4}),
     ("range tube, --paths 4 --fusion none", ["--range", "tube", "--paths", "4", "--fusion", "none"],
      {"range": "tube", "paths": 4, "fusion": "none"}),
+    ("range tube, --tube-holes coarse", ["--range", "tube", "--tube-holes", "coarse"],
+     {"range": "tube", "tube": {"holes": "coarse"}}),
+    ("range tube, --tube-holes coarse --fusion none", ["--range", "tube", "--tube-holes", "coarse", "--fusion", "none"],
+     {"range": "tube", "tube": {"holes": "coarse"}, "fusion": "none"}),
 ]
 
 
@@ -176,12 +215,15 @@ def main():
     ap.add_argument("--skip-coverage", action="store_true")
     ap.add_argument("--skip-accuracy", action="store_true")
     ap.add_argument("--skip-speed", action="store_true")
+    ap.add_argument("--skip-holes", action="store_true")
     args = ap.parse_args()
     shares = [float(s) for s in args.shares.split(",")]
     if not args.skip_coverage:
         coverage(args.data_dir, shares)
     if not args.skip_accuracy:
         accuracy(args.data_dir, shares)
+    if not args.skip_holes:
+        holes(args.data_dir)
     if not args.skip_speed:
         speed(args.data_dir, args.repeat)
 

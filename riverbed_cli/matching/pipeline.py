@@ -134,17 +134,19 @@ def check_range_map(range_map, shape, d_min, d_max):
     return out_lo, out_hi
 
 
-#: the coarse match of the tube rule's holes: unguided census SGM on the whole range, left-right checked
-_COARSE = {"matcher": "sgm", "guide": "none", "range": "full", "fusion": "none", "lr_check": True}
+#: the coarse match of the tube rule's holes: unguided census SGM on the whole range. Without the left-right check:
+#: with it, the windows lost the disparities of textureless and occluded parts and the ranges got worse (Wood2 holes:
+#: bad3 5.14 % against 1.16 %, docs/tubes.md)
+_COARSE = {"matcher": "sgm", "guide": "none", "range": "full", "fusion": "none", "lr_check": False}
 
 
 def coarse_hole_ranges(left, right, d_min, d_max, config):
     """Per-pixel ranges ``(lo, hi)`` (inclusive int32, full resolution) from an unguided match of the pair at
     ``1 / HOLE_FACTOR`` resolution, for the tube rule's holes (:func:`~riverbed_cli.matching.tubes.hole_bounds`).
 
-    The coarse match is census SGM over the nominal range divided by the factor, with the left-right check (its
-    failures bound nothing) and no guidance, tubes or fusion; the other settings are ``config``'s. A pair smaller
-    than 16 px at that scale gets the nominal range.
+    The coarse match is census SGM over the nominal range divided by the factor, with no left-right check,
+    guidance, tubes or fusion; the other settings are ``config``'s. A pair smaller than 16 px at that scale gets
+    the nominal range.
     """
     f = HOLE_FACTOR
     H, W = left.shape[:2]

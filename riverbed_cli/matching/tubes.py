@@ -13,9 +13,9 @@ Across a depth edge the window holds both surfaces, so the tube spans both.
 *Holes* (``holes="coarse"``, opt-in): where no LiDAR lies within the last level (water, shadows, a sensor gap; on
 the speed pair the foreground whose disparity lies beyond the nominal range) the pixel's range comes from a coarse
 stereo match instead of the nominal range, as SURE's tSGM takes its ranges from a coarser pyramid level: the pair
-at half resolution, unguided census SGM, the min and max of its left-right consistent disparities within
-``HOLE_WINDOW`` coarse pixels, widened by ``HOLE_MARGIN`` px (:func:`hole_bounds`; the pipeline runs the coarse
-match). A hole pixel whose window holds no consistent coarse disparity keeps the nominal range.
+at half resolution, unguided census SGM, the min and max of its disparities within ``HOLE_WINDOW`` coarse pixels,
+widened by ``HOLE_MARGIN`` px (:func:`hole_bounds`; the pipeline runs the coarse match). A hole pixel whose window
+holds no valid coarse disparity keeps the nominal range.
 
 A tube volume holds each pixel's tube only, one after the other in a flat array
 (:class:`~riverbed_cli.matching.volume.TubeLayout`): its size is the sum of the tube widths.
