@@ -128,8 +128,8 @@ def hole_bounds(coarse, shape, d_min, d_max, factor=HOLE_FACTOR, window=HOLE_WIN
     Parameters
     ----------
     coarse : (h, w) float
-        Disparities of the left image downsampled by ``factor`` (coarse px, ``d = x_left - x_right``; NaN where
-        the coarse match failed its left-right check). Coarse pixel ``(i, j)`` covers full-resolution pixels
+        Disparities of the left image downsampled by ``factor`` (coarse px, ``d = x_left - x_right``; NaN: no
+        disparity). Coarse pixel ``(i, j)`` covers full-resolution pixels
         ``(factor i .. factor i + factor - 1, ...)``; pixels past the last coarse row or column take the last.
     shape : (H, W)
         Full-resolution image size.
