@@ -1,4 +1,5 @@
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -151,7 +152,7 @@ _HUGEPAGE_PROBE = (
 def test_command_line_turns_numpy_huge_pages_off_unless_the_user_set_them(user, expected):
     # first-touching the cost volumes in huge pages is slower on THP-madvise hosts (riverbed_cli/cli/__init__.py);
     # the user's own NUMPY_MADVISE_HUGEPAGE wins
-    env = {k: v for k, v in __import__("os").environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
+    env = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
     if user is not None:
         env["NUMPY_MADVISE_HUGEPAGE"] = user
     out = subprocess.run([sys.executable, "-c", _HUGEPAGE_PROBE], env=env, capture_output=True, text=True, check=True)

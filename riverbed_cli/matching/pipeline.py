@@ -160,9 +160,9 @@ def coarse_hole_ranges(left, right, d_min, d_max, config):
 
 
 def fill_tube_holes(left, right, lo, hi, hole, d_min, d_max, config):
-    """The tubes ``(lo, hi)`` with the ``hole`` pixels (no LiDAR within reach) given the coarse match's ranges when
-    ``config.tube.holes`` is ``coarse`` (:func:`coarse_hole_ranges`); unchanged otherwise."""
-    if config.tube.holes != "coarse" or not hole.any():
+    """The tubes ``(lo, hi)`` with the ``hole`` pixels (no LiDAR within reach) given the coarse match's ranges
+    (:func:`coarse_hole_ranges`, with ``config``'s settings), for ``tube.holes`` ``coarse``."""
+    if not hole.any():
         return lo, hi
     clo, chi = coarse_hole_ranges(left, right, d_min, d_max, config)
     return np.where(hole, clo, lo), np.where(hole, chi, hi)
@@ -223,8 +223,10 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
         if range_map is not None:
             lo, hi = check_range_map(range_map, shape, d_min, d_max)
         else:
-            lo, hi, hole = lidar_tubes(sparse, d_min, d_max, share=share, return_holes=True, **asdict(config.tube))
-            lo, hi = fill_tube_holes(left, right, lo, hi, hole, d_min, d_max, config)
+            coarse = config.tube.holes == "coarse"
+            lo, hi, *hole = lidar_tubes(sparse, d_min, d_max, share=share, return_holes=coarse, **asdict(config.tube))
+            if coarse:
+                lo, hi = fill_tube_holes(left, right, lo, hi, hole[0], d_min, d_max, config)
         layout = TubeLayout.from_bounds(lo, hi, d_min)
         stats = tube_stats(layout, d_min, d_max)
         if stats.full_share < 1.0:  # tubes as wide as the range everywhere: the full-range volume, exactly

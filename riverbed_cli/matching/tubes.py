@@ -30,7 +30,6 @@ from numba import njit, prange
 
 from ..errors import RiverbedError
 from ..records import RecordMapping
-from .config import TUBE_HOLES as HOLES
 from .guidance import lidar_share
 
 
@@ -84,8 +83,9 @@ def lidar_tubes(sparse, d_min, d_max, reach=2.0, margin=2.0, levels=3, level_mar
     max_spacing : float
         Mean LiDAR spacing (px) beyond which every pixel searches the nominal range.
     holes : {"full", "coarse"}
-        What pixels with no LiDAR within reach search; this function gives them the nominal range either way (the
-        coarse ranges need the images: :func:`hole_bounds`, applied by the pipeline).
+        The rule's setting of what pixels with no LiDAR within reach search (accepted with the other
+        ``TubeConfig`` fields); this function gives them the nominal range either way: the coarse ranges need the
+        images (:func:`hole_bounds`, applied by the pipeline to the pixels of ``return_holes``).
     return_holes : bool
         Also return the (H, W) bool mask of those pixels (none when the LiDAR is sparser than ``max_spacing``:
         then no pixel is bounded by it).
@@ -95,8 +95,6 @@ def lidar_tubes(sparse, d_min, d_max, reach=2.0, margin=2.0, levels=3, level_mar
     lo, hi : (H, W) int32
         Inclusive tube ends (disparity px).
     """
-    if holes not in HOLES:
-        raise RiverbedError(f"tube holes must be one of {', '.join(HOLES)}, got {holes!r}")
     sparse = np.asarray(sparse, dtype=np.float32)
     H, W = sparse.shape
     d_min, d_max = int(d_min), int(d_max)
@@ -105,9 +103,8 @@ def lidar_tubes(sparse, d_min, d_max, reach=2.0, margin=2.0, levels=3, level_mar
     valid = np.isfinite(sparse)
     lo = np.full((H, W), d_min, np.int32)
     hi = np.full((H, W), d_max, np.int32)
-    hole = np.zeros((H, W), bool)
     if not valid.any():
-        return (lo, hi, hole) if return_holes else (lo, hi)
+        return (lo, hi, np.zeros((H, W), bool)) if return_holes else (lo, hi)
     share = lidar_share(sparse) if share is None else share
     spacing = 1.0 / math.sqrt(max(share, 1e-12))
     cell = max(1, int(cell))
@@ -117,8 +114,9 @@ def lidar_tubes(sparse, d_min, d_max, reach=2.0, margin=2.0, levels=3, level_mar
     _expand_cells(tlo.astype(np.int32), thi.astype(np.int32), cell, lo, hi)
     if not return_holes:
         return lo, hi
-    if spacing <= max_spacing:
-        hole = ~np.repeat(np.repeat(reached, cell, axis=0), cell, axis=1)[:H, :W]
+    # LiDAR sparser than max_spacing reaches no cell, and no pixel is a hole: all search the nominal range anyway
+    hole = ~np.repeat(np.repeat(reached, cell, axis=0), cell, axis=1)[:H, :W] if spacing <= max_spacing else \
+        np.zeros((H, W), bool)
     return lo, hi, hole
 
 

@@ -263,11 +263,12 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
     if mode == "tube" and sparse is not None:
         g_lo, g_hi = global_range if global_range is not None else (t.d_min, t.d_max)
         share = tube_share if tube_share is not None else lidar_share(sc)
-        lo, hi, hole = lidar_tubes_window(sparse, ya, yb, a, b, g_lo, g_hi, share, asdict(p.tube), return_holes=True)
-        if p.tube.holes == "coarse" and hole.any():
+        coarse = p.tube.holes == "coarse"
+        lo, hi, *hole = lidar_tubes_window(sparse, ya, yb, a, b, g_lo, g_hi, share, asdict(p.tube), coarse)
+        if coarse and hole[0].any():
             if (ya, yb, a, b, off) != (0, H, 0, W, 0):
                 raise RiverbedError(HOLES_UNTILED)
-            lo, hi = fill_tube_holes(lc, rc, lo, hi, hole, g_lo, g_hi, p)
+            lo, hi = fill_tube_holes(lc, rc, lo, hi, hole[0], g_lo, g_hi, p)
         lo = np.clip(lo, t.d_min, t.d_max) - off
         hi = np.clip(hi, t.d_min, t.d_max) - off
         range_map = (lo, hi)
