@@ -40,6 +40,7 @@ from riverbed_cli.io.images import read_image  # noqa: E402
 from riverbed_cli.matching.config import MatchConfig  # noqa: E402
 from riverbed_cli.matching.pipeline import fill_tube_holes, match_pair  # noqa: E402
 from riverbed_cli.matching.tubes import lidar_tubes  # noqa: E402
+from riverbed_cli.products.densify import densify  # noqa: E402
 from riverbed_cli.products.evaluate import evaluate_disparity  # noqa: E402
 from riverbed_cli.products.simulate import simulate_lidar  # noqa: E402
 
@@ -116,8 +117,9 @@ def holes(data_dir, share=0.05, seed=1):
           "Errors over the GT pixels in the holes (bad3 % / avg px); coverage: their true disparity inside their "
           "range.\n")
     print("| scene | holes % of the image | GT px in holes | coverage full / coarse % | width in holes full / coarse "
-          "| matcher, full | matcher, coarse | fused, full | fused, coarse |")
-    print("|---|---:|---:|---|---|---|---|---|---|")
+          "| LiDAR nearest | LiDAR linear | LiDAR guided | matcher, full | matcher, coarse | fused, full | "
+          "fused, coarse |")
+    print("|---|---:|---:|---|---|---|---|---|---|---|---|---|")
     rng = np.random.default_rng(seed)
     for name, left, right, gt in scenes(data_dir):
         H, W = gt.shape
@@ -132,6 +134,9 @@ def holes(data_dir, share=0.05, seed=1):
         ev = hole & np.isfinite(gt)
         cov = 100 * ((gt[ev] >= clo[ev]) & (gt[ev] <= chi[ev])).mean()
         cells = []
+        for method in ("nearest", "linear", "guided"):  # the LiDAR alone, interpolated across the holes
+            e = np.abs(densify(sparse, method, image=left) - gt)[ev]
+            cells.append(f"{100 * np.mean(e > 3):.2f} / {np.nanmean(e):.3f}")
         for fusion in ("none", "auto"):
             for h in ("full", "coarse"):
                 e = np.abs(match_pair(left, right, sparse, 0, d_max, fusion=fusion, tube={"holes": h}).disparity -
