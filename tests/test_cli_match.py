@@ -157,3 +157,33 @@ def test_command_line_turns_numpy_huge_pages_off_unless_the_user_set_them(user, 
         env["NUMPY_MADVISE_HUGEPAGE"] = user
     out = subprocess.run([sys.executable, "-c", _HUGEPAGE_PROBE], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == expected
+
+
+_FRESH_MATCH = (
+    "import hashlib, sys\n"
+    "from riverbed_cli.cli.main import cli\n"
+    "from riverbed_cli.io.disparity import read_disparity\n"
+    "a = sys.argv[1:]\n"
+    "cli(['match', a[0], a[1], '--sparse', a[2], '-o', a[3], '--overwrite'], standalone_mode=False)\n"
+    "print('numba.np.arraymath' in sys.modules, 'scipy.linalg' in sys.modules,"
+    " hashlib.sha256(read_disparity(a[3]).tobytes()).hexdigest())"
+)
+
+
+@pytest.mark.parametrize("refresh", [None, "1"])
+def test_command_line_loads_cached_kernels_without_numbas_compiler_start_up(work, refresh):
+    # riverbed_cli/cached_kernels.py: a fresh `riverbed match` loads its cached kernels without Numba's target
+    # context refresh (which imports numba.np.arraymath and, through it, scipy.linalg) and matches the same bits;
+    # RIVERBED_NUMBA_REFRESH=1 keeps Numba's own behaviour
+    env = {k: v for k, v in os.environ.items() if k != "RIVERBED_NUMBA_REFRESH"}
+    if refresh is not None:
+        env["RIVERBED_NUMBA_REFRESH"] = refresh
+    args = [LEFT, RIGHT, str(work / "sparse.tif"), str(work / "d.tif")]
+    subprocess.run([sys.executable, "-c", _FRESH_MATCH, *args], env=env, check=True, capture_output=True)  # cache
+    out = subprocess.run([sys.executable, "-c", _FRESH_MATCH, *args], env=env, capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out[:2] == (["True", "True"] if refresh else ["False", "False"])
+    same = subprocess.run([sys.executable, "-c", _FRESH_MATCH, *args],
+                          env={**env, "RIVERBED_NUMBA_REFRESH": "0" if refresh else "1"}, capture_output=True,
+                          text=True, check=True).stdout.split()
+    assert same[2] == out[2]

@@ -6,6 +6,7 @@ from pathlib import Path
 import click
 from tqdm import tqdm
 
+from ..cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
 from ..matching.config import FUSION_CHOICES, GUIDE_NAMES as GUIDES, MATCHER_NAMES as MATCHERS, RANGES
 from ..products.densify import METHODS as DENSIFY_METHODS
@@ -73,6 +74,7 @@ def benchmark_cmd(dataset, layout, outdir, matchers, guides, ranges, fusions, sh
     """Run the paper's protocol on DATASET: seeded LiDAR sampled from the ground truth at each share, every
     matcher x guide, evaluated on the GT pixels not sampled. Cases are cached in OUTPUT/cache, so an interrupted run
     resumes; --check makes it a regression gate for CI."""
+    skip_refresh_on_cache_loads()  # Numba's cached kernels load without its compiler's start-up
     out = Path(outdir)
     exp = None
     if expected:

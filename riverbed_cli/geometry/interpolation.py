@@ -27,6 +27,20 @@ def checked_points(sparse):
     return sparse, valid
 
 
+@njit(cache=True)
+def first_at_least(sorted_values, v):
+    # np.searchsorted(sorted_values, v) by bisection
+    lo = 0
+    hi = sorted_values.shape[0]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if sorted_values[mid] < v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
 @njit(cache=True, inline="always")
 def _along_edge(x, y, xa, ya, va, xb, yb, vb, ia, ib):
     # linear interpolation along the edge a-b at (x, y), from the end with the lower point index: both triangles of
@@ -79,7 +93,7 @@ def _nearest_walk(rows, cols, ptr, nbr, anchor, dist):
     # starts from its left neighbour's answer, so a step or two suffice; rows are independent.
     H, W = anchor.shape
     for y in prange(H):
-        cur = min(np.searchsorted(rows, y), rows.shape[0] - 1)
+        cur = min(first_at_least(rows, y), rows.shape[0] - 1)
         for x in range(W):
             dy = rows[cur] - y
             dx = cols[cur] - x

@@ -83,6 +83,20 @@ def _claim(j, rows, cols, planes, half, a, b, e_lo, e_hi, owner, dissim, dd):
             owner[r, c] = j if take else o
 
 
+@njit(cache=True)
+def _first_at_least(sorted_values, v):
+    # np.searchsorted(sorted_values, v) (side left) by bisection
+    lo = 0
+    hi = sorted_values.shape[0]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if sorted_values[mid] < v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
 @njit(cache=True, parallel=True)
 def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
     # rows are sorted (row-major order of the points). The image is cut into horizontal bands; points whose window
@@ -112,8 +126,8 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
         edges[k] = k * H // nb
     inner = np.zeros(n, dtype=np.bool_)
     for k in prange(nb):
-        lo = np.searchsorted(rows, edges[k] + half)
-        hi = np.searchsorted(rows, edges[k + 1] - half)
+        lo = _first_at_least(rows, edges[k] + half)
+        hi = _first_at_least(rows, edges[k + 1] - half)
         dd = np.empty(2 * half + 1, np.float64)
         for j in range(lo, hi):
             inner[j] = True
@@ -123,8 +137,12 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
         if not inner[j]:
             _claim(j, rows, cols, planes, half, a, b, e_lo, e_hi, owner, dissim, dd)
     # exponent -> W (0 stays 0 at LiDAR pixels, inf stays inf where there is no owner)
-    w = np.where(np.isinf(dissim), np.inf, -np.expm1(-dissim))
-    return owner, w.astype(np.float32)
+    w = np.empty((H, W), np.float32)
+    for y in prange(H):
+        for x in range(W):
+            e = dissim[y, x]
+            w[y, x] = np.float32(np.inf) if math.isinf(e) else np.float32(-math.expm1(-e))
+    return owner, w
 
 
 def guide_image(guide, shape):

@@ -1,0 +1,48 @@
+"""Start-up of a ``riverbed`` process: Numba's cached kernels loaded without re-initialising Numba's compiler.
+
+Before it loads a cached kernel, Numba refreshes its CPU target context (``Cache.load_overload`` calls
+``target_context.refresh()``): it imports all of its compiler's implementation modules - ``numba.np.arraymath``
+among them, which imports ``scipy.linalg`` only to check for a BLAS - and installs their registries. That was 0.2-0.3 s
+of a fresh ``riverbed match`` of the 740 x 500 speed pair (about 1.1 s of wall time, 0.15 s of it matching;
+docs/tubes.md). A cached nopython kernel needs none of it: its machine code is linked as it was saved, and only
+Numba's runtime (NRT, the allocator of the arrays a kernel creates) must be up. The refresh serves object-mode code
+(numba/numba#9806), which riverbed has none of, and a compilation - a cache miss, a new signature - still refreshes
+the context itself (``CompilerBase``), so nothing that compiles is affected.
+
+:func:`skip_refresh_on_cache_loads` is called by the command line only: the library does not change a process-wide
+setting of another package for the programs that import it. ``RIVERBED_NUMBA_REFRESH=1`` in the environment keeps
+Numba's own behaviour (a way out should a Numba release change what a cached kernel needs).
+"""
+
+import os
+
+_DONE = []
+
+
+def skip_refresh_on_cache_loads():
+    """Make Numba load cached kernels with its runtime initialised but without the target context's refresh.
+
+    Idempotent; returns True when the change is in place. Leaves Numba as it is (False) when
+    ``RIVERBED_NUMBA_REFRESH=1`` is set or when this Numba lacks the methods the change relies on.
+    """
+    if _DONE:
+        return True
+    if os.environ.get("RIVERBED_NUMBA_REFRESH", "") == "1":
+        return False
+    from numba.core import caching
+    from numba.core.runtime import rtsys
+
+    cache = caching.Cache
+    needed = ("load_overload", "_load_overload", "_guard_against_spurious_io_errors")
+    if not all(hasattr(cache, name) for name in needed) or not hasattr(rtsys, "initialize"):
+        return False
+
+    def load_overload(self, sig, target_context):
+        rtsys.initialize(target_context)  # what a cached kernel needs of the refresh: NRT for its allocations
+        with self._guard_against_spurious_io_errors():
+            return self._load_overload(sig, target_context)
+
+    load_overload.__doc__ = cache.load_overload.__doc__
+    cache.load_overload = load_overload
+    _DONE.append(True)
+    return True
