@@ -41,6 +41,7 @@ from numba import njit, prange
 
 from ..errors import RiverbedError
 from ..geometry.coverage import lidar_rows
+from ..geometry.interpolation import first_at_least
 from .guidance import check_volume, guide_image, scaled_volume
 from .volume import volume_layout
 
@@ -80,7 +81,7 @@ def _diffusion_kernel(flat, D0, sparse, ptr, cols, guide, d_min0, radius, a, b, 
             best_w = -1.0
             for yy in range(max(0, y - radius), min(H, y + radius + 1)):
                 row = cols[ptr[yy]:ptr[yy + 1]]
-                j = np.searchsorted(row, x - radius)
+                j = first_at_least(row, x - radius)
                 while j < row.shape[0] and row[j] <= x + radius:
                     xx = row[j]
                     j += 1

@@ -29,6 +29,7 @@ from numba import njit, prange
 from ..errors import RiverbedError
 from .volume import volume_layout
 from ..geometry.coverage import lidar_points, lidar_share, lidar_share_of_points  # noqa: F401  (re-exported)
+from ..geometry.interpolation import first_at_least
 
 FORMS = {"additive": 0, "product": 1}
 
@@ -83,20 +84,6 @@ def _claim(j, rows, cols, planes, half, a, b, e_lo, e_hi, owner, dissim, dd):
             owner[r, c] = j if take else o
 
 
-@njit(cache=True)
-def _first_at_least(sorted_values, v):
-    # np.searchsorted(sorted_values, v) (side left) by bisection
-    lo = 0
-    hi = sorted_values.shape[0]
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if sorted_values[mid] < v:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
-
-
 @njit(cache=True, parallel=True)
 def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
     # rows are sorted (row-major order of the points). The image is cut into horizontal bands; points whose window
@@ -126,8 +113,8 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
         edges[k] = k * H // nb
     inner = np.zeros(n, dtype=np.bool_)
     for k in prange(nb):
-        lo = _first_at_least(rows, edges[k] + half)
-        hi = _first_at_least(rows, edges[k + 1] - half)
+        lo = first_at_least(rows, edges[k] + half)
+        hi = first_at_least(rows, edges[k + 1] - half)
         dd = np.empty(2 * half + 1, np.float64)
         for j in range(lo, hi):
             inner[j] = True
