@@ -9,7 +9,7 @@ import rasterio
 from rasterio.windows import Window
 
 from ..errors import RiverbedError
-from .disparity import read_disparity
+from .disparity import TIFF_COMPRESSION, read_disparity
 from .images import TIFF_MAGIC, effective_bits, read_image
 
 
@@ -126,8 +126,8 @@ class TiffSink:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
             self._ds = rasterio.open(self.path, "w", driver="GTiff", width=width, height=height, count=1,
-                                     dtype="float32", nodata=float("nan"), compress="deflate", predictor=3,
-                                     tiled=True, blockxsize=256, blockysize=256, BIGTIFF="IF_SAFER")
+                                     dtype="float32", nodata=float("nan"), tiled=True, blockxsize=256,
+                                     blockysize=256, BIGTIFF="IF_SAFER", **TIFF_COMPRESSION)
         if tags:
             self.update_tags(**tags)
         self.shape = (height, width)
