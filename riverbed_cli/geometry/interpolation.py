@@ -152,33 +152,56 @@ def delaunay_triangles(rows, cols, shape, edges=False):
     co-circular (common on the pixel grid) either diagonal is a Delaunay triangulation; the two libraries may pick
     differently.
     """
+    tx, ty, _, ends = _delaunay(rows, cols, shape)
+    return (tx, ty, ends) if edges else (tx, ty)
+
+
+def _delaunay(rows, cols, shape):
+    # delaunay_triangles, with the triangles' corner point indices (T, 3) int32 too
     H, W = shape
     # a wide rectangle puts its virtual outer vertices far away: long sliver triangles along the hull stay Delaunay
     sub = cv2.Subdiv2D((-20 * W, -20 * H, 41 * W, 41 * H))
     # inserted along a Z-order curve: each point is located from a near one (2x faster than row order, 4x than random)
     sub.insert(np.stack([cols, rows], axis=1).astype(np.float32)[np.argsort(_z_order(rows, cols), kind="stable")])
-    tri = np.asarray(sub.getTriangleList(), np.float64).reshape(-1, 3, 2)  # () when the points are collinear
-    tri = tri[_in_image(tri, W, H)]
-    if not edges:
-        return tri[..., 0], tri[..., 1]
-    e = np.asarray(sub.getEdgeList(), np.float64).reshape(-1, 2, 2)
-    e = e[_in_image(e, W, H)]
-    return tri[..., 0], tri[..., 1], point_index(rows, cols, shape, e[..., 1], e[..., 0])
-
-
-def _in_image(corners, W, H):
-    # the shapes (rows of (x, y) corners) with every corner in the image: Subdiv2D's virtual vertices lie far outside
-    x, y = corners[..., 0], corners[..., 1]
-    return ((x >= 0) & (x < W) & (y >= 0) & (y < H)).all(axis=-1)
-
-
-def point_index(rows, cols, shape, ys, xs):
-    """Index into the LiDAR pixel list ``(rows, cols)`` of the pixels at ``(ys, xs)`` (each one of them), int32.
-
-    Through an (H, W) image of the indices: a gather, 10x faster than a binary search of each pixel."""
-    lookup = np.full(shape, -1, np.int32)
+    lookup = np.full(shape, -1, np.int32)  # the point index of each LiDAR pixel: a gather, 10x faster than bisection
     lookup[rows, cols] = np.arange(len(rows), dtype=np.int32)
-    return lookup[np.rint(ys).astype(np.intp), np.rint(xs).astype(np.intp)]
+    tx, ty, tp = _image_shapes(np.asarray(sub.getTriangleList(), np.float32).reshape(-1, 6), lookup)
+    _, _, ends = _image_shapes(np.asarray(sub.getEdgeList(), np.float32).reshape(-1, 4), lookup)
+    return tx, ty, tp, ends
+
+
+@njit(cache=True)
+def _image_shapes(shapes, lookup):
+    # The shapes from Subdiv2D (rows of k (x, y) corners) with every corner in the image - its virtual outer vertices
+    # lie far outside: their corner columns and rows (m, k) float64 and point indices (m, k) int32 (lookup: the
+    # point index of each LiDAR pixel). One pass instead of NumPy's masks and gathers (7 ms for 18 500 points).
+    H, W = lookup.shape
+    n = shapes.shape[0]
+    k = shapes.shape[1] // 2
+    keep = np.zeros(n, np.bool_)
+    m = 0
+    for i in range(n):
+        inside = True
+        for c in range(k):
+            x = shapes[i, 2 * c]
+            y = shapes[i, 2 * c + 1]
+            inside = inside and x >= 0 and x < W and y >= 0 and y < H
+        keep[i] = inside
+        m += inside
+    xs = np.empty((m, k), np.float64)
+    ys = np.empty((m, k), np.float64)
+    idx = np.empty((m, k), np.int32)
+    j = 0
+    for i in range(n):
+        if keep[i]:
+            for c in range(k):
+                x = np.float64(shapes[i, 2 * c])
+                y = np.float64(shapes[i, 2 * c + 1])
+                xs[j, c] = x
+                ys[j, c] = y
+                idx[j, c] = lookup[int(np.rint(y)), int(np.rint(x))]
+            j += 1
+    return xs, ys, idx
 
 
 @njit(cache=True)
@@ -301,11 +324,9 @@ def linear_fill(sparse):
     anchor = np.empty((H, W), np.int32)
     dist = np.empty((H, W), np.float32)
     if rows.size >= 3:
-        tx, ty, ends = delaunay_triangles(rows, cols, sparse.shape, edges=True)
+        tx, ty, tp, ends = _delaunay(rows, cols, sparse.shape)
         if tx.shape[0]:  # collinear points: no triangle, nearest is all there is
-            tp = point_index(rows, cols, sparse.shape, ty, tx)
-            _raster_triangles(np.ascontiguousarray(tx), np.ascontiguousarray(ty), values[tp].astype(np.float64),
-                              tp, out)
+            _raster_triangles(tx, ty, values[tp].astype(np.float64), tp, out)
         ptr, nbr = _adjacency(np.ascontiguousarray(ends, dtype=np.int64), rows.size)
         _nearest_walk(rows, cols, ptr, nbr, anchor, dist)
     else:  # one or two points: each pixel compares them
