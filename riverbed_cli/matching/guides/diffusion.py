@@ -2,7 +2,6 @@
 
 from dataclasses import asdict
 
-from ..diffusion import diffusion_modulate
 from ..registry import register_guide
 from .base import Guidance, Guide
 
@@ -13,6 +12,8 @@ class Diffusion(Guide):
     needs_image = True
 
     def modulate(self, volume, inputs, config):
+        from ..diffusion import diffusion_modulate  # loaded by the runs that use it (start-up)
+
         kw = asdict(config.diffusion)
         support = None
         if inputs.want_support:

@@ -3,7 +3,6 @@
 
 from .. import guidance
 from ..registry import register_guide
-from ..riverbed_plus import riverbed_support
 from .base import Guidance, Guide
 
 
@@ -31,5 +30,9 @@ class Riverbed(Guide):
                                           g.sigma_xy, g.sigma_i, g.gamma, g.band, g.form, volume.scale, inputs.cap,
                                           owners=owners, inplace=True, literal_eq3=g.literal_eq3, fbar=inputs.fbar,
                                           tubes=volume.tubes)
-        support = riverbed_support(inputs.sparse, owners, g.band) if inputs.want_support else None
+        support = None
+        if inputs.want_support:  # riverbed+ and AD-Census's guided stages (their modules load here: start-up)
+            from ..riverbed_plus import riverbed_support
+
+            support = riverbed_support(inputs.sparse, owners, g.band)
         return Guidance(volume.like(data, inputs.cap), window, support)

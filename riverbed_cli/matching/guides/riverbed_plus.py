@@ -6,7 +6,6 @@ import numpy as np
 from ...errors import RiverbedError
 from ..config import CONFIDENCES
 from ..registry import register_guide
-from ..riverbed_plus import riverbed_plus_modulate
 from .base import Guidance, Guide
 from .riverbed import riverbed_window
 
@@ -33,6 +32,8 @@ class RiverbedPlus(Guide):
         return np.asarray(mask, dtype=bool)
 
     def modulate(self, volume, inputs, config):
+        from ..riverbed_plus import riverbed_plus_modulate  # loaded by the runs that use it (start-up)
+
         g = config.guidance
         window = self.window(inputs.share, config)
         data, extra = riverbed_plus_modulate(volume.data, inputs.sparse, inputs.image, volume.d_min, window, g.k, g.c,

@@ -3,7 +3,7 @@ scanline optimisation (or on the raw cost, ``adcensus_guide_stage: initial``); o
 tubes (docs/tubes.md, "AD-Census")."""
 
 from ...io.images import effective_bits, to_grey, to_guide
-from .. import adcensus, census, guidance
+from .. import census, guidance
 from ..guides.base import GuidanceInputs
 from ..registry import get_guide, register_matcher
 from ..volume import CostVolume
@@ -21,6 +21,8 @@ class ADCensusMatcher(Matcher):
 
     def match(self, left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages, tubes=None,
               return_status=False):
+        from .. import adcensus  # its kernels' module loads with the runs that use it (start-up)
+
         ap = config.adcensus
         bits = effective_bits(left, right)
         guide_img = to_guide(left, bits)
