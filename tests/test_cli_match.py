@@ -172,7 +172,7 @@ _FRESH_MATCH = (
 
 @pytest.mark.parametrize("refresh", [None, "1"])
 def test_command_line_loads_cached_kernels_without_numbas_compiler_start_up(work, refresh):
-    # riverbed_cli/cached_kernels.py: a fresh `riverbed match` loads its cached kernels without Numba's target
+    # riverbed_cli/cli/cached_kernels.py: a fresh `riverbed match` loads its cached kernels without Numba's target
     # context refresh (which imports numba.np.arraymath and, through it, scipy.linalg) and matches the same bits;
     # RIVERBED_NUMBA_REFRESH=1 keeps Numba's own behaviour
     env = {k: v for k, v in os.environ.items() if k != "RIVERBED_NUMBA_REFRESH"}

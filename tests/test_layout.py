@@ -19,6 +19,13 @@ ALLOWED_LOCAL_IMPORTS = {
     "riverbed_cli.scale.block.runner": "dask.distributed is an optional dependency (the dask extra)",
     "riverbed_cli.products.visualize": "matplotlib loads only when a picture is drawn: commands writing none skip it",
     "riverbed_cli.geometry.rpc": "shareloc (numba, 1.3 s) loads only to read OSSIM .geom and DIMAP v1 RPC files",
+    "riverbed_cli.cli.cached_kernels": "Numba loads when a command runs, not for `riverbed match --help`",
+    # the AD-Census, riverbed+ and diffusion kernels' modules load only in the runs that use them: a default
+    # `riverbed match` starts 0.03-0.05 s sooner (docs/tubes.md, start-up)
+    "riverbed_cli.matching.matchers.adcensus": "AD-Census's modules load when the AD-Census matcher runs",
+    "riverbed_cli.matching.guides.riverbed": "riverbed+ (and AD-Census) load when a support map is asked for",
+    "riverbed_cli.matching.guides.riverbed_plus": "riverbed+ (and AD-Census) load when the riverbed+ guide runs",
+    "riverbed_cli.matching.guides.diffusion": "the diffusion kernels load when the diffusion guide runs",
 }
 
 

@@ -6,7 +6,7 @@ from pathlib import Path
 import click
 from tqdm import tqdm
 
-from ..cached_kernels import skip_refresh_on_cache_loads
+from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
 from ..matching.config import FUSION_CHOICES, GUIDE_NAMES as GUIDES, MATCHER_NAMES as MATCHERS, RANGES
 from ..products.densify import METHODS as DENSIFY_METHODS

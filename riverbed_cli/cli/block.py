@@ -7,7 +7,7 @@ import logging
 import click
 from tqdm import tqdm
 
-from ..cached_kernels import skip_refresh_on_cache_loads
+from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
 from ..geometry.rectify import parse_size
 from ..geometry.rpc_pair import parse_heights, parse_roi

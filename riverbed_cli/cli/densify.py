@@ -5,7 +5,7 @@ import time
 
 import click
 
-from ..cached_kernels import skip_refresh_on_cache_loads
+from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
 from ..io.atomic import check_output
 from ..io.disparity import disparity_format, read_disparity, write_disparity

@@ -6,7 +6,7 @@ import click
 import numpy as np
 from tqdm import tqdm
 
-from ..cached_kernels import skip_refresh_on_cache_loads
+from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
 from ..io.atomic import check_output
 from ..io.disparity import read_disparity

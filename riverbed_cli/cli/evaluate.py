@@ -4,7 +4,7 @@ import math
 
 import click
 
-from ..cached_kernels import skip_refresh_on_cache_loads
+from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
 from ..io.atomic import check_output
 from ..io.disparity import read_disparity

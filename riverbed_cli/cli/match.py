@@ -8,7 +8,7 @@ module loads no Numba kernel: the matching library is imported when the command 
 import click
 from tqdm import tqdm
 
-from ..cached_kernels import skip_refresh_on_cache_loads
+from .cached_kernels import skip_refresh_on_cache_loads
 from ..matching.config import MATCH_SETTINGS, MatchConfig
 from .options import input_path, json_opt, output_opt, overwrite_opt, print_json, progress_enabled, setting_options
 

@@ -6,7 +6,7 @@ import logging
 import click
 from tqdm import tqdm
 
-from ..cached_kernels import skip_refresh_on_cache_loads
+from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
 from ..geometry import visibility as vis
 from ..geometry.projection import NOISE_CLASSES, OUTLIERS, SIDES, VISIBILITY, image_shape, project_cloud

@@ -6,7 +6,7 @@ import logging
 import click
 from click.core import ParameterSource
 
-from ..cached_kernels import skip_refresh_on_cache_loads
+from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
 from ..geometry.rectify import check_alpha, parse_size, rectify_files
 from ..geometry.rpc_pair import parse_heights, parse_roi, rectify_rpc_files

@@ -6,7 +6,7 @@ import logging
 import click
 from tqdm import tqdm
 
-from ..cached_kernels import skip_refresh_on_cache_loads
+from .cached_kernels import skip_refresh_on_cache_loads
 from ..sample import SIZES, STAGES, generate_block
 from ..sample.satellite import SATELLITE_STAGES, generate_satellite
 from .options import json_opt, overwrite_opt, print_json, progress_enabled

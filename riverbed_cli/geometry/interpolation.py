@@ -30,7 +30,7 @@ def checked_points(sparse):
 @njit(cache=True)
 def first_at_least(sorted_values, v):
     # np.searchsorted(sorted_values, v) (side left) by bisection: Numba's searchsorted lives in numba.np.arraymath,
-    # whose import (scipy.linalg with it) a cached kernel calling it costs at start-up (riverbed_cli/cached_kernels.py)
+    # whose import (scipy.linalg with it) a cached kernel calling it costs at start-up (cli/cached_kernels.py)
     lo = 0
     hi = sorted_values.shape[0]
     while lo < hi:

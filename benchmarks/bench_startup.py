@@ -1,0 +1,91 @@
+"""Start-up of a fresh ``riverbed match``: this tree against an earlier commit, side by side in one run.
+
+Usage: python benchmarks/bench_startup.py [DATA_DIR] [--before REV] [--repeat 7]
+
+On the 740 x 500 speed pair (80 disparities, 5 % LiDAR, ``--tile 0``, the default tubes and fusion), fresh
+processes in round-robin: this tree, this tree with ``RIVERBED_NUMBA_REFRESH=1`` (Numba refreshes its target context
+before loading the cached kernels, as it does by default: riverbed_cli/cli/cached_kernels.py), and the commit ``REV``
+(default: the last commit before this session's start-up work) run from an exported copy of its sources. Each
+variant's Numba cache is filled by one run first. Reports medians of the whole-process wall time, the matching
+``seconds`` from --json, and the rest (interpreter, imports, loading the kernels, reading and writing files).
+"""
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tarfile
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from datasets import speed_pair  # noqa: E402
+
+from riverbed_cli.io.disparity import write_disparity  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+BEFORE = "a1d4c36"  # the last commit before the start-up work of 2026-12-03
+
+
+def export(rev, dest):
+    # the riverbed_cli package of commit rev, as files (its own Numba cache lands beside them)
+    data = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "riverbed_cli"], capture_output=True,
+                          check=True).stdout
+    path = Path(dest) / "src.tar"
+    path.write_bytes(data)
+    with tarfile.open(path) as tar:
+        tar.extractall(dest, filter="data")
+    return dest
+
+
+def run(pythonpath, args, extra_env):
+    env = {k: v for k, v in os.environ.items() if k not in ("RIVERBED_NUMBA_REFRESH", "PYTHONPATH")}
+    env.update(extra_env, PYTHONPATH=str(pythonpath))
+    t = time.perf_counter()
+    p = subprocess.run([sys.executable, "-m", "riverbed_cli", "match", *args, "--json", "--overwrite"], env=env,
+                       capture_output=True, text=True, check=True, cwd=str(pythonpath))
+    return time.perf_counter() - t, json.loads(p.stdout)["seconds"]
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("data_dir", nargs="?", default=os.environ.get("RIVERBED_DATA", "../shared/data"))
+    ap.add_argument("--before", default=BEFORE)
+    ap.add_argument("--repeat", type=int, default=7)
+    args = ap.parse_args()
+    left, right, sparse = speed_pair(args.data_dir)
+    with tempfile.TemporaryDirectory() as tmp, tempfile.TemporaryDirectory() as old:
+        for n, img in (("l.png", left), ("r.png", right)):
+            cv2.imwrite(os.path.join(tmp, n), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+        write_disparity(os.path.join(tmp, "s.tif"), sparse)
+        base = [os.path.join(tmp, "l.png"), os.path.join(tmp, "r.png"), "--sparse", os.path.join(tmp, "s.tif"),
+                "--min-disp", "0", "--max-disp", "79", "--tile", "0", "-o", os.path.join(tmp, "d.tif")]
+        variants = [
+            ("this tree", ROOT, {}),
+            ("this tree, RIVERBED_NUMBA_REFRESH=1 (Numba's own cache loading)", ROOT, {"RIVERBED_NUMBA_REFRESH": "1"}),
+            (f"commit {args.before}", export(args.before, old), {}),
+        ]
+        for _, path, env in variants:
+            run(path, base, env)  # fill (or check) the variant's Numba cache
+        times = {name: [] for name, _, _ in variants}
+        for _ in range(args.repeat):
+            for name, path, env in variants:
+                times[name].append(run(path, base, env))
+    print(f"### Fresh `riverbed match` of the 740x500 speed pair (0..79, 5 % LiDAR, default tubes and fusion), "
+          f"medians of {args.repeat}, round-robin\n")
+    print("| riverbed | wall s | matching s (--json seconds) | rest s (start-up, I/O) | wall vs this tree |")
+    print("|---|---:|---:|---:|---:|")
+    ref = float(np.median([w for w, _ in times[variants[0][0]]]))
+    for name, _, _ in variants:
+        wall = float(np.median([w for w, _ in times[name]]))
+        sec = float(np.median([s for _, s in times[name]]))
+        print(f"| {name} | {wall:.3f} | {sec:.3f} | {wall - sec:.3f} | {wall / ref:.2f} |")
+
+
+if __name__ == "__main__":
+    main()
