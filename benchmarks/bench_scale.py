@@ -25,6 +25,7 @@ import numpy as np
 
 CHILD = r"""
 import json, resource, sys, time
+import riverbed_cli.cli  # the process settings of the riverbed command (NumPy huge pages, malloc thresholds)
 import numpy as np
 from riverbed_cli.io.windowed import TiffSink, open_windowed
 from riverbed_cli.scale.tiles import match_tiled
