@@ -14,6 +14,7 @@ import numpy as np
 from numba import get_num_threads, njit, prange
 
 from ..errors import RiverbedError
+from .coverage import lidar_points
 
 
 def checked_points(sparse):
@@ -315,11 +316,10 @@ def linear_fill(sparse):
     parallel over rows: 4x faster than scipy's single-threaded transform on a 1 MP tile, which took longer than the
     rest of the fusion. A LiDAR pixel keeps its own value.
     """
-    sparse, valid = checked_points(sparse)
+    sparse, _ = checked_points(sparse)
     H, W = sparse.shape
-    rows, cols = np.nonzero(valid)
-    values = sparse[rows, cols]
-    rows, cols = rows.astype(np.int64), cols.astype(np.int64)
+    rows, cols, values = lidar_points(sparse)
+    values = values.astype(np.float32)  # the float32 map's own values
     out = np.full((H, W), np.nan, np.float32)
     anchor = np.empty((H, W), np.int32)
     dist = np.empty((H, W), np.float32)
