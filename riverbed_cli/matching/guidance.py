@@ -260,16 +260,36 @@ def wall_scale(cost, rows, cols, cost_scale):
     return float(cost[rows, cols].mean()) / cost_scale if rows.size else 0.0
 
 
+@njit(cache=True)
+def _owned_pixels(owner):
+    # np.nonzero(owner >= 0) as int64 rows and columns, in two passes (a third of NumPy's time and no copies)
+    H, W = owner.shape
+    n = 0
+    for y in range(H):
+        for x in range(W):
+            n += owner[y, x] >= 0
+    rows = np.empty(n, np.int64)
+    cols = np.empty(n, np.int64)
+    k = 0
+    for y in range(H):
+        for x in range(W):
+            if owner[y, x] >= 0:
+                rows[k] = y
+                cols[k] = x
+                k += 1
+    return rows, cols
+
+
 def _apply(cost, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, cap, fbar=None, tubes=None):
     if form not in FORMS:
         raise RiverbedError(f"unknown guidance form '{form}' (use additive or product)")
-    grows, gcols = np.nonzero(owner >= 0)
+    grows, gcols = _owned_pixels(owner)
     if fbar is None:
         if tubes is not None:
             raise RiverbedError("give the wall scale fbar for a tube volume")
         fbar = wall_scale(cost, rows, cols, cost_scale)
     flat, W, D, ts, tw, to = volume_layout(cost, owner.shape, tubes)
-    _modulate_kernel(flat, W, D, grows.astype(np.int64), gcols.astype(np.int64), owner, dissim, values, int(d_min),
+    _modulate_kernel(flat, W, D, grows, gcols, owner, dissim, values, int(d_min),
                      float(k), float(c), float(band), FORMS[form], float(cost_scale), fbar, int(cap), ts, tw, to)
     return cost
 
