@@ -1,7 +1,5 @@
 """Where a sparse disparity map has LiDAR: its points and their share of the image (the LiDAR density ``p``)."""
 
-import math
-
 import cv2
 import numpy as np
 from numba import njit
@@ -11,35 +9,31 @@ def lidar_points(sparse):
     """Rows, columns and disparities (float64) of the valid (finite) pixels of a sparse disparity map, in row-major
     order (rows and columns int64)."""
     sparse = np.asarray(sparse)
-    if sparse.ndim != 2 or sparse.dtype not in (np.float32, np.float64):  # what the kernel does not take: NumPy
-        rows, cols = np.nonzero(np.isfinite(sparse))
-        return rows.astype(np.int64), cols.astype(np.int64), sparse[rows, cols].astype(np.float64)
-    return _finite_points(sparse)
+    rows, cols = pixels_where(np.isfinite(sparse))
+    return rows, cols, sparse[rows, cols].astype(np.float64)
 
 
 @njit(cache=True)
-def _finite_points(sparse):
-    # lidar_points in two passes (count, then fill): a pipeline asks for the points four times, and NumPy's
-    # isfinite + nonzero + gather took 1.3-1.7 ms each on 740 x 500 px
-    H, W = sparse.shape
+def pixels_where(mask):
+    """``np.nonzero`` of a 2-D boolean ``mask`` as int64 rows and columns (row-major order).
+
+    Two passes (count, then fill): a third of NumPy's time with its int64 copies (a run asks for the LiDAR points
+    four times and for the guided pixels once; 0.9-1.7 ms each by NumPy on 740 x 500 px)."""
+    H, W = mask.shape
     n = 0
     for y in range(H):
         for x in range(W):
-            if math.isfinite(sparse[y, x]):
-                n += 1
+            n += mask[y, x]
     rows = np.empty(n, np.int64)
     cols = np.empty(n, np.int64)
-    values = np.empty(n, np.float64)
     k = 0
     for y in range(H):
         for x in range(W):
-            v = sparse[y, x]
-            if math.isfinite(v):
+            if mask[y, x]:
                 rows[k] = y
                 cols[k] = x
-                values[k] = np.float64(v)
                 k += 1
-    return rows, cols, values
+    return rows, cols
 
 
 def lidar_share(sparse):
