@@ -53,11 +53,13 @@ def all_scenes(data_dir, held_out=True):
     return scenes
 
 
-def speed_pair(data_dir, seed=0, share=0.05):
+def speed_pair(data_dir, seed=0, share=0.05, beyond=False):
     """The issue's speed case: Reindeer resized to 740x500 with 80 disparities (0..79) and LiDAR at ``share``.
 
-    Returns ``(left, right, sparse)``; the GT is scaled with the image and cut at 79 px so every LiDAR point lies in
-    the range.
+    Returns ``(left, right, sparse)``. A third of the scene (the reindeer) lies beyond 79 px at this size: the GT is
+    cut at 79 and the LiDAR sampled from the rest, so by default no LiDAR point lies outside the range. With
+    ``beyond`` the LiDAR also holds points where the truth lies beyond 79 px, at the same density (the same points
+    inside the range), as a real scan of the scene would: a user's ``--max-disp 79`` leaves them outside the range.
     """
     import cv2
 
@@ -66,6 +68,13 @@ def speed_pair(data_dir, seed=0, share=0.05):
     sc = middlebury(data_dir, "Reindeer")
     left = cv2.resize(sc.left, (740, 500), interpolation=cv2.INTER_AREA)
     right = cv2.resize(sc.right, (740, 500), interpolation=cv2.INTER_AREA)
-    gt = cv2.resize(sc.gt, (740, 500), interpolation=cv2.INTER_NEAREST) * (740 / sc.gt.shape[1])
+    scene = cv2.resize(sc.gt, (740, 500), interpolation=cv2.INTER_NEAREST) * (740 / sc.gt.shape[1])
+    gt = scene.copy()
     gt[gt > 79] = np.nan
-    return left, right, simulate_lidar(gt, share, seed=seed)
+    sparse = simulate_lidar(gt, share, seed=seed)
+    if beyond:
+        far = np.flatnonzero(scene > 79)
+        n = int(round(np.isfinite(sparse).sum() / np.isfinite(gt).sum() * far.size))
+        idx = np.random.default_rng(seed + 1).choice(far, n, replace=False)
+        sparse.flat[idx] = scene.flat[idx]
+    return left, right, sparse

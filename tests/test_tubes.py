@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from riverbed_cli.matching import census, diffusion, disparity, guidance, riverbed_plus, sgm
+from riverbed_cli.matching.guidance import lidar_share
 from riverbed_cli.matching.pipeline import match_pair
 from riverbed_cli.matching.tubes import lidar_tubes
 from riverbed_cli.matching.volume import TubeLayout
@@ -145,6 +146,49 @@ def test_tube_rule_hand_made_cases():
     assert lo[110, 150] == 0 and hi[110, 150] == 127  # no LiDAR within reach: the full range
     lo1, hi1 = lidar_tubes(sparse, 0, 40)
     assert hi1.max() <= 40 and lo1.min() >= 0  # clipped to the nominal range
+
+
+def test_lidar_beyond_the_range_bounds_only_the_pixels_it_alone_reaches():
+    H, W = 120, 160
+    sparse = np.full((H, W), np.nan, np.float32)
+    sparse[20:60:3, 20:60:3] = 30.0  # a surface inside the range [0, 40]...
+    sparse[20:60:3, 62:100:3] = 55.0  # ...beside one beyond it, as a --max-disp 40 that cuts off the near objects
+    sparse[90:118:3, 110:150:3] = -6.0  # and one below d_min
+    lo, hi = lidar_tubes(sparse, 0, 40, reach=2.0, margin=2.0, levels=2)
+    assert (lo[40, 40], hi[40, 40]) == (28, 32)  # a pixel of the surface inside: its points alone
+    assert (lo[40, 61], hi[40, 61]) == (28, 32)  # at the edge: the points inside set the tube, not those beyond
+    assert (lo[40, 90], hi[40, 90]) == (40, 40)  # amid points beyond d_max only: the range's end, not all of it
+    assert (lo[100, 130], hi[100, 130]) == (0, 0)  # amid points below d_min only: its other end
+    assert (lo[5, 155], hi[5, 155]) == (0, 40)  # no LiDAR within reach: the whole range
+    # the points inside set the same tubes as without those outside, wherever they are the nearest
+    clo, chi = lidar_tubes(np.where(sparse >= 0, sparse, np.float32(np.nan)), 0, 40, reach=2.0, margin=2.0,
+                           levels=2, share=float(lidar_share(sparse)))
+    assert np.array_equal(lo[:, :61], clo[:, :61]) and np.array_equal(hi[:, :61], chi[:, :61])
+
+
+def test_lidar_beyond_the_range_narrows_a_real_match_and_tiles_agree(cones):
+    # Cones with --max-disp 39 cuts off its nearest parts (up to 55 px); the LiDAR there bounds their tubes at 39
+    # instead of leaving them on the whole range. The pixels whose truth lies in the range are as accurate as with
+    # that LiDAR removed, one tile on the global range searches the same tubes, and the planner counts them.
+    from riverbed_cli.products.evaluate import evaluate_disparity
+    from riverbed_cli.products.simulate import simulate_lidar
+    from riverbed_cli.scale.tiles import match_tiled
+
+    left, right, gt = cones
+    sparse = simulate_lidar(gt, 0.05, seed=0)
+    cut = np.where(sparse <= 39, sparse, np.float32(np.nan))
+    assert np.isfinite(sparse).sum() > 1.2 * np.isfinite(cut).sum()  # a sixth of the points lie beyond
+    with_beyond = match_pair(left, right, sparse, 0, 39, fusion="none")
+    without = match_pair(left, right, cut, 0, 39, fusion="none")
+    a, b = with_beyond.info["tubes"], without.info["tubes"]
+    assert a["full_share"] < 0.2 * b["full_share"] and a["mean_width"] < 0.8 * b["mean_width"]
+    truth = np.where(gt <= 39, gt, np.float32(np.nan))
+    ea = evaluate_disparity(with_beyond.disparity, truth, exclude=sparse)
+    eb = evaluate_disparity(without.disparity, truth, exclude=sparse)
+    assert ea["bad3"] <= eb["bad3"] * 1.02 and ea["avg"] <= eb["avg"] * 1.02
+    one = match_tiled(left, right, sparse, 0, 39, fusion="none", tile=0, lidar_range=False)
+    assert one.info["tubes"] == a
+    assert np.array_equal(one.disparity, with_beyond.disparity, equal_nan=True)
 
 
 def test_lidar_sparser_than_max_spacing_bounds_no_pixel():

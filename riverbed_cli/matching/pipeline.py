@@ -213,8 +213,10 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
     t_all = time.perf_counter()
     stages = {}
     shape = left.shape[:2]
+    lidar = None
     if sparse is not None:
-        sparse = prepare_sparse(sparse, shape, d_min, d_max)
+        lidar = np.asarray(sparse, dtype=np.float32)
+        sparse = prepare_sparse(lidar, shape, d_min, d_max)
     share = lidar_share(sparse) if sparse is not None else 0.0
     mode = resolve_range(config, guide, matcher, sparse is not None, range_map is not None)
     tubes, stats = None, None
@@ -224,7 +226,12 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
             lo, hi = check_range_map(range_map, shape, d_min, d_max)
         else:
             coarse = config.tube.holes == "coarse"
-            lo, hi, *hole = lidar_tubes(sparse, d_min, d_max, share=share, return_holes=coarse, **asdict(config.tube))
+            # The LiDAR outside the nominal range bounds the tubes too, at the range's end (lidar_tubes clips): a
+            # pixel amid points beyond d_max has its disparity beyond it, and searching the whole range there finds
+            # nothing better. Only the points inside guide the cost. As match_tiled's tubes do.
+            outside = sparse is not lidar
+            lo, hi, *hole = lidar_tubes(lidar, d_min, d_max, share=lidar_share(lidar) if outside else share,
+                                        return_holes=coarse, **asdict(config.tube))
             if coarse:
                 lo, hi = fill_tube_holes(left, right, lo, hi, hole[0], d_min, d_max, config)
         layout = TubeLayout.from_bounds(lo, hi, d_min)

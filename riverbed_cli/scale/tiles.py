@@ -315,10 +315,16 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
         d_min, d_max = resolve_disparity_range(d_min, d_max, pv if sparse is not None else None)
         if overlap < 0:
             raise RiverbedError(f"--overlap must be >= 0, got {overlap}")
+        # the LiDAR inside the range guides the cost, as match_pair's; all of it bounds the tubes (tube_share)
+        guide_share = share
+        if sparse is not None:
+            inside = (pv >= d_min) & (pv <= d_max)
+            if not inside.all():
+                guide_share = lidar_share_of_points(pr[inside], pc[inside], (H, W))
         bits = image_bits(left, right)
         if guide.uses_window and p.guidance.window == "auto":
             # One window for the whole image: a tile's own LiDAR share would change it from tile to tile.
-            p = p.replace(window=guide.window(share, p))
+            p = p.replace(window=guide.window(guide_share, p))
         widths = tube_widths(p, (pr, pc, pv), (H, W), d_min, d_max, share) if sparse is not None else None
         plan = plan_tiles(H, W, sparse, d_min, d_max, tile, overlap, lidar_range, widths=widths)
         if out is None:
@@ -337,7 +343,7 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
                 progress(1)
     tubes = tiled_tube_stats(tube_parts, d_min, d_max)
     mode = "tube" if tubes is not None else ("tile" if sparse is not None and lidar_range else "full")
-    info = TiledMatchInfo(round(time.perf_counter() - t_all, 4), stages, p.guide, share,
+    info = TiledMatchInfo(round(time.perf_counter() - t_all, 4), stages, p.guide, guide_share,
                           p.guidance.window if guide.uses_window else None, d_min, d_max, [W, H], len(plan.tiles),
                           plan.size, overlap, int(evaluations), plan.to_dict()["tile_ranges"], mode, tubes)
     return MatchResult(out, info)
