@@ -1,6 +1,7 @@
 """LiDAR tubes (riverbed match --range tube) against the full range and OpenCV StereoSGBM, measured in one run.
 
-Usage: python benchmarks/bench_tubes.py [DATA_DIR] [--skip-speed] [--skip-coverage] [--skip-holes] [--repeat 3]
+Usage: python benchmarks/bench_tubes.py [DATA_DIR] [--skip-speed] [--skip-coverage] [--skip-holes] [--skip-beyond]
+       [--repeat 3]
 
 1. Coverage of the tube rule (and alternatives) on the Middlebury dev scenes and the dev aerial pair: the share of
    ground-truth pixels (not sampled as LiDAR) whose true disparity lies in their tube, the mean tube width, the share
@@ -9,7 +10,10 @@ Usage: python benchmarks/bench_tubes.py [DATA_DIR] [--skip-speed] [--skip-covera
 2. Accuracy, full range against tubes (8 and 4 paths), riverbed-guided SGM with the fusion default (same LiDAR).
 3. LiDAR holes: pixels with no LiDAR within reach on the nominal range (the default) against the range of a coarse
    match (``--tube-holes coarse``): coverage, width and errors in holes cut into the LiDAR.
-4. Speed as a user runs it: fresh ``riverbed match`` processes (``seconds`` from --json and whole-process wall time),
+4. LiDAR beyond the nominal range: the speed pair and Cones with a range that cuts off their nearest parts, the
+   LiDAR cut at the range against the LiDAR of the whole scene (the points beyond bound the pixels only they reach
+   at the range's end): tube width, pixels on the full range, accuracy on the GT pixels inside the range.
+5. Speed as a user runs it: fresh ``riverbed match`` processes (``seconds`` from --json and whole-process wall time),
    full range and tubes (the default, the matcher alone, 4 paths), against OpenCV StereoSGBM MODE_HH and
    MODE_SGBM_3WAY at the same nominal range, on the
    740 x 500 / 80-disparity speed pair and on the aerial pair padded to 1024 x 1024 (144 disparities).
@@ -17,6 +21,7 @@ Usage: python benchmarks/bench_tubes.py [DATA_DIR] [--skip-speed] [--skip-covera
 
 import argparse
 import json
+import logging
 import math
 import os
 import subprocess
@@ -162,6 +167,37 @@ VARIANTS = [
 ]
 
 
+def beyond(data_dir):
+    logging.getLogger("riverbed_cli").setLevel(logging.ERROR)  # each match would warn of the points beyond
+    print("\n### LiDAR beyond the nominal range: cut at the range against the whole scene's\n")
+    print("Accuracy on the GT pixels inside the range, not sampled as LiDAR; riverbed-guided SGM, 8 paths.\n")
+    print("| pair | LiDAR | range | fusion | mean width | full range % | bad1 % | bad3 % | avg px |")
+    print("|---|---|---|---|---:|---:|---:|---:|---:|")
+    cones = middlebury(data_dir, "Cones")
+    whole = simulate_lidar(cones.gt, 0.05, seed=0)
+    pairs = [("740x500 Reindeer, 0..79", speed_pair(data_dir), speed_pair(data_dir, beyond=True), 79),
+             ("Cones, 0..39 (GT to 55)", (cones.left, cones.right, np.where(whole <= 39, whole, np.nan)),
+              (cones.left, cones.right, whole), 39)]
+    for label, (left, right, cut), (_, _, every), d_max in pairs:
+        gt = middlebury(data_dir, "Reindeer").gt if d_max == 79 else cones.gt
+        if d_max == 79:
+            gt = cv2.resize(gt, (740, 500), interpolation=cv2.INTER_NEAREST) * (740 / gt.shape[1])
+        truth = np.where(gt <= d_max, gt, np.nan)
+        for method in ("nearest", "linear", "guided"):  # LiDAR alone: the points inside the range, interpolated
+            e = evaluate_disparity(densify(cut, method, image=left), truth, exclude=np.isfinite(every))
+            print(f"| {label} | LiDAR alone, {method} ({int(np.isfinite(cut).sum())} points inside) | | | | | "
+                  f"{e['bad1']:.2f} | {e['bad3']:.2f} | {e['avg']:.3f} |")
+        for name, sparse in (("cut at the range", cut), ("whole scene", every)):
+            for rng in ("tube", "full"):
+                for fusion in ("auto", "none"):
+                    res = match_pair(left, right, sparse, 0, d_max, range=rng, fusion=fusion)
+                    e = evaluate_disparity(res.disparity, truth, exclude=np.isfinite(every))
+                    t = res.info.get("tubes") or {"mean_width": d_max + 1, "full_share": 1.0}
+                    print(f"| {label} | {name} ({int(np.isfinite(sparse).sum())} points) | {rng} | {fusion} | "
+                          f"{t['mean_width']:.1f} | {100 * t['full_share']:.1f} | {e['bad1']:.2f} | {e['bad3']:.2f} | "
+                          f"{e['avg']:.3f} |", flush=True)
+
+
 def run_cli(args, env):
     t = time.perf_counter()
     p = subprocess.run([sys.executable, "-m", "riverbed_cli", "match", *args, "--json", "--overwrite"], env=env,
@@ -172,7 +208,9 @@ def run_cli(args, env):
 def speed(data_dir, repeat):
     print("\n### Speed: fresh `riverbed match` processes and warm in this process (median of runs, round-robin), "
           "OpenCV in this process\n")
-    cases = [("740x500 Reindeer, 0..79, 5 % LiDAR", *speed_pair(data_dir), 79)]
+    cases = [("740x500 Reindeer, 0..79, 5 % LiDAR", *speed_pair(data_dir), 79),
+             ("740x500 Reindeer, 0..79, the same LiDAR and the points beyond 79 px", *speed_pair(data_dir, beyond=True),
+              79)]
     if (Path(data_dir) / AERIAL).is_dir():
         left, right, gt = aerial(data_dir, pad_to=1024)
         cases.append(("1024x1024 Dublin aerial, 0..143, 1 % LiDAR", left, right, simulate_lidar(gt, 0.01, 0), 143))
@@ -224,6 +262,7 @@ def main():
     ap.add_argument("--skip-accuracy", action="store_true")
     ap.add_argument("--skip-speed", action="store_true")
     ap.add_argument("--skip-holes", action="store_true")
+    ap.add_argument("--skip-beyond", action="store_true")
     args = ap.parse_args()
     shares = [float(s) for s in args.shares.split(",")]
     if not args.skip_coverage:
@@ -232,6 +271,8 @@ def main():
         accuracy(args.data_dir, shares)
     if not args.skip_holes:
         holes(args.data_dir)
+    if not args.skip_beyond:
+        beyond(args.data_dir)
     if not args.skip_speed:
         speed(args.data_dir, args.repeat)
 

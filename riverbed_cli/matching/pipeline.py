@@ -75,7 +75,8 @@ def prepare_sparse(sparse, shape, d_min, d_max):
             f"[{vals.min():.2f}, {vals.max():.2f}])"
         )
     if n_in < n:
-        log.warning("%d of %d sparse disparities lie outside [%d, %d] and are ignored", n - n_in, n, d_min, d_max)
+        log.warning("%d of %d sparse disparities lie outside [%d, %d]: they guide no cost (tubes keep the pixels "
+                    "only they reach at the range's end)", n - n_in, n, d_min, d_max)
         sparse = np.where(inside, sparse, np.float32(np.nan))
     return sparse
 
