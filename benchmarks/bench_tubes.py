@@ -168,7 +168,6 @@ VARIANTS = [
 
 
 def beyond(data_dir):
-    logging.getLogger("riverbed_cli").setLevel(logging.ERROR)  # each match would warn of the points beyond
     print("\n### LiDAR beyond the nominal range: cut at the range against the whole scene's\n")
     print("Accuracy on the GT pixels inside the range, not sampled as LiDAR; riverbed-guided SGM, 8 paths.\n")
     print("| pair | LiDAR | range | fusion | mean width | full range % | bad1 % | bad3 % | avg px |")
@@ -264,6 +263,7 @@ def main():
     ap.add_argument("--skip-holes", action="store_true")
     ap.add_argument("--skip-beyond", action="store_true")
     args = ap.parse_args()
+    logging.getLogger("riverbed_cli").setLevel(logging.ERROR)  # each match would warn of the points beyond the range
     shares = [float(s) for s in args.shares.split(",")]
     if not args.skip_coverage:
         coverage(args.data_dir, shares)
