@@ -114,6 +114,35 @@ def test_lidar_share_uses_covered_area():
     assert lidar_share(sparse2) == pytest.approx(100 / 8281)
 
 
+def test_lidar_share_from_row_ends_equals_the_hull_of_every_point():
+    # lidar_share_of_points takes the hull of each row's two end points when the points come sorted by row: the
+    # same share as OpenCV's hull of all of them, sorted, shuffled, or with columns out of order within the rows
+    import cv2
+
+    from riverbed_cli.geometry.coverage import lidar_share_of_points
+
+    def every_point(rows, cols, shape):
+        hull = cv2.convexHull(np.stack([cols, rows], axis=1).astype(np.int32))[:, 0, :]
+        edges = np.abs(np.diff(np.vstack([hull, hull[:1]]), axis=0))
+        x, y = hull[:, 0].astype(float), hull[:, 1].astype(float)
+        area = abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))) / 2 + np.gcd(*edges.T).sum() / 2 + 1
+        return rows.size / max(area, rows.size)
+
+    rng = np.random.default_rng(0)
+    for density in (0.01, 0.05, 0.3, 0.9):
+        for _ in range(20):
+            H, W = rng.integers(5, 80, 2)
+            rows, cols = np.nonzero(rng.random((H, W)) < density)
+            if rows.size < 3:
+                continue
+            shuffled = rng.permutation(rows.size)
+            for r, c in ((rows, cols), (rows[shuffled], cols[shuffled]), (rows, cols[::-1].copy())):
+                assert lidar_share_of_points(r, c, (H, W)) == every_point(r, c, (H, W))
+    line = np.full((40, 40), np.nan, np.float32)
+    line[7, 3:30] = 1.0  # collinear points: the hull is the segment (27 pixels)
+    assert lidar_share(line) == 1.0
+
+
 @pytest.mark.parametrize("p,s", [(0.05, 9), (0.0123, 19), (0.0016, 25), (0.5, 5), (1e-6, 25)])
 def test_auto_window(p, s):
     assert auto_window(p) == s

@@ -49,7 +49,8 @@ def lidar_share_of_points(rows, cols, shape):
         return 0.0
     area = float(shape[0] * shape[1])
     if n >= 3:
-        hull = cv2.convexHull(np.stack([cols, rows], axis=1).astype(np.int64).astype(np.int32))[:, 0, :]
+        rows, cols = _row_ends(np.asarray(rows, np.int64), np.asarray(cols, np.int64))
+        hull = cv2.convexHull(np.stack([cols, rows], axis=1).astype(np.int32))[:, 0, :]
         # Pixels in the closed hull by Pick's theorem (A + B/2 + 1, B the lattice points on the boundary): exact,
         # and no image-sized mask.
         edges = np.abs(np.diff(np.vstack([hull, hull[:1]]), axis=0))
@@ -67,3 +68,15 @@ def lidar_rows(sparse):
     ptr = np.zeros(sparse.shape[0] + 1, dtype=np.int64)
     np.cumsum(np.bincount(rows, minlength=sparse.shape[0]), out=ptr[1:])
     return ptr, cols.astype(np.int64)
+
+
+def _row_ends(rows, cols):
+    # The leftmost and rightmost point of each row, for points sorted by row (lidar_points' row-major order): their
+    # convex hull is the hull of all the points, as every other point lies between its row's two (OpenCV's hull
+    # sorts its input: 1.4 ms for 18 500 points, against 0.1 ms for the 1 000 ends). Unsorted rows: all the points.
+    if rows.size < 3 or (np.diff(rows) < 0).any():
+        return rows, cols
+    starts = np.flatnonzero(np.diff(rows, prepend=rows[0] - 1))
+    r = rows[starts]
+    ends = (np.minimum.reduceat(cols, starts), np.maximum.reduceat(cols, starts))
+    return np.concatenate([r, r]), np.concatenate(ends)
