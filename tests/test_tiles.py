@@ -195,3 +195,21 @@ def test_tiled_tube_matches_report_their_tubes(cones):
     ranges = match_tiled(left, right, sparse, 0, 59, guide="riverbed", fusion="none", tile=128, overlap=64,
                          range="full")
     assert ranges.info["range"] == "tile" and "tubes" not in ranges.info.to_dict()
+
+
+def test_tiled_matches_check_the_lidar_against_the_range_as_untiled_ones(cones, caplog):
+    # LiDAR wholly outside the range is an error for a tiled match too (it used to run unguided); LiDAR partly
+    # outside is reported once, not per tile
+    left, right, gt = cones
+    sparse = simulate_lidar(gt, 0.05, seed=0)
+    for run in (match_pair, match_tiled):
+        with pytest.raises(RiverbedError) as e:
+            run(left, right, sparse, 60, 70)
+        assert str(e.value) == "disparity range [60, 70] excludes all sparse disparities (they span [9.25, 55.00])"
+    n, n_out = int(np.isfinite(sparse).sum()), int((sparse > 39).sum())
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="riverbed_cli"):
+        match_tiled(left, right, sparse, 0, 39, tile=128, overlap=32, fusion="none")
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert warned == [f"{n_out} of {n} sparse disparities lie outside [0, 39]: they guide no cost (tubes keep the "
+                      "pixels only they reach at the range's end)"]

@@ -68,8 +68,17 @@ def prepare_sparse(sparse, shape, d_min, d_max):
         raise RiverbedError("sparse map has no valid disparities")
     inside = valid & (sparse >= d_min) & (sparse <= d_max)
     n_in = int(inside.sum())
+    check_inside(n_in, n, d_min, d_max, lambda: sparse[valid])
+    if n_in < n:
+        sparse = np.where(inside, sparse, np.float32(np.nan))
+    return sparse
+
+
+def check_inside(n_in, n, d_min, d_max, values):
+    """Raise when none of the ``n`` LiDAR disparities lies in ``[d_min, d_max]``, warn when only ``n_in`` do
+    (``values()``: the disparities, for the message)."""
     if n_in == 0:
-        vals = sparse[valid]
+        vals = values()
         raise RiverbedError(
             f"disparity range [{d_min}, {d_max}] excludes all sparse disparities (they span "
             f"[{vals.min():.2f}, {vals.max():.2f}])"
@@ -77,8 +86,6 @@ def prepare_sparse(sparse, shape, d_min, d_max):
     if n_in < n:
         log.warning("%d of %d sparse disparities lie outside [%d, %d]: they guide no cost (tubes keep the pixels "
                     "only they reach at the range's end)", n - n_in, n, d_min, d_max)
-        sparse = np.where(inside, sparse, np.float32(np.nan))
-    return sparse
 
 
 def make_config(params=None, **overrides):

@@ -24,7 +24,8 @@ from ..io.images import to_guide
 from ..io.windowed import bounded_raster_cache, image_bits, sparse_points_any
 from ..matching.config import OVERLAP_DEFAULT, TILE_DEFAULT
 from ..matching.guidance import lidar_share, lidar_share_of_points
-from ..matching.pipeline import fill_tube_holes, make_config, match_pair, resolve_disparity_range, resolve_range
+from ..matching.pipeline import (check_inside, fill_tube_holes, make_config, match_pair, resolve_disparity_range,
+                                 resolve_range)
 from ..matching.registry import get_guide, get_matcher
 from ..matching.tubes import cell_widths_from_points, lidar_tubes_window
 from ..matching.results import MatchResult, TiledMatchInfo
@@ -319,6 +320,7 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
         guide_share = share
         if sparse is not None:
             inside = (pv >= d_min) & (pv <= d_max)
+            check_inside(int(inside.sum()), pv.size, d_min, d_max, lambda: pv)
             if not inside.all():
                 guide_share = lidar_share_of_points(pr[inside], pc[inside], (H, W))
         bits = image_bits(left, right)
