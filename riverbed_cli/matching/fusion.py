@@ -166,12 +166,65 @@ def estimate_stereo_sigma(stereo, lidar, sigma_l, consistent=None, share=0.3, sm
     """The stereo's error (px, one number): NMAD of ``stereo - lidar`` over the ``share`` of the left-right
     ``consistent`` pixels (default: those with a stereo value) that have the smallest ``sigma_l``; at least
     ``smallest``. Infinite when no pixel qualifies."""
-    fin = np.isfinite(stereo) if consistent is None else consistent
+    stereo = np.ascontiguousarray(stereo, np.float32)
+    fin = np.isfinite(stereo) if consistent is None else np.asarray(consistent, np.bool_)
     if not fin.any():
         return float("inf")
-    m = fin & (sigma_l <= np.percentile(sigma_l[fin], 100.0 * share))
-    r = np.abs(stereo[m] - lidar[m])
+    # the values gathered by one pass each (NumPy's masks and copies took 8 of 12 ms on 1 MP); the percentile and
+    # median are NumPy's, of the same values
+    sigma_l = np.ascontiguousarray(sigma_l)
+    limit = np.percentile(_where_values(sigma_l, fin), 100.0 * share)
+    r = _where_abs_diff(stereo, np.ascontiguousarray(lidar, np.float32), sigma_l, fin, float(limit))
     return max(smallest, 1.4826 * float(np.median(r))) if r.size else float("inf")
+
+
+@njit(cache=True, parallel=True)
+def _row_counts(mask):
+    # the row offsets of mask's True pixels in row-major order (H + 1)
+    H, W = mask.shape
+    counts = np.zeros(H + 1, np.int64)
+    for y in prange(H):
+        n = 0
+        for x in range(W):
+            n += mask[y, x]
+        counts[y + 1] = n
+    for y in range(H):
+        counts[y + 1] += counts[y]
+    return counts
+
+
+@njit(cache=True, parallel=True)
+def _where_values(x, mask):
+    # x[mask] as float64, row-major
+    at = _row_counts(mask)
+    out = np.empty(at[-1], np.float64)
+    H, W = mask.shape
+    for y in prange(H):
+        k = at[y]
+        for i in range(W):
+            if mask[y, i]:
+                out[k] = np.float64(x[y, i])
+                k += 1
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _where_abs_diff(a, b, sigma, mask, limit):
+    # |a - b| (float32, as NumPy's) where mask and sigma <= limit (sigma compared as float64), row-major
+    H, W = mask.shape
+    keep = np.empty((H, W), np.bool_)
+    for y in prange(H):
+        for x in range(W):
+            keep[y, x] = mask[y, x] and np.float64(sigma[y, x]) <= limit
+    at = _row_counts(keep)
+    out = np.empty(at[-1], np.float32)
+    for y in prange(H):
+        k = at[y]
+        for x in range(W):
+            if keep[y, x]:
+                out[k] = abs(a[y, x] - b[y, x])
+                k += 1
+    return out
 
 
 def fuse_disparity(stereo, status, sparse, gate=4.0, neighbours=6, support=4, floor=0.25, stereo_sigma="auto"):
@@ -205,7 +258,7 @@ def fuse_disparity(stereo, status, sparse, gate=4.0, neighbours=6, support=4, fl
     fin = np.isfinite(stereo)
     consistent = fin if status is None else fin & (np.asarray(status) == 0)
     if stereo_sigma == "auto":
-        sig_s = estimate_stereo_sigma(stereo, lidar, sig_l.astype(np.float64), consistent)
+        sig_s = estimate_stereo_sigma(stereo, lidar, sig_l, consistent)
     else:
         sig_s = float(stereo_sigma)
     out, confidence, counts = _decide(stereo, lidar, sig_l, consistent, float(sig_s), float(gate))
@@ -222,7 +275,7 @@ def _decide(stereo, lidar, sig_l, consistent, sig_s, gate):
     H, W = stereo.shape
     out = np.empty((H, W), np.float32)
     conf = np.empty((H, W), np.float32)
-    kinds = np.empty((H, W), np.int8)
+    per_row = np.zeros((H, 3), np.int64)  # counted per row in the parallel pass, summed after
     finite_s = math.isfinite(sig_s)
     ws = 1.0 / (sig_s * sig_s) if finite_s else 0.0
     root2 = math.sqrt(2.0)
@@ -250,11 +303,11 @@ def _decide(stereo, lidar, sig_l, consistent, sig_s, gate):
                 kind = 2
             out[y, x] = np.float32(v)
             conf[y, x] = np.float32(math.erf(1.0 / (max(sf, 1e-6) * root2)))
-            kinds[y, x] = kind
+            per_row[y, kind] += 1
     counts = np.zeros(3, np.int64)
     for y in range(H):
-        for x in range(W):
-            counts[kinds[y, x]] += 1
+        for k in range(3):
+            counts[k] += per_row[y, k]
     return out, conf, counts
 
 
