@@ -287,6 +287,9 @@ def nearest_points(rows, cols, k, ptr, nbr):
     dist = np.zeros((n, k), np.float64)
     idx = np.zeros((n, k), np.int64)
     if n and k:
+        if (int(np.ptp(rows)) ** 2 + int(np.ptp(cols)) ** 2 + 1) * n >= 2 ** 62:  # _graph_knn's keys
+            raise RiverbedError(f"{n} LiDAR points over {np.ptp(cols) + 1} x {np.ptp(rows) + 1} px are too many "
+                                "to search for nearest points at once; match in tiles")
         deg = int(np.diff(ptr).max())
         _graph_knn(rows, cols, np.asarray(ptr, np.int64), np.asarray(nbr, np.int64), 1 + k * deg,
                    max(1, min(n, 4 * get_num_threads())), dist, idx)
@@ -296,37 +299,35 @@ def nearest_points(rows, cols, k, ptr, nbr):
 @njit(cache=True, parallel=True)
 def _graph_knn(rows, cols, ptr, nbr, cap, nblocks, dist, idx):
     # nearest_points: per point, grow the candidates (neighbours of the points found) and take the nearest unused one;
-    # a stamp per point (the point whose search saw it last) tells seen candidates in one lookup
+    # a stamp per point (the point whose search saw it last) tells seen candidates in one lookup. A candidate's key
+    # is its squared distance times n plus its index (the order of nearest_points: nearer first, then the lower
+    # index); the taken one is swapped out, so each step is one branchless minimum over the open candidates.
     n, k = idx.shape
     for bk in prange(nblocks):
         stamp = np.full(n, -1, np.int64)
-        cand = np.empty(cap, np.int64)
-        cd = np.empty(cap, np.int64)
-        used = np.empty(cap, np.bool_)
+        key = np.empty(cap, np.int64)
         for i in range(bk * n // nblocks, (bk + 1) * n // nblocks):
-            cand[0] = i
-            cd[0] = 0
-            used[0] = False
+            key[0] = i  # itself: distance 0
             stamp[i] = i
             m = 1
             for j in range(k):
-                best = -1
-                for c in range(m):
-                    if not used[c] and (best < 0 or cd[c] < cd[best] or (cd[c] == cd[best] and cand[c] < cand[best])):
+                best = 0
+                for c in range(1, m):
+                    if key[c] < key[best]:
                         best = c
-                used[best] = True
-                p = cand[best]
+                kb = key[best]
+                m -= 1
+                key[best] = key[m]
+                p = kb % n
                 idx[i, j] = p
-                dist[i, j] = math.sqrt(cd[best])
+                dist[i, j] = math.sqrt(kb // n)
                 for e in range(ptr[p], ptr[p + 1]):
                     q = nbr[e]
                     if stamp[q] != i:
                         stamp[q] = i
                         dy = rows[q] - rows[i]
                         dx = cols[q] - cols[i]
-                        cand[m] = q
-                        cd[m] = dy * dy + dx * dx
-                        used[m] = False
+                        key[m] = (dy * dy + dx * dx) * n + q
                         m += 1
 
 
