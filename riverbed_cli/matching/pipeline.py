@@ -234,9 +234,9 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
             lo, hi = check_range_map(range_map, shape, d_min, d_max)
         else:
             coarse = config.tube.holes == "coarse"
-            # The LiDAR outside the nominal range bounds the tubes too, at the range's end (lidar_tubes clips): a
-            # pixel amid points beyond d_max has its disparity beyond it, and searching the whole range there finds
-            # nothing better. Only the points inside guide the cost. As match_tiled's tubes do.
+            # The LiDAR outside the nominal range bounds the pixels it alone reaches at the range's end (lidar_tubes):
+            # their disparity lies beyond the range, where no search finds it. Only the points inside guide the
+            # cost. The spacing counts every point, as match_tiled's tubes do.
             outside = sparse is not lidar
             lo, hi, *hole = lidar_tubes(lidar, d_min, d_max, share=lidar_share(lidar) if outside else share,
                                         return_holes=coarse, **asdict(config.tube))

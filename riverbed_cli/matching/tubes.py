@@ -12,7 +12,7 @@ cost, but it still tells where the disparity lies: at a level whose window holds
 points alone set the tube (a pixel whose disparity lies in the range belongs to their surfaces, not to one beyond
 it); where the window holds points beyond the range only, the pixel's disparity lies beyond it too and the tube is
 theirs clipped to the range, the disparities at its end, instead of the whole range (on the speed pair with the
-LiDAR of the whole scene, a third of the pixels: the mean tube width 21.7 -> 9.1 px).
+LiDAR of the whole scene, a sixth of the pixels: the mean tube width 21.7 -> 6.9 px).
 
 LiDAR sparser than ``max_spacing`` px (mean spacing) bounds no pixel: objects smaller
 than its spacing go unsampled and their disparity can lie outside every nearby point's (KITTI at 0.16 % of its GT:
