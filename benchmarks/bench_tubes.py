@@ -38,7 +38,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_match import opencv_sgbm  # noqa: E402
-from datasets import DEV_SCENES, middlebury, speed_pair  # noqa: E402
+from datasets import DEV_SCENES, middlebury, speed_pair, speed_scene  # noqa: E402
 
 from riverbed_cli.io.disparity import read_disparity, write_disparity  # noqa: E402
 from riverbed_cli.io.images import read_image  # noqa: E402
@@ -174,13 +174,12 @@ def beyond(data_dir):
     print("|---|---|---|---|---:|---:|---:|---:|---:|")
     cones = middlebury(data_dir, "Cones")
     whole = simulate_lidar(cones.gt, 0.05, seed=0)
-    pairs = [("740x500 Reindeer, 0..79", speed_pair(data_dir), speed_pair(data_dir, beyond=True), 79),
-             ("Cones, 0..39 (GT to 55)", (cones.left, cones.right, np.where(whole <= 39, whole, np.nan)),
-              (cones.left, cones.right, whole), 39)]
-    for label, (left, right, cut), (_, _, every), d_max in pairs:
-        gt = middlebury(data_dir, "Reindeer").gt if d_max == 79 else cones.gt
-        if d_max == 79:
-            gt = cv2.resize(gt, (740, 500), interpolation=cv2.INTER_NEAREST) * (740 / gt.shape[1])
+    left, right, scene = speed_scene(data_dir)
+    pairs = [("740x500 Reindeer, 0..79", left, right, scene, speed_pair(data_dir)[2],
+              speed_pair(data_dir, beyond=True)[2], 79),
+             ("Cones, 0..39 (GT to 55)", cones.left, cones.right, cones.gt, np.where(whole <= 39, whole, np.nan),
+              whole, 39)]
+    for label, left, right, gt, cut, every, d_max in pairs:
         truth = np.where(gt <= d_max, gt, np.nan)
         for method in ("nearest", "linear", "guided"):  # LiDAR alone: the points inside the range, interpolated
             e = evaluate_disparity(densify(cut, method, image=left), truth, exclude=np.isfinite(every))

@@ -53,6 +53,17 @@ def all_scenes(data_dir, held_out=True):
     return scenes
 
 
+def speed_scene(data_dir):
+    """The speed pair's images and whole-scene GT: Reindeer resized to 740x500, the GT scaled with it (up to 110 px,
+    NaN unknown). Returns ``(left, right, gt)``."""
+    import cv2
+
+    sc = middlebury(data_dir, "Reindeer")
+    left = cv2.resize(sc.left, (740, 500), interpolation=cv2.INTER_AREA)
+    right = cv2.resize(sc.right, (740, 500), interpolation=cv2.INTER_AREA)
+    return left, right, cv2.resize(sc.gt, (740, 500), interpolation=cv2.INTER_NEAREST) * (740 / sc.gt.shape[1])
+
+
 def speed_pair(data_dir, seed=0, share=0.05, beyond=False):
     """The issue's speed case: Reindeer resized to 740x500 with 80 disparities (0..79) and LiDAR at ``share``.
 
@@ -61,14 +72,9 @@ def speed_pair(data_dir, seed=0, share=0.05, beyond=False):
     ``beyond`` the LiDAR also holds points where the truth lies beyond 79 px, at the same density (the same points
     inside the range), as a real scan of the scene would: a user's ``--max-disp 79`` leaves them outside the range.
     """
-    import cv2
-
     from riverbed_cli.products.simulate import simulate_lidar
 
-    sc = middlebury(data_dir, "Reindeer")
-    left = cv2.resize(sc.left, (740, 500), interpolation=cv2.INTER_AREA)
-    right = cv2.resize(sc.right, (740, 500), interpolation=cv2.INTER_AREA)
-    scene = cv2.resize(sc.gt, (740, 500), interpolation=cv2.INTER_NEAREST) * (740 / sc.gt.shape[1])
+    left, right, scene = speed_scene(data_dir)
     gt = scene.copy()
     gt[gt > 79] = np.nan
     sparse = simulate_lidar(gt, share, seed=seed)

@@ -221,20 +221,17 @@ def _cell_tubes(cmin, cmax, d_min, d_max, spacing, reach, margin, levels, level_
     thi = np.full((ch, cw), d_max, np.int64)
     if spacing > max_spacing:
         return tlo, thi, done
+    # at each level the points inside the range first; those outside only where none inside is within reach
+    sources = [(cmin, cmax)] + ([outside] if outside is not None else [])
     for k in range(int(levels)):
         r = max(1, int(math.ceil(reach * spacing * 2 ** k / cell)))
-        wlo, whi = _window_extrema(cmin, cmax, r)
-        new = ~done & np.isfinite(wlo)
         m = margin + k * level_margin
-        tlo[new] = np.floor(wlo[new] - m)
-        thi[new] = np.ceil(whi[new] + m)
-        done |= new
-        if outside is not None:  # only points outside the range at this level: the range's end next to them
-            olo, ohi = _window_extrema(*outside, r)
-            far = ~done & np.isfinite(olo)
-            tlo[far] = np.floor(olo[far] - m)
-            thi[far] = np.ceil(ohi[far] + m)
-            done |= far
+        for emin, emax in sources:
+            wlo, whi = _window_extrema(emin, emax, r)
+            new = ~done & np.isfinite(wlo)
+            tlo[new] = np.floor(wlo[new] - m)
+            thi[new] = np.ceil(whi[new] + m)
+            done |= new
         if done.all():
             break
     return np.clip(tlo, d_min, d_max), np.clip(thi, d_min, d_max), done
