@@ -207,3 +207,22 @@ def test_command_line_loads_cached_kernels_without_numbas_compiler_start_up(work
                           env={**env, "RIVERBED_NUMBA_REFRESH": "0" if refresh else "1"}, capture_output=True,
                           text=True, check=True).stdout.split()
     assert same[2] == out[2]
+
+
+def test_progress_bar_draws_on_a_terminal_only(monkeypatch):
+    import io
+
+    from riverbed_cli.cli import options
+
+    err = io.StringIO()
+    monkeypatch.setattr(sys, "stderr", err)  # a pipe: nothing drawn, tqdm not needed
+    with options.progress_bar(4, desc="match") as bar:
+        bar.update(4)
+    assert err.getvalue() == "" and type(bar).__name__ == "_NoBar"
+    err.isatty = lambda: True  # a terminal: tqdm draws its bar on stderr
+    with options.progress_bar(4, desc="match") as bar:
+        bar.update(4)
+    assert type(bar).__name__ == "tqdm" and "match: 100%" in err.getvalue()
+    with options.progress_bar(4, enabled=False, desc="dsm") as bar:  # nothing to count: no bar either
+        bar.update(4)
+    assert "dsm" not in err.getvalue()

@@ -4,14 +4,13 @@ import json
 from pathlib import Path
 
 import click
-from tqdm import tqdm
 
 from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
 from ..matching.config import FUSION_CHOICES, GUIDE_NAMES as GUIDES, MATCHER_NAMES as MATCHERS, RANGES
 from ..products.densify import METHODS as DENSIFY_METHODS
 from ..products import benchmark as bm
-from .options import json_opt, print_json, progress_enabled
+from .options import json_opt, print_json, progress_bar
 
 
 def _floats(value, name):
@@ -96,7 +95,7 @@ def benchmark_cmd(dataset, layout, outdir, matchers, guides, ranges, fusions, sh
     out.mkdir(parents=True, exist_ok=True)
     bl = _names(baselines, "baselines", DENSIFY_METHODS) if baselines.strip() else ()
     total = bm.count_cases(scene_list, ms, gs, sh, ws, se, bl)
-    with tqdm(total=total, desc="benchmark", unit="case", disable=not progress_enabled()) as bar:
+    with progress_bar(total, desc="benchmark", unit="case") as bar:
         rows = bm.run_benchmark(scene_list, ms, gs, sh, ws, se, out / "cache", progress=bar.update, baselines=bl,
                                 share_of=share_of)
     bm.write_tables(rows, out, share_of)

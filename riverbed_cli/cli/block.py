@@ -5,7 +5,6 @@ into overlapping ROIs (``riverbed block split-rpc``)."""
 import logging
 
 import click
-from tqdm import tqdm
 
 from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
@@ -13,7 +12,7 @@ from ..geometry.rectify import parse_size
 from ..geometry.rpc_pair import parse_heights, parse_roi
 from ..scale.block import plan_block, run_block
 from ..scale.block.split import MIN_RIGHT_SHARE, write_split_manifest
-from .options import input_path, json_opt, overwrite_opt, parsed_value, print_json, progress_enabled
+from .options import input_path, json_opt, overwrite_opt, parsed_value, print_json, progress_bar
 
 log = logging.getLogger(__name__)
 
@@ -152,8 +151,7 @@ def block_run_cmd(manifest, outdir, workers, threads_per_worker, scheduler, retr
     n_pairs = len(plan.jobs)
     settled = [n_pairs - len(plan.to_run)]
     # Tiles are counted as each pair's projection plans them.
-    with tqdm(total=0, desc="block", unit="tile", disable=not progress_enabled() or not plan.to_run,
-              leave=False) as bar:
+    with progress_bar(0, bool(plan.to_run), desc="block", unit="tile", leave=False) as bar:
         bar.set_postfix_str(f"pairs {settled[0]}/{n_pairs}")
 
         def progress(kind, name, n=1):

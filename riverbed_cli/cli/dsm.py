@@ -4,7 +4,6 @@ import time
 
 import click
 import numpy as np
-from tqdm import tqdm
 
 from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
@@ -19,7 +18,7 @@ from ..io.raster import parse_creation_options, write_geotiff
 from ..products.dsm import (AGGREGATIONS, build_dsm, check_bounds, check_creation_options, check_min_confidence,
                              hillshade, read_confidence)
 from ..products.visualize import hillshade_picture, write_picture
-from .options import json_opt, overwrite_opt, print_json, progress_enabled
+from .options import json_opt, overwrite_opt, print_json, progress_bar
 
 
 class Number(click.ParamType):
@@ -162,7 +161,7 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
             blocks.append((xyz, rgb))
 
     total = sum(d.shape[0] for d, _, _ in sources)
-    with tqdm(total=total, desc="dsm", unit="row", disable=not progress_enabled() or not total, leave=False) as bar:
+    with progress_bar(total, bool(total), desc="dsm", unit="row", leave=False) as bar:
         result = build_dsm(sources, clouds, resolution, agg, bounds, fill_holes, point_sink=sink,
                            lidar_registration=reg, progress=bar.update, confidence=confs if confidences else None,
                            min_confidence=min_confidence)

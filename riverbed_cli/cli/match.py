@@ -6,11 +6,10 @@ module loads no Numba kernel: the matching library is imported when the command 
 """
 
 import click
-from tqdm import tqdm
 
 from .cached_kernels import skip_refresh_on_cache_loads
 from ..matching.config import MATCH_SETTINGS, MatchConfig
-from .options import input_path, json_opt, output_opt, overwrite_opt, print_json, progress_enabled, setting_options
+from .options import input_path, json_opt, output_opt, overwrite_opt, print_json, progress_bar, setting_options
 
 _MATCH = [s for s in MATCH_SETTINGS if s.group is not None]
 _RUN = [s for s in MATCH_SETTINGS if s.group is None and s.name not in ("tile", "overlap", "lidar_range")]
@@ -60,7 +59,7 @@ def match_cmd(left, right, output, sparse, sparse_scale, range_map, color_png, c
     bars = []
 
     def progress(total):
-        bars.append(tqdm(total=total, desc="match", disable=not progress_enabled(), leave=False))
+        bars.append(progress_bar(total, desc="match", leave=False))
         return bars[-1].update
 
     try:

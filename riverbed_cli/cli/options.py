@@ -43,6 +43,43 @@ def progress_enabled():
     return sys.stderr.isatty()
 
 
+class _NoBar:
+    """What a command does with a tqdm bar, doing nothing (pipes, CI logs, nothing to count)."""
+
+    def __init__(self, total=0):
+        self.total = total
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def update(self, n=1):
+        pass
+
+    def refresh(self):
+        pass
+
+    def set_postfix_str(self, s=""):
+        pass
+
+    def close(self):
+        pass
+
+
+def progress_bar(total=0, enabled=True, **kwargs):
+    """A tqdm progress bar on a terminal (:func:`progress_enabled`) when ``enabled``, else one that does nothing.
+
+    tqdm is imported only for a bar that shows: its import (with ``importlib.metadata``) took 30 ms of a fresh
+    ``riverbed match`` in a pipe, where the bar was made disabled."""
+    if not (enabled and progress_enabled()):
+        return _NoBar(total)
+    from tqdm import tqdm
+
+    return tqdm(total=total, **kwargs)
+
+
 def setup_logging(verbosity):
     level = {-1: logging.ERROR, 0: logging.WARNING, 1: logging.INFO}.get(verbosity, logging.DEBUG)
     logging.basicConfig(level=level, format="riverbed: %(levelname)s: %(message)s", stream=sys.stderr, force=True)

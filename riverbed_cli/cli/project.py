@@ -4,7 +4,6 @@ import json
 import logging
 
 import click
-from tqdm import tqdm
 
 from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
@@ -16,7 +15,7 @@ from ..io.lidar import lidar_info
 from ..geometry.pairfile import load_pairfile, load_registration
 from ..matching.config import MatchConfig
 from ..matching.guides.riverbed import riverbed_window
-from .options import input_path, json_opt, output_opt, overwrite_opt, print_json, progress_enabled
+from .options import input_path, json_opt, output_opt, overwrite_opt, print_json, progress_bar
 
 log = logging.getLogger(__name__)
 
@@ -103,8 +102,7 @@ def project_cmd(cloud, pair, output, registration, classes, drop_classes, outlie
         raise RiverbedError(str(e), pair if e.path is None else None) from None
     reg = load_registration(registration) if registration else None
     total = lidar_info(cloud).point_count
-    with tqdm(total=total, desc="project", unit="pt", unit_scale=True, disable=not progress_enabled(),
-              leave=False) as bar:
+    with progress_bar(total, desc="project", unit="pt", unit_scale=True, leave=False) as bar:
         sparse, stats = project_cloud(cloud, geometry, registration=reg, classes=classes,
                                       drop_classes=drop_classes or (), outliers=outliers, side=side,
                                       visibility=visibility, footprint=footprint, edge_reach=edge_reach, crs=crs,

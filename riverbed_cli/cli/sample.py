@@ -4,12 +4,11 @@ or with ``--satellite`` the synthetic satellite pair (raw images with RPCs, grou
 import logging
 
 import click
-from tqdm import tqdm
 
 from .cached_kernels import skip_refresh_on_cache_loads
 from ..sample import SIZES, STAGES, generate_block
 from ..sample.satellite import SATELLITE_STAGES, generate_satellite
-from .options import json_opt, overwrite_opt, print_json, progress_enabled
+from .options import json_opt, overwrite_opt, print_json, progress_bar
 
 log = logging.getLogger(__name__)
 
@@ -44,7 +43,7 @@ def sample_cmd(outdir, size, satellite, seed, overwrite, as_json):
     else:
         command = f"riverbed sample {outdir} --size {size} --seed {seed}"
         stages, generate = STAGES, generate_block
-    with tqdm(total=len(stages), desc="sample", unit="stage", disable=not progress_enabled(), leave=False) as bar:
+    with progress_bar(len(stages), desc="sample", unit="stage", leave=False) as bar:
         summary = generate(outdir, size, seed, overwrite, command=command, progress=lambda stage: bar.update())
     if as_json:
         print_json(summary)
