@@ -7,7 +7,8 @@ Usage: python benchmarks/bench_tubes.py [DATA_DIR] [--skip-speed] [--skip-covera
    ground-truth pixels (not sampled as LiDAR) whose true disparity lies in their tube, the mean tube width, the share
    of pixels left on the full range. LiDAR is a seeded sample of the GT at a share of the *image* pixels
    (``simulate_lidar``), as in docs/benchmarks.md.
-2. Accuracy, full range against tubes (8 and 4 paths), riverbed-guided SGM with the fusion default (same LiDAR).
+2. Accuracy, full range against tubes (8 and 4 paths), riverbed-guided SGM fused (the default) and alone
+   (``--fusion none``), beside the LiDAR-only baselines (nearest, linear, image-guided) of the same points.
 3. LiDAR holes: pixels with no LiDAR within reach on the nominal range (the default) against the range of a coarse
    match (``--tube-holes coarse``): coverage, width and errors in holes cut into the LiDAR.
 4. LiDAR beyond the nominal range: the speed pair and Cones with a range that cuts off their nearest parts, the
@@ -15,8 +16,8 @@ Usage: python benchmarks/bench_tubes.py [DATA_DIR] [--skip-speed] [--skip-covera
    at the range's end): tube width, pixels on the full range, accuracy on the GT pixels inside the range.
 5. Speed as a user runs it: fresh ``riverbed match`` processes (``seconds`` from --json and whole-process wall time),
    full range and tubes (the default, the matcher alone, 4 paths), against OpenCV StereoSGBM MODE_HH and
-   MODE_SGBM_3WAY at the same nominal range, on the
-   740 x 500 / 80-disparity speed pair and on the aerial pair padded to 1024 x 1024 (144 disparities).
+   MODE_SGBM_3WAY at the same nominal range (warm, in this process), on the 740 x 500 / 80-disparity speed pair
+   and on the aerial pair padded to 1024 x 1024 (144 disparities). Ratios are medians of each round's ratio.
 """
 
 import argparse
@@ -221,6 +222,8 @@ def speed(data_dir, repeat):
     if (Path(data_dir) / AERIAL).is_dir():
         left, right, gt = aerial(data_dir, pad_to=1024)
         cases.append(("1024x1024 Dublin aerial, 0..143, 1 % LiDAR", left, right, simulate_lidar(gt, 0.01, 0), 143))
+    print("Ratios: medians over the rounds of each round's ratio (riverbed's time over OpenCV's of the same round: "
+          "the machine's drift between rounds cancels); the times are medians over the rounds.\n")
     print("| pair | method | seconds (--json) | wall s | warm s | mean tube width | vs OpenCV HH | vs OpenCV 3WAY | "
           "warm vs HH | warm vs 3WAY |")
     print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
@@ -245,19 +248,23 @@ def speed(data_dir, repeat):
                 for name, extra, kw in VARIANTS:
                     runs[name].append(run_cli(base + extra, env))
                     warm[name].append(match_pair(left, right, sparse, 0, d_max, **kw).info["seconds"])
-            hh = float(np.median(opencv[cv2.STEREO_SGBM_MODE_HH]))
-            w3 = float(np.median(opencv[cv2.STEREO_SGBM_MODE_SGBM_3WAY]))
+            hhs = np.array(opencv[cv2.STEREO_SGBM_MODE_HH])
+            w3s = np.array(opencv[cv2.STEREO_SGBM_MODE_SGBM_3WAY])
+            hh, w3 = float(np.median(hhs)), float(np.median(w3s))
             for name, _, _ in VARIANTS:
                 runs_v = runs[name]
-                sec = float(np.median([r[0]["seconds"] for r in runs_v]))
+                secs = np.array([r[0]["seconds"] for r in runs_v])
                 wall = float(np.median([r[1] for r in runs_v]))
                 width = (runs_v[0][0].get("tubes") or {}).get("mean_width", d_max + 1)
-                sw = float(np.median(warm[name]))
-                print(f"| {label} | riverbed, {name} | {sec:.3f} | {wall:.2f} | {sw:.3f} | {width:.1f} | "
-                      f"{sec / hh:.2f} | {sec / w3:.2f} | {sw / hh:.2f} | {sw / w3:.2f} |", flush=True)
-        print(f"| {label} | OpenCV MODE_HH | {hh:.3f} | | {hh:.3f} | {d_max + 1} | 1.00 | {hh / w3:.2f} | | |")
-        print(f"| {label} | OpenCV MODE_SGBM_3WAY | {w3:.3f} | | {w3:.3f} | {d_max + 1} | {w3 / hh:.2f} | 1.00 | | |",
-              flush=True)
+                sws = np.array(warm[name])
+                ratios = [float(np.median(a / b)) for a in (secs, sws) for b in (hhs, w3s)]
+                print(f"| {label} | riverbed, {name} | {np.median(secs):.3f} | {wall:.2f} | {np.median(sws):.3f} | "
+                      f"{width:.1f} | {ratios[0]:.2f} | {ratios[1]:.2f} | {ratios[2]:.2f} | {ratios[3]:.2f} |",
+                      flush=True)
+        print(f"| {label} | OpenCV MODE_HH | {hh:.3f} | | {hh:.3f} | {d_max + 1} | 1.00 | "
+              f"{float(np.median(hhs / w3s)):.2f} | | |")
+        print(f"| {label} | OpenCV MODE_SGBM_3WAY | {w3:.3f} | | {w3:.3f} | {d_max + 1} | "
+              f"{float(np.median(w3s / hhs)):.2f} | 1.00 | | |", flush=True)
 
 
 def main():
