@@ -328,12 +328,15 @@ def test_coarse_holes_bound_the_pixels_without_lidar_on_a_real_pair(cones):
                                                      tube={"holes": "full"}).disparity, equal_nan=True)
 
 
-def test_coarse_holes_from_the_command_line_untiled_only(cones, tmp_path):
+def test_coarse_holes_from_the_command_line_untiled_and_tiled(cones, tmp_path):
+    import json
+
     from click.testing import CliRunner
 
     from riverbed_cli.cli.main import cli
     from riverbed_cli.io.disparity import read_disparity, write_disparity
     from riverbed_cli.products.simulate import simulate_lidar
+    from riverbed_cli.scale.tiles import match_tiled
 
     left, right, gt = cones
     sparse = simulate_lidar(gt, 0.05, seed=0)
@@ -344,10 +347,23 @@ def test_coarse_holes_from_the_command_line_untiled_only(cones, tmp_path):
     ok = CliRunner().invoke(cli, base + ["--tile", "0", "-o", str(tmp_path / "d.tif"), "--json"])
     assert ok.exit_code == 0, ok.output
     assert '"full_share": 0.0' in ok.output and np.isfinite(read_disparity(tmp_path / "d.tif")).all()
-    tiled = CliRunner().invoke(cli, base + ["--tile", "128", "-o", str(tmp_path / "t.tif")])
-    assert tiled.exit_code == 1
-    assert tiled.output.strip().splitlines()[-1] == ("riverbed: error: --tube-holes coarse works on an untiled "
-                                                    "match for now; pass --tile 0")
-    assert not (tmp_path / "t.tif").exists()
+    # tiled: each tile's holes take the coarse match of its own crop over its range
+    tiled = CliRunner().invoke(cli, base + ["--tile", "128", "--overlap", "64", "-o", str(tmp_path / "t.tif"),
+                                            "--json"])
+    assert tiled.exit_code == 0, tiled.output
+    info = json.loads(tiled.output[tiled.output.index("{"):])
+    assert info["tiles"] > 4 and info["tubes"]["full_share"] == 0.0
+    # the tiles' own LiDAR ranges already bound their holes; the coarse ranges narrow them further
+    nominal = match_tiled(left, right, sparse, 0, 59, tile=128, overlap=64, tube={"holes": "full"}).info["tubes"]
+    assert info["tubes"]["mean_width"] < nominal["mean_width"] - 1.0
+    lo, hi, hole = lidar_tubes(sparse, 0, 59, return_holes=True)
+    ev = hole & np.isfinite(gt)
+    e_untiled, e_tiled = (np.abs(read_disparity(tmp_path / f) - gt)[ev] for f in ("d.tif", "t.tif"))
+    assert (e_tiled > 3).mean() <= (e_untiled > 3).mean() + 0.005
+    assert np.nanmean(e_tiled) <= np.nanmean(e_untiled) * 1.05
+    # one tile over the whole image is the untiled match, bit for bit
+    one = match_tiled(left, right, sparse, 0, 59, tile=512, tube={"holes": "coarse"})
+    assert one.info["tiles"] == 1
+    assert np.array_equal(one.disparity, read_disparity(tmp_path / "d.tif"), equal_nan=True)
     bad = CliRunner().invoke(cli, base[:-1] + ["nearest", "--tile", "0", "-o", str(tmp_path / "b.tif")])
     assert bad.exit_code != 0 and "expected one of full, coarse, got 'nearest'" in bad.output

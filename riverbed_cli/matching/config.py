@@ -304,8 +304,8 @@ _TUBE_HELP = {"reach": "Tube: radius of the first level, in mean LiDAR spacings.
               "cell": "Tube: cell side (px) in which LiDAR extrema are gathered.",
               "max_spacing": "Tube: LiDAR sparser than this mean spacing (px) bounds no pixel (nominal range).",
               "holes": "Tube: what pixels with no LiDAR within reach search: full (the nominal range) or coarse (the "
-                       "range of an unguided match of the pair at half resolution, as tSGM; untiled matches only; "
-                       "docs/tubes.md)."}
+                       "range of an unguided match of the pair at half resolution, as tSGM; a tiled match takes each "
+                       "tile's own; docs/tubes.md)."}
 _TUBE_CHECKS = {"reach": _POS, "margin": number(0), "levels": integer(1, 12), "level_margin": number(0),
                 "cell": integer(1, 64), "max_spacing": _POS, "holes": choice(TUBE_HOLES)}
 

@@ -18,7 +18,7 @@ from ..matching.pipeline import disparity_range_from_sparse, match_pair, resolve
 from ..matching.registry import get_guide
 from ..products.visualize import disparity_picture, write_picture
 from ..matching.guidance import lidar_share_of_points
-from .tiles import HOLES_UNTILED, match_tiled, plan_tiles, tube_widths
+from .tiles import match_tiled, plan_tiles, tube_widths
 
 log = logging.getLogger(__name__)
 
@@ -139,8 +139,6 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
             raise RiverbedError("--range-map works on an untiled match for now; pass --tile 0", range_map)
         if confidence:
             raise RiverbedError("--confidence works on an untiled match for now; pass --tile 0", confidence)
-        if config.tube.holes == "coarse":
-            raise RiverbedError(HOLES_UNTILED)
         return _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, plan.size, overlap,
                             lidar_range, output, color_png, overwrite, progress)
 

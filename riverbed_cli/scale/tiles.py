@@ -225,10 +225,6 @@ def plan_tiles(height, width, sparse, d_min, d_max, tile=TILE_DEFAULT, overlap=O
     return TilePlan(plan(tile), tile, True)
 
 
-#: the coarse matches of the tube rule's holes (tube_holes coarse) would differ from tile to tile
-HOLES_UNTILED = "--tube-holes coarse works on an untiled match for now; pass --tile 0"
-
-
 def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None, global_range=None):
     """Match one :class:`Tile` (sources sliced like numpy arrays: arrays, memory maps, :class:`WindowedRaster`).
 
@@ -266,12 +262,12 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
         share = tube_share if tube_share is not None else lidar_share(sc)
         coarse = p.tube.holes == "coarse"
         lo, hi, *hole = lidar_tubes_window(sparse, ya, yb, a, b, g_lo, g_hi, share, asdict(p.tube), coarse)
-        if coarse and hole[0].any():
-            if (ya, yb, a, b, off) != (0, H, 0, W, 0):
-                raise RiverbedError(HOLES_UNTILED)
-            lo, hi = fill_tube_holes(lc, rc, lo, hi, hole[0], g_lo, g_hi, p)
         lo = np.clip(lo, t.d_min, t.d_max) - off
         hi = np.clip(hi, t.d_min, t.d_max) - off
+        if coarse:
+            # the holes take the coarse match of the tile's own crop over the tile's range (a tile that is the
+            # whole image: the untiled match's)
+            lo, hi = fill_tube_holes(lc, rc, lo, hi, hole[0], t.d_min - off, t.d_max - off, p)
         range_map = (lo, hi)
     res = match_pair(lc, rc, sc, t.d_min - off, t.d_max - off, p, range_map=range_map)
     block = res.disparity[t.y0 - ya:t.y1 - ya, t.x0 - a:t.x1 - a] + np.float32(off)
