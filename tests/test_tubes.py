@@ -271,6 +271,45 @@ def test_range_map_from_the_command_line_and_its_bad_inputs(cones, tmp_path):
         assert len(r.stderr.strip().splitlines()) == 1 and not bad_out.exists()
 
 
+def test_range_map_on_tiles(cones, tmp_path):
+    """A tiled match searches the range map's intervals as the untiled one does: each tile the range the map spans
+    there. Bad maps stop a tiled run before any work, as they stop an untiled one."""
+    import json
+    import warnings
+
+    import rasterio
+    from click.testing import CliRunner
+
+    from riverbed_cli.cli.main import cli
+    from riverbed_cli.io.disparity import read_disparity
+    from riverbed_cli.products.evaluate import evaluate_disparity
+
+    left, right, gt = cones
+    lo = np.where(np.isfinite(gt), gt - 3, np.nan)
+    lo[:, :40] = np.nan  # no interval here: the nominal range
+    warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+    _write_range_map(tmp_path / "range.tif", [lo, lo + 6])
+    args = ["match", "tests/data/cones/im2.png", "tests/data/cones/im6.png", "--min-disp", "0", "--max-disp", "63",
+            "--range-map", str(tmp_path / "range.tif"), "--json"]
+    runs = {}
+    for name, extra in (("untiled", ["--tile", "0"]), ("tiled", ["--tile", "128", "--overlap", "64"])):
+        r = CliRunner().invoke(cli, [*args, *extra, "-o", str(tmp_path / f"{name}.tif")])
+        assert r.exit_code == 0, r.output
+        runs[name] = json.loads(r.output), evaluate_disparity(read_disparity(tmp_path / f"{name}.tif"), gt)
+    (untiled, e_untiled), (tiled, e_tiled) = runs["untiled"], runs["tiled"]
+    assert tiled["tiles"] == 12 and tiled["range"] == "tube" and tiled["tile_ranges"]["range_map"] == 12
+    # the map's intervals, 7 px wide, and the nominal range's 64 where it has none: the same tubes tiled or not
+    assert tiled["tubes"] == untiled["tubes"] and 10 < tiled["tubes"]["mean_width"] < 20
+    assert tiled["tubes"]["full_share"] > 0.1
+    # unguided matching searched near the truth only (8.75 % bad3 on the full range)
+    assert e_tiled["bad3"] < 5.0 and abs(e_tiled["bad3"] - e_untiled["bad3"]) < 0.1
+    _write_range_map(tmp_path / "order.tif", [lo + 6, lo])
+    r = CliRunner().invoke(cli, [*args[:-3], "--range-map", str(tmp_path / "order.tif"), "--tile", "128", "-o",
+                                 str(tmp_path / "bad.tif")])
+    assert r.exit_code == 1 and r.stderr.startswith(f"riverbed: error: {tmp_path / 'order.tif'}: range map has min > max")
+    assert not (tmp_path / "bad.tif").exists()
+
+
 def test_hole_bounds_hand_made_cases():
     from riverbed_cli.matching.tubes import hole_bounds
 

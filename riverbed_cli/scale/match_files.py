@@ -14,11 +14,11 @@ from ..io.atomic import atomic_output, check_output
 from ..io.disparity import disparity_format, read_disparity, read_range_map, write_disparity
 from ..io.images import check_pair, read_image
 from ..io.windowed import TiffSink, WindowedRaster, is_tiff, sparse_points_any
-from ..matching.pipeline import disparity_range_from_sparse, match_pair, resolve_fusion, warm_up
+from ..matching.pipeline import check_range_map, disparity_range_from_sparse, match_pair, resolve_fusion, warm_up
 from ..matching.registry import get_guide
 from ..products.visualize import disparity_picture, write_picture
 from ..matching.guidance import lidar_share_of_points
-from .tiles import match_tiled, plan_tiles, tube_widths
+from .tiles import match_tiled, plan_tiles, range_map_widths, tube_widths
 
 log = logging.getLogger(__name__)
 
@@ -122,6 +122,10 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
                 raise RiverbedError("range map has no valid pixel (all NaN)", range_map)
             min_disp = int(np.floor(rmap[0][known].min())) if min_disp is None else min_disp
             max_disp = int(np.ceil(rmap[1][known].max())) if max_disp is None else max_disp
+        try:  # checked before any work; its inclusive int ranges plan the tiles
+            rmap_int = check_range_map(rmap, (H, W), min_disp, max_disp)
+        except RiverbedError as e:
+            raise RiverbedError(str(e), range_map) from None
     # the same tiling rule as blocks: untiled when the whole range (with tubes: their volume) fits, else tiles sized
     # for the widest LiDAR range; the LiDAR points are read once for both
     plan = None
@@ -129,18 +133,19 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     rng = _range_for_plan(points[2] if points else None, min_disp, max_disp) if tile != 0 else None
     if rng is not None:
         widths = None
-        if points is not None and rmap is None:
+        if rmap is not None:
+            widths = range_map_widths(*rmap_int)
+        elif points is not None:
             widths = tube_widths(config, points, (H, W), rng[0], rng[1],
                                  lidar_share_of_points(points[0], points[1], (H, W)))
-        plan = plan_tiles(H, W, sparse_src, rng[0], rng[1], tile, overlap, lidar_range, widths=widths)
+        plan = plan_tiles(H, W, sparse_src, rng[0], rng[1], tile, overlap, lidar_range, widths=widths,
+                          range_map=rmap_int if rmap is not None else None)
     warm_up(config=config)  # load the kernels this run uses now: start-up, not matching time
     if plan is not None and plan.tiled:
-        if rmap is not None:
-            raise RiverbedError("--range-map works on an untiled match for now; pass --tile 0", range_map)
         if confidence:
             raise RiverbedError("--confidence works on an untiled match for now; pass --tile 0", confidence)
         return _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, plan.size, overlap,
-                            lidar_range, output, color_png, overwrite, progress)
+                            lidar_range, output, color_png, overwrite, progress, rmap)
 
     step = progress(3) if progress else None
     left_img, right_img = (np.asarray(s[:, :]) if isinstance(s, WindowedRaster) else s for s in (left_src, right_src))
@@ -176,7 +181,7 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
 
 
 def _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, size, overlap, lidar_range, output,
-                 color_png, overwrite, progress):
+                 color_png, overwrite, progress, range_map=None):
     H, W = left_src.shape[:2]
     n_tiles = -(-H // size) * -(-W // size)
     step = progress(n_tiles) if progress else None
@@ -185,13 +190,13 @@ def _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, si
         # Stream tiles into the GeoTIFF: the whole disparity map is never in memory.
         with atomic_output(output, overwrite) as tmp, TiffSink(tmp, H, W) as sink:
             result = match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, size, overlap,
-                                 lidar_range, progress=advance, out=sink)
+                                 lidar_range, progress=advance, out=sink, range_map=range_map)
             sink.update_tags(riverbed_guide=config.guide, riverbed_window=result.info["window"],
                              riverbed_tiles=result.info["tiles"])
         disp = None
     else:
         result = match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, size, overlap,
-                             lidar_range, progress=advance)
+                             lidar_range, progress=advance, range_map=range_map)
         disp = result.disparity
         write_disparity(output, disp, overwrite=overwrite, tags={"riverbed_guide": config.guide})
     if color_png:

@@ -24,8 +24,8 @@ from ..io.images import to_guide
 from ..io.windowed import bounded_raster_cache, image_bits, sparse_points_any
 from ..matching.config import OVERLAP_DEFAULT, TILE_DEFAULT
 from ..matching.guidance import lidar_share, lidar_share_of_points
-from ..matching.pipeline import (check_inside, fill_tube_holes, make_config, match_pair, resolve_disparity_range,
-                                 resolve_range)
+from ..matching.pipeline import (check_inside, check_range_map, fill_tube_holes, make_config, match_pair,
+                                 resolve_disparity_range, resolve_range)
 from ..matching.registry import get_guide, get_matcher
 from ..matching.tubes import cell_widths_from_points, lidar_tubes_window
 from ..matching.results import MatchResult, TiledMatchInfo
@@ -146,6 +146,29 @@ def lidar_ranges(tiles, sparse, d_min, d_max, reach=None, margin=4.0, thin_margi
     return tiles
 
 
+def range_map_ranges(tiles, lo, hi, reach):
+    """Give each tile the range a per-pixel range map spans over the tile grown by ``reach`` px (``lo``, ``hi``:
+    inclusive int arrays, the nominal range where the map had none: :func:`~riverbed_cli.matching.pipeline.
+    check_range_map`)."""
+    H, W = lo.shape
+    for t in tiles:
+        ya, yb, xa, xb = max(0, t.y0 - reach), min(H, t.y1 + reach), max(0, t.x0 - reach), min(W, t.x1 + reach)
+        t.d_min, t.d_max, t.source = int(lo[ya:yb, xa:xb].min()), int(hi[ya:yb, xa:xb].max()), "range_map"
+    return tiles
+
+
+def range_map_widths(lo, hi, cell=4):
+    """``(cell widths, cell)`` of a range map's intervals (for :func:`plan_tiles`): the mean width of each ``cell``
+    x ``cell`` block."""
+    H, W = lo.shape
+    w = np.zeros((-(-H // cell) * cell, -(-W // cell) * cell), np.float32)
+    n = np.zeros_like(w)
+    w[:H, :W] = hi - lo + 1
+    n[:H, :W] = 1
+    blocks = (w.shape[0] // cell, cell, w.shape[1] // cell, cell)
+    return w.reshape(blocks).sum(axis=(1, 3)) / n.reshape(blocks).sum(axis=(1, 3)), cell
+
+
 @dataclass
 class TilePlan:
     """The tiles of a tiled match: ``tiles`` (each with its disparity range), ``size`` (tile side, px) and
@@ -158,7 +181,7 @@ class TilePlan:
     def to_dict(self):
         return {"tiles": len(self.tiles), "tile": self.size, "tiled": self.tiled,
                 "tile_ranges": {s: sum(1 for t in self.tiles if t.source == s) for s in ("lidar", "neighbours",
-                                                                                          "global")}}
+                                                                                          "global", "range_map")}}
 
 
 def tile_budget():
@@ -185,7 +208,7 @@ def tube_widths(config, points, shape, d_min, d_max, share):
 
 
 def plan_tiles(height, width, sparse, d_min, d_max, tile=TILE_DEFAULT, overlap=OVERLAP_DEFAULT, lidar_range=True,
-               budget=None, widths=None):
+               budget=None, widths=None, range_map=None):
     """The tiling of a ``height x width`` match over ``[d_min, d_max]``: one rule for ``riverbed match`` and blocks.
 
     ``tile="auto"``: the image is matched whole when its volumes fit ``budget`` (:func:`tile_budget` by default)
@@ -193,12 +216,15 @@ def plan_tiles(height, width, sparse, d_min, d_max, tile=TILE_DEFAULT, overlap=O
     tile would search (its LiDAR range with ``lidar_range``, else the global one). ``tile=0``: never tile. An
     integer: tiles of that side when the image is larger. Each tile gets its LiDAR range (:func:`lidar_ranges`) or
     the global one. With tubes, ``widths`` (:func:`tube_widths`) makes the volume count their mean width instead of
-    the range's disparities (the image's for the whole, the widest 1024 px tile's for tiles). Returns a
-    :class:`TilePlan`; an untiled plan holds the one tile covering the image.
+    the range's disparities (the image's for the whole, the widest 1024 px tile's for tiles). With a ``range_map``
+    (``(lo, hi)``, :func:`range_map_ranges`) each tile takes the range the map spans there instead of its LiDAR's.
+    Returns a :class:`TilePlan`; an untiled plan holds the one tile covering the image.
     """
     def plan(size):
         ts = tile_grid(height, width, max(size, 16))
-        if sparse is not None and lidar_range:
+        if range_map is not None:
+            range_map_ranges(ts, *range_map, overlap)
+        elif sparse is not None and lidar_range:
             lidar_ranges(ts, sparse, d_min, d_max, reach=overlap)
         else:
             for t in ts:
@@ -225,7 +251,7 @@ def plan_tiles(height, width, sparse, d_min, d_max, tile=TILE_DEFAULT, overlap=O
     return TilePlan(plan(tile), tile, True)
 
 
-def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None, global_range=None):
+def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None, global_range=None, range_map=None):
     """Match one :class:`Tile` (sources sliced like numpy arrays: arrays, memory maps, :class:`WindowedRaster`).
 
     Returns ``(block, evaluations, stages, tubes)``: the tile's own disparities (float32, ``t.y1 - t.y0`` x ``t.x1 -
@@ -234,7 +260,7 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
     (not "auto") so every tile uses the same riverbed window; ``bits`` is the whole pair's effective bit depth.
     With tubes (``params.range``), ``tube_share`` (the whole image's LiDAR share) and ``global_range`` (the whole
     image's ``(d_min, d_max)``) make the crop's tubes the whole image's (:func:`lidar_tubes_window`), clipped to
-    the tile's range.
+    the tile's range. A ``range_map`` (the whole image's ``(lo, hi)``, inclusive ints) gives the tubes instead.
     """
     H, W = left.shape[:2]
     ya, yb = max(0, t.y0 - overlap), min(H, t.y1 + overlap)
@@ -255,9 +281,11 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
             sc = None
     kw = {} if sc is not None or not get_guide(params.guide).needs_sparse else {"guide": "none"}
     p = params.replace(**kw) if kw else params
-    mode = resolve_range(p, get_guide(p.guide), get_matcher(p.matcher), sc is not None, False)
-    range_map = None
-    if mode == "tube" and sparse is not None:
+    mode = resolve_range(p, get_guide(p.guide), get_matcher(p.matcher), sc is not None, range_map is not None)
+    full_map, range_map = range_map, None
+    if mode == "tube" and full_map is not None:
+        range_map = tuple(np.clip(m[ya:yb, a:b], t.d_min, t.d_max) - off for m in full_map)
+    elif mode == "tube" and sparse is not None:
         g_lo, g_hi = global_range if global_range is not None else (t.d_min, t.d_max)
         share = tube_share if tube_share is not None else lidar_share(sc)
         coarse = p.tube.holes == "coarse"
@@ -282,9 +310,10 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
 
 
 def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, tile=TILE_DEFAULT,
-                overlap=OVERLAP_DEFAULT, lidar_range=True, progress=None, out=None, **overrides):
+                overlap=OVERLAP_DEFAULT, lidar_range=True, progress=None, out=None, range_map=None, **overrides):
     """:func:`match_pair` tile by tile; same arguments plus ``tile`` (px, ``"auto"`` or 0), ``overlap`` (px) and
-    ``lidar_range``.
+    ``lidar_range``; ``range_map`` (per-pixel ``(lo, hi)``, NaN: the nominal range) as :func:`match_pair`'s: each
+    tile searches the range the map spans there and its pixels their own intervals.
 
     ``left``, ``right`` and ``sparse`` may be numpy arrays or :class:`WindowedRaster` (read tile by tile); ``out``
     receives each tile by ``out[y0:y1, x0:x1] = block`` (default: a new float32 array, returned in the result).
@@ -309,7 +338,13 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
             if pv.size == 0:
                 raise RiverbedError("sparse map has no valid disparities")
             share = lidar_share_of_points(pr, pc, (H, W))
+        if range_map is not None and (d_min is None or d_max is None):
+            known = np.isfinite(range_map[0]) & np.isfinite(range_map[1])
+            if known.any():
+                d_min = int(np.floor(range_map[0][known].min())) if d_min is None else d_min
+                d_max = int(np.ceil(range_map[1][known].max())) if d_max is None else d_max
         d_min, d_max = resolve_disparity_range(d_min, d_max, pv if sparse is not None else None)
+        rmap = check_range_map(range_map, (H, W), d_min, d_max) if range_map is not None else None
         if overlap < 0:
             raise RiverbedError(f"--overlap must be >= 0, got {overlap}")
         # the LiDAR inside the range guides the cost, as match_pair's; all of it bounds the tubes (tube_share)
@@ -323,15 +358,18 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
         if guide.uses_window and p.guidance.window == "auto":
             # One window for the whole image: a tile's own LiDAR share would change it from tile to tile.
             p = p.replace(window=guide.window(guide_share, p))
-        widths = tube_widths(p, (pr, pc, pv), (H, W), d_min, d_max, share) if sparse is not None else None
-        plan = plan_tiles(H, W, sparse, d_min, d_max, tile, overlap, lidar_range, widths=widths)
+        if rmap is not None:
+            widths = range_map_widths(*rmap)
+        else:
+            widths = tube_widths(p, (pr, pc, pv), (H, W), d_min, d_max, share) if sparse is not None else None
+        plan = plan_tiles(H, W, sparse, d_min, d_max, tile, overlap, lidar_range, widths=widths, range_map=rmap)
         if out is None:
             out = np.full((H, W), np.nan, np.float32)
         stages = {}
         evaluations = 0
         tube_parts = []
         for t in plan.tiles:
-            block, n, st, tube = match_tile(left, right, sparse, t, overlap, p, bits, share, (d_min, d_max))
+            block, n, st, tube = match_tile(left, right, sparse, t, overlap, p, bits, share, (d_min, d_max), rmap)
             tube_parts.append(tube)
             out[t.y0:t.y1, t.x0:t.x1] = block
             evaluations += n
