@@ -256,7 +256,8 @@ def test_rerun_skips_every_finished_pair(block):
     assert [p["status"] for p in info["pairs"]] == ["skipped"] * len(info["pairs"])
     assert info["merged"]["status"] == "skipped" and (base / "seq" / "dsm.tif").stat().st_mtime_ns == before
     assert all(p["points"] > 10000 for p in info["pairs"])
-    assert seconds < 5, seconds  # no cluster is started when nothing is left to do
+    # no cluster is started when nothing is left to do (what it reports, not a wall-clock limit)
+    assert info["cluster"] is None and info["cluster_seconds"] is None
     print(f"\nre-run {seconds:.2f} s")
 
 
