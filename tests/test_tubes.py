@@ -306,7 +306,8 @@ def test_range_map_on_tiles(cones, tmp_path):
     _write_range_map(tmp_path / "order.tif", [lo + 6, lo])
     r = CliRunner().invoke(cli, [*args[:-3], "--range-map", str(tmp_path / "order.tif"), "--tile", "128", "-o",
                                  str(tmp_path / "bad.tif")])
-    assert r.exit_code == 1 and r.stderr.startswith(f"riverbed: error: {tmp_path / 'order.tif'}: range map has min > max")
+    assert r.exit_code == 1
+    assert r.stderr.startswith(f"riverbed: error: {tmp_path / 'order.tif'}: range map has min > max")
     assert not (tmp_path / "bad.tif").exists()
 
 

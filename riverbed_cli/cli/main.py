@@ -23,6 +23,8 @@ COMMANDS = {
     "project": ("project", "project_cmd", "Project a LiDAR cloud through a pair file into sparse disparities."),
     "match": ("match", "match_cmd", "Match a rectified pair into a disparity map, optionally guided by LiDAR."),
     "densify": ("densify", "densify_cmd", "Interpolate sparse LiDAR into a dense disparity map (no matching)."),
+    "range-map": ("range_map", "range_map_cmd", "Per-pixel disparity ranges for match --range-map from a previous "
+                  "disparity map."),
     "evaluate": ("evaluate", "evaluate_cmd", "Compare a disparity map (or a DSM) with ground truth."),
     "dsm": ("dsm", "dsm_cmd", "Triangulate disparity maps of pairs into a point cloud and a DSM."),
     "sample": ("sample", "sample_cmd", "Generate the synthetic aerial block (pair, LiDAR, ground truth)."),

@@ -306,13 +306,29 @@ def _encode_png(path, disp, valid):
 TIFF_COMPRESSION = {"compress": "deflate", "predictor": 3, "zlevel": 1, "num_threads": "ALL_CPUS"}
 
 
+def write_range_map(path, lo, hi, overwrite=False, tags=None):
+    """Write a per-pixel disparity range (the ``--range-map`` of :func:`read_range_map`): a 2-band float32 TIFF of
+    min and max disparity (px, ``d = x_left - x_right``; NaN: no range, the match's nominal range there),
+    atomically, compressed as disparity TIFFs."""
+    path = Path(path)
+    if disparity_format(path) != "tif":
+        raise RiverbedError("range map must be written to a .tif file", path)
+    lo, hi = (np.asarray(a, np.float32) for a in (lo, hi))
+    if lo.ndim != 2 or lo.shape != hi.shape:
+        raise RiverbedError(f"range map bands must be two H x W arrays, got {lo.shape} and {hi.shape}", path)
+    bands = np.stack([lo, hi])
+    _write_tif(path, np.where(np.isfinite(bands), bands, np.float32(np.nan)), overwrite, tags)
+
+
 def _write_tif(path, disp, overwrite, tags):
-    height, width = disp.shape
+    # disp: (H, W), or (bands, H, W)
+    bands = disp[None] if disp.ndim == 2 else disp
+    height, width = bands.shape[1:]
     profile = {
         "driver": "GTiff",
         "width": width,
         "height": height,
-        "count": 1,
+        "count": bands.shape[0],
         "dtype": "float32",
         "nodata": float("nan"),
         "BIGTIFF": "IF_SAFER",
@@ -324,7 +340,7 @@ def _write_tif(path, disp, overwrite, tags):
         warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
         try:
             with rasterio.open(tmp, "w", **profile) as ds:
-                ds.write(disp, 1)
+                ds.write(bands)
                 if tags:
                     ds.update_tags(**{str(k): str(v) for k, v in tags.items()})
         except rasterio.errors.RasterioError as e:

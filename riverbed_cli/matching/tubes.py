@@ -131,6 +131,54 @@ def lidar_tubes(sparse, d_min, d_max, reach=2.0, margin=2.0, levels=3, level_mar
     return lo, hi, hole
 
 
+def ranges_from_disparity(disp, shape=None, window=2, margin=3.0):
+    """Per-pixel disparity ranges from a disparity map: a previous run, or a coarser one (``riverbed range-map``,
+    ``--range-map``; the coarse match of :func:`hole_bounds`).
+
+    Parameters
+    ----------
+    disp : (h, w) float
+        Disparities of the left image (px at its own resolution, ``d = x_left - x_right``; NaN: none).
+    shape : (H, W), optional
+        The size of the image to match: ``disp``'s (default) or an integer multiple ``f`` of it, rounded down (a map
+        of the image downsampled by ``f``: its pixel ``(i, j)`` covers ``(f i .. f i + f - 1, ...)``, pixels past
+        its last row or column take the last, and its disparities count ``f`` times).
+    window : int
+        Half side (px of ``disp``) of the window whose disparities bound a pixel's range.
+    margin : float
+        Disparity (px at ``shape``'s resolution) added on both sides of their extrema.
+
+    Returns
+    -------
+    lo, hi : (H, W) float32
+        ``f * min - margin`` and ``f * max + margin`` over the window, NaN where it holds no disparity.
+    """
+    disp = np.asarray(disp, np.float32)
+    h, w = disp.shape
+    H, W = (h, w) if shape is None else (int(shape[0]), int(shape[1]))
+    factor = W // w
+    if factor < 1 or H // factor != h or W // factor != w:
+        raise RiverbedError(f"a {w}x{h} disparity map is not the {W}x{H} image downsampled by an integer factor")
+    if window < 0 or margin < 0:
+        raise RiverbedError(f"range window and margin must be >= 0, got {window} and {margin}")
+    cmin, cmax, known = _window_bounds(disp, (H, W), factor, window)
+    lo = np.where(known, np.where(known, cmin, 0) * factor - margin, np.nan)
+    hi = np.where(known, np.where(known, cmax, 0) * factor + margin, np.nan)
+    return lo.astype(np.float32), hi.astype(np.float32)
+
+
+def _window_bounds(disp, shape, factor, window):
+    # the min and max of the finite values of disp within window px, at each pixel of shape (disp downsampled by
+    # factor); known: where the window holds one
+    H, W = shape
+    ok = np.isfinite(disp)
+    cmin, cmax = _window_extrema(np.where(ok, disp, np.inf), np.where(ok, disp, -np.inf), int(window))
+    ys = np.minimum(np.arange(H) // factor, disp.shape[0] - 1)
+    xs = np.minimum(np.arange(W) // factor, disp.shape[1] - 1)
+    cmin, cmax = cmin[np.ix_(ys, xs)], cmax[np.ix_(ys, xs)]
+    return cmin, cmax, np.isfinite(cmin)
+
+
 def hole_bounds(coarse, shape, d_min, d_max, factor=HOLE_FACTOR, window=HOLE_WINDOW, margin=HOLE_MARGIN):
     """Per-pixel ranges from a coarse disparity map, for the pixels the LiDAR leaves on the nominal range.
 
@@ -153,14 +201,7 @@ def hole_bounds(coarse, shape, d_min, d_max, factor=HOLE_FACTOR, window=HOLE_WIN
     lo, hi : (H, W) int32
         Inclusive range ends; the nominal range where the window holds no valid coarse disparity.
     """
-    H, W = shape
-    coarse = np.asarray(coarse, np.float32)
-    ok = np.isfinite(coarse)
-    cmin, cmax = _window_extrema(np.where(ok, coarse, np.inf), np.where(ok, coarse, -np.inf), int(window))
-    ys = np.minimum(np.arange(H) // factor, coarse.shape[0] - 1)
-    xs = np.minimum(np.arange(W) // factor, coarse.shape[1] - 1)
-    cmin, cmax = cmin[np.ix_(ys, xs)], cmax[np.ix_(ys, xs)]
-    known = np.isfinite(cmin)
+    cmin, cmax, known = _window_bounds(np.asarray(coarse, np.float32), shape, factor, window)
     lo = np.where(known, np.floor(np.where(known, cmin, 0) * factor - margin), d_min)
     hi = np.where(known, np.ceil(np.where(known, cmax, 0) * factor + margin), d_max)
     lo = np.clip(lo, d_min, d_max).astype(np.int32)
