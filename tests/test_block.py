@@ -442,3 +442,29 @@ def test_bad_setting_same_message_in_manifest_and_on_the_command_line(block, tmp
                                  option, str(value), "-o", str(tmp_path / "never.tif")])
     assert r.exit_code == 1 and r.stderr == f"riverbed: error: {option}: {message}\n"
     assert not (tmp_path / "never").exists() and not (tmp_path / "never.tif").exists()
+
+
+def test_block_tiles_fill_lidar_holes_with_coarse_ranges(tmp_path):
+    """``tube_holes: coarse`` in a manifest reaches the block's tiles: each tile's LiDAR holes take the coarse
+    match's ranges, exactly as match_tiled's (and not the tile's range, as by default; on this crop the narrower
+    ranges find the same disparities)."""
+    base = write_cones_block(tmp_path)
+    xyz = gt_points(0.05)
+    lo, hi = np.quantile(xyz[:, 0], [0.1, 0.45])  # a band about 150 px wide across pair a's crop: no LiDAR
+    write_points(base / "lidar" / "holed.laz", xyz[(xyz[:, 0] < lo) | (xyz[:, 0] > hi)], None, CRS)
+    manifest = {"defaults": {"resolution": 1.0, "agg": "max", "tile": 128, "overlap": 32, "tube_holes": "coarse"},
+                "pairs": [{"pair": "a/pair.yaml", "cloud": "lidar/holed.laz", "name": "a"}]}
+    (base / "holes.yaml").write_text(yaml.safe_dump(manifest, sort_keys=False))
+    res = run(["block", str(base / "holes.yaml"), "-o", str(base / "out"), "--workers", "0", "--json"])
+    assert res.exit_code == 0, res.stderr
+    assert [(p["status"], p["tiles"]) for p in summary(res)["pairs"]] == [("done", 4)]
+    folder = base / "out" / "pairs" / "a"
+    pair = load_pairfile(base / "a" / "pair.yaml")
+    left, right = read_image(pair.left), read_image(pair.right)
+    sparse = read_disparity(folder / "sparse.tif")
+    coarse = match_tiled(left, right, sparse, tile=128, overlap=32, tube={"holes": "coarse"})
+    nominal = match_tiled(left, right, sparse, tile=128, overlap=32)
+    disp = read_disparity(folder / "disparity.tif")
+    np.testing.assert_array_equal(disp, coarse.disparity)
+    # the holes narrowed (from each tile's range, which its neighbouring LiDAR already bounds)
+    assert coarse.info["tubes"]["mean_width"] < nominal.info["tubes"]["mean_width"]
