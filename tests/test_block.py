@@ -124,7 +124,12 @@ ERRORS = [
     ({"pairs": [GOOD], "extra": 1}, "unknown key 'extra' (manifest keys: defaults, pairs)"),
     ({"defaults": {"windw": 5}, "pairs": [GOOD]}, "defaults: unknown key 'windw' (settings: resolution, crs, agg, "),
     ({"pairs": [{**GOOD, "colour": 1}]},
-     "pairs[0]: unknown key 'colour' (pair keys: pair, raw, rpc, cloud, name, and the settings of defaults)"),
+     "pairs[0]: unknown key 'colour' (pair keys: pair, raw, rpc, cloud, name, range_map, and the settings of "
+     "defaults)"),
+    ({"pairs": [{**GOOD, "range_map": "a/ranges.tif"}]}, "pairs[0].range_map: file not found: a/ranges.tif"),
+    ({"pairs": [{"raw": {"left": "a/left.png", "left_orientation": "a/pair.yaml", "right": "a/right.png",
+                         "right_orientation": "a/pair.yaml"}, "cloud": "lidar/west.laz", "range_map": "a/left.png"}]},
+     "pairs[0].range_map: only for a pair: entry (its ranges are of the rectified images"),
     ({"pairs": []}, "pairs: expected a non-empty list of {pair: PAIR_FILE, cloud: CLOUDS}"),
     ({"pairs": [GOOD, {"pair": "x/pair.yaml", "cloud": "lidar/west.laz"}]},
      "pairs[1].pair: file not found: x/pair.yaml"),
@@ -468,3 +473,49 @@ def test_block_tiles_fill_lidar_holes_with_coarse_ranges(tmp_path):
     np.testing.assert_array_equal(disp, coarse.disparity)
     # the holes narrowed (from each tile's range, which its neighbouring LiDAR already bounds)
     assert coarse.info["tubes"]["mean_width"] < nominal.info["tubes"]["mean_width"]
+
+
+def test_block_pairs_search_their_range_maps(tmp_path):
+    """``range_map`` on a pair entry: the pair searches the map's intervals (riverbed match --range-map), tiled as
+    match_tiled with the map, untiled as match_pair; the pair's range widens to hold the map; a map of the wrong
+    size fails its pair with one line naming the file."""
+    from riverbed_cli.io.disparity import write_range_map
+    from riverbed_cli.matching.pipeline import resolve_disparity_range
+
+    base = write_cones_block(tmp_path)
+    gt = read_disparity(DATA / "disp2.png", scale=4)
+    H, W = CROP
+    maps = {}
+    for name in ("a", "d"):
+        x0, y0 = CROPS[name]
+        crop = gt[y0:y0 + H, x0:x0 + W]
+        maps[name] = (crop - 4.0, crop + 4.0)  # the truth +- 4 px (NaN where the GT has none: the pair's range)
+        write_range_map(base / name / "ranges.tif", *maps[name])
+    write_range_map(base / "b" / "ranges.tif", np.zeros((H - 1, W)), np.ones((H - 1, W)))
+    pairs = [{"pair": "a/pair.yaml", "cloud": "lidar/*st.laz", "name": "a", "range_map": "a/ranges.tif"},
+             {"pair": "d/pair.yaml", "cloud": "lidar/*st.laz", "name": "d", "range_map": "d/ranges.tif",
+              "tile": 256},  # not tiled
+             {"pair": "b/pair.yaml", "cloud": "lidar/*st.laz", "name": "b", "range_map": "b/ranges.tif"}]
+    manifest = {"defaults": {"resolution": 1.0, "agg": "max", "tile": 128, "overlap": 32}, "pairs": pairs}
+    (base / "ranges.yaml").write_text(yaml.safe_dump(manifest, sort_keys=False))
+    res = run(["block", str(base / "ranges.yaml"), "-o", str(base / "out"), "--workers", "0", "--json"])
+    by = {p["name"]: p for p in summary(res)["pairs"]}
+    assert (by["a"]["status"], by["a"]["tiles"]) == ("done", 4) and (by["d"]["status"], by["d"]["tiles"]) == ("done", 0)
+    assert by["b"]["status"] == "failed"
+    assert by["b"]["error"] == f"{base / 'b' / 'ranges.tif'}: range map is {W}x{H - 1} but the images are {W}x{H} (WxH)"
+    for name in ("a", "d"):
+        folder = base / "out" / "pairs" / name
+        pair = load_pairfile(base / name / "pair.yaml")
+        left, right = read_image(pair.left), read_image(pair.right)
+        sparse = read_disparity(folder / "sparse.tif")
+        lo, hi = maps[name]
+        d_min, d_max = resolve_disparity_range(None, None, sparse[np.isfinite(sparse)])
+        known = np.isfinite(lo)
+        d_min, d_max = min(d_min, int(np.floor(lo[known].min()))), max(d_max, int(np.ceil(hi[known].max())))
+        if name == "a":
+            ref = match_tiled(left, right, sparse, d_min, d_max, tile=128, overlap=32, range_map=(lo, hi))
+            assert ref.info["tiles"] == 4 and ref.info["tile_ranges"]["range_map"] == 4
+        else:
+            ref = match_pair(left, right, sparse, d_min, d_max, range_map=(lo, hi))
+        np.testing.assert_array_equal(read_disparity(folder / "disparity.tif"), ref.disparity)
+        assert ref.info["tubes"]["mean_width"] < 12  # 9 px where the GT is known, against the LiDAR's tubes

@@ -28,6 +28,7 @@ The manifest (YAML, read with ``yaml.safe_load`` only; paths relative to the man
       - pair: a/pair.yaml      # a pair file naming the rectified left and right images (or an RPC pair file)
         cloud: lidar/*.laz     # a path, a glob or a list of them (several clouds: per pixel the nearer point)
         name: a                # optional; default the pair file's path without suffix, '/' -> '_' (a_pair)
+        range_map: a/ranges.tif  # optional: per-pixel disparity ranges (riverbed match --range-map; pair: entries)
         window: 7              # per-pair override of any setting except the block-wide ones
 
 Outputs (``OUTDIR``)::
@@ -44,7 +45,7 @@ Rules
 -----
 - *Skipping*: a pair is skipped when its ``done.json`` verifies: every output present with the recorded size and
   sha256, and the recorded hash equal to the hash of the pair's effective settings, its inputs (pair file, images,
-  clouds, registration: path, size, mtime) and the riverbed version. Anything else re-runs the pair.
+  clouds, registration, range map: path, size, mtime) and the riverbed version. Anything else re-runs the pair.
 - *Overwriting*: ``OUTDIR`` may be new (its parent must exist), empty, or the output of the same manifest (its
   ``block.json`` names it); the block then replaces its own files (the per-pair outputs of the pairs it runs, the
   merged DSM, ``block.json``) without ``--overwrite``. A folder holding anything else, or another manifest's

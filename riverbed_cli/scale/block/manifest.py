@@ -19,7 +19,7 @@ from .settings import default_settings, settings_spec
 #: Manifests larger than this are refused before parsing.
 MANIFEST_MAX_BYTES = 10_000_000
 TOP_KEYS = ("defaults", "pairs")
-PAIR_KEYS = ("pair", "raw", "rpc", "cloud", "name")
+PAIR_KEYS = ("pair", "raw", "rpc", "cloud", "name", "range_map")
 RAW_KEYS = ("left", "left_orientation", "right", "right_orientation")
 #: Optional rectification settings of a ``raw:`` entry (as ``riverbed rectify --alpha / --size``).
 RAW_OPTIONS = ("alpha", "size")
@@ -45,6 +45,7 @@ class PairSpec:
     settings: dict
     raw: dict = None  # raw frames and orientations (absolute paths), rectified by plan_block
     rpc: dict = None  # satellite images, RPCs and ROI (absolute paths), rectified by the pair's project stage
+    range_map: Path = None  # per-pixel disparity ranges of the rectified pair (``riverbed match --range-map``)
 
 
 @dataclass
@@ -219,7 +220,8 @@ def load_manifest(path):
     Raises :class:`RiverbedError` with one line naming the manifest and the key (``MANIFEST: pairs[1].cloud:
     'lidar/*.laz' matches no file``; pairs are numbered from 0) for: unreadable YAML, unknown keys, a missing pair
     file, a cloud glob matching nothing, a bad value, duplicate names, a block-wide setting given per pair; for an
-    ``rpc:`` entry a missing image, RPC or DEM file, a malformed ROI or one outside the left image, bad heights.
+    ``rpc:`` entry a missing image, RPC or DEM file, a malformed ROI or one outside the left image, bad heights; a
+    ``range_map`` that is missing or not on a ``pair:`` entry.
     """
     path = Path(path)
     data = _read_manifest(path)
@@ -267,6 +269,17 @@ def load_manifest(path):
             if not pair_path.is_file():
                 raise RiverbedError(f"{where}.pair: file not found: {value}", path)
         clouds = _clouds(entry["cloud"], where, path, base)
+        range_map = None
+        if "range_map" in entry:
+            value = entry["range_map"]
+            if pair_path is None:
+                raise RiverbedError(f"{where}.range_map: only for a pair: entry (its ranges are of the rectified "
+                                    "images, which raw and rpc entries make later)", path)
+            if not isinstance(value, str) or not value:
+                raise RiverbedError(f"{where}.range_map: expected a file name, got {show(value)}", path)
+            range_map = Path(os.path.normpath(base / value))
+            if not range_map.is_file():
+                raise RiverbedError(f"{where}.range_map: file not found: {value}", path)
         name = entry.get("name")
         if name is None and rpc is not None:
             name = default_name(rpc["left"], base) + ("_roi_{}_{}".format(*rpc["roi"][:2]) if rpc["roi"] else "")
@@ -285,5 +298,5 @@ def load_manifest(path):
         lo, hi = settings["min_disp"], settings["max_disp"]
         if lo is not None and hi is not None and lo > hi:
             raise RiverbedError(f"{where}: min_disp {lo} > max_disp {hi}", path)
-        specs.append(PairSpec(i, name, pair_path, clouds, settings, raw, rpc))
+        specs.append(PairSpec(i, name, pair_path, clouds, settings, raw, rpc, range_map))
     return Manifest(path.absolute(), {**default_settings(), **defaults}, specs)

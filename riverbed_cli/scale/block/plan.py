@@ -140,6 +140,7 @@ class PairJob:
     error: str = None
     record: dict = None  # done.json of a skipped pair
     rpc: dict = None  # an rpc: entry (images, RPCs, ROI, heights), rectified by the project stage
+    range_map: str = None  # per-pixel disparity ranges of the pair (a 2-band TIFF), searched instead of its tubes
 
 
 @dataclass
@@ -296,6 +297,9 @@ def plan_block(manifest, outdir, overwrite=False):
                 job.shape = tuple(int(v) for v in shape)
                 raw_files = [spec.raw[k] for k in RAW_KEYS] if spec.raw else []
                 files = [spec.pair, pair.left, pair.right, *spec.clouds, *raw_files]
+                if spec.range_map is not None:
+                    job.range_map = str(spec.range_map)
+                    files.append(spec.range_map)
             if s["registration"]:
                 files.append(Path(s["registration"]))
             job.inputs = [_stat(p, base) for p in files]

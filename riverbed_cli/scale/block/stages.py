@@ -13,7 +13,7 @@ from ...errors import RiverbedError
 from ...geometry.projection import project_cloud
 from ...geometry.rpc_geometry import cloud_to_wgs84, output_crs
 from ...io.atomic import atomic_output
-from ...io.disparity import read_disparity, write_disparity
+from ...io.disparity import read_disparity, read_range_map, write_disparity
 from ...io.images import check_pair, check_pixels, read_image
 from ...io.lidar import lidar_info, resolve_crs
 from ...geometry.pairfile import load_pairfile, load_registration
@@ -21,10 +21,10 @@ from ...io.pointcloud import write_points
 from ...io.raster import write_geotiff
 from ...io.windowed import WindowedRaster, image_bits, open_windowed, sparse_points_any
 from ...matching.guidance import lidar_share_of_points
-from ...matching.pipeline import match_pair, resolve_disparity_range
+from ...matching.pipeline import check_range_map, match_pair, resolve_disparity_range
 from ...matching.registry import get_guide
 from ...products.dsm import Accumulator, Grid, default_resolution, disparity_points
-from ..tiles import Tile, match_tile, plan_tiles, tube_widths
+from ..tiles import Tile, match_tile, plan_tiles, range_map_widths, tube_widths
 from .plan import DONE, OUTPUTS, WORK, clean_temps, rectify_rpc, riverbed_version, sha256_file, write_json
 from .settings import match_params
 
@@ -117,7 +117,7 @@ def project_stage(job):
     with contextlib.suppress(FileNotFoundError):
         (folder / DONE).unlink()  # from now on the folder is not a finished pair
     clean_temps(folder, ("sparse.tif",))
-    clean_temps(folder / WORK, ("left.npy", "right.npy"))
+    clean_temps(folder / WORK, ("left.npy", "right.npy", "range_lo.npy", "range_hi.npy"))
     t_rectify = None
     if job.rpc is not None:  # an rpc: entry: its ROI rectified (unless done for the same inputs)
         try:
@@ -163,8 +163,14 @@ def project_stage(job):
     share = lidar_share_of_points(pr, pc, (H, W))
     d_min, d_max = resolve_disparity_range(s["min_disp"], s["max_disp"], pv)
 
-    widths = tube_widths(p, (pr, pc, pv), (H, W), d_min, d_max, share)
-    plan = plan_tiles(H, W, sparse, d_min, d_max, s["tile"], s["overlap"], s["lidar_range"], widths=widths)
+    rmap = None
+    if job.range_map:
+        d_min, d_max, rmap = _pair_range_map(job.range_map, (H, W), d_min, d_max, s, folder / WORK)
+        widths = range_map_widths(*rmap)
+    else:
+        widths = tube_widths(p, (pr, pc, pv), (H, W), d_min, d_max, share)
+    plan = plan_tiles(H, W, sparse, d_min, d_max, s["tile"], s["overlap"], s["lidar_range"], widths=widths,
+                      range_map=rmap)
     tiles, window, bits = [], p.guidance.window, None
     if plan.tiled:
         srcs = [_image_source(getattr(pair, side), (H, W), s["max_pixels"]) for side in ("left", "right")]
@@ -180,7 +186,36 @@ def project_stage(job):
              "lidar_points_kept": counts["kept"], "lidar_share": share, "lidar_crs": counts["crs"],
              "tile": int(plan.size) if tiles else None}
     return {"tiles": tiles, "window": window, "bits": bits, "d_min": d_min, "d_max": d_max, "stats": stats,
-            "shape": [H, W], "rectify_seconds": t_rectify, "seconds": round(time.perf_counter() - t0, 4)}
+            "shape": [H, W], "range_map": rmap is not None, "rectify_seconds": t_rectify,
+            "seconds": round(time.perf_counter() - t0, 4)}
+
+
+def _pair_range_map(path, shape, d_min, d_max, s, work):
+    # The pair's range map (riverbed match --range-map): checked, the pair's range widened to hold it where the
+    # manifest sets none, and kept as inclusive int32 ends in work/range_{lo,hi}.npy for the match tasks.
+    lo, hi = read_range_map(path)
+    if lo.shape != tuple(shape):
+        raise RiverbedError(f"range map is {lo.shape[1]}x{lo.shape[0]} but the images are {shape[1]}x{shape[0]} "
+                            "(WxH)", path)
+    known = np.isfinite(lo) & np.isfinite(hi)
+    if known.any():
+        d_min = min(d_min, int(np.floor(lo[known].min()))) if s["min_disp"] is None else d_min
+        d_max = max(d_max, int(np.ceil(hi[known].max()))) if s["max_disp"] is None else d_max
+    try:
+        rmap = check_range_map((lo, hi), shape, d_min, d_max)
+    except RiverbedError as e:
+        raise RiverbedError(str(e), path) from None
+    work.mkdir(exist_ok=True)
+    for name, a in zip(("range_lo", "range_hi"), rmap):
+        np.save(work / f"{name}.npy", a)
+    return d_min, d_max, rmap
+
+
+def _load_range_map(folder, proj):
+    # the range map project_stage kept (memory-mapped: a tile reads its crop only), or None
+    if not proj.get("range_map"):
+        return None
+    return tuple(np.load(folder / WORK / f"range_{end}.npy", mmap_mode="r") for end in ("lo", "hi"))
 
 
 def tile_stage(job, proj, index):
@@ -204,7 +239,11 @@ def tile_stage(job, proj, index):
             raise RiverbedError(f"image is {left.shape[1]}x{left.shape[0]} but the pair file says {W}x{H} (WxH)",
                                 pair.left)
         sparse = read_disparity(folder / "sparse.tif")
-        res = match_pair(left, right, sparse, s["min_disp"], s["max_disp"], p)
+        rmap = _load_range_map(folder, proj)
+        if rmap is None:
+            res = match_pair(left, right, sparse, s["min_disp"], s["max_disp"], p)
+        else:  # the pair's range, widened to hold the map
+            res = match_pair(left, right, sparse, proj["d_min"], proj["d_max"], p, range_map=rmap)
         n_d = res.info["d_max"] - res.info["d_min"] + 1
         return {"index": 0, "disparity": res.disparity, "evaluations": H * W * n_d, "stages": res.info["stages"],
                 "seconds": round(time.perf_counter() - t0, 4)}
@@ -215,7 +254,8 @@ def tile_stage(job, proj, index):
     sparse = WindowedRaster(folder / "sparse.tif", "disparity")
     # the pair's LiDAR share and range: every tile takes the whole pair's tubes, as match_tiled does
     disp, n, stages, _ = match_tile(left, right, sparse, tile, s["overlap"], p, proj["bits"],
-                                 proj["stats"]["lidar_share"], (proj["d_min"], proj["d_max"]))
+                                 proj["stats"]["lidar_share"], (proj["d_min"], proj["d_max"]),
+                                 _load_range_map(folder, proj))
     return {"index": index, "disparity": disp, "evaluations": n, "stages": stages,
             "seconds": round(time.perf_counter() - t0, 4)}
 
