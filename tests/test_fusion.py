@@ -151,3 +151,35 @@ def test_confidence_file_is_written_beside_the_disparity(cones, tmp_path):
     np.testing.assert_array_equal(conf, lib.confidence)
     np.testing.assert_array_equal(disp, lib.disparity)
     assert conf.dtype == np.float32 and 0 <= conf.min() and conf.max() <= 1
+
+
+def test_confidence_of_a_tiled_match(cones, tmp_path):
+    """Tiled, the confidence is streamed tile by tile as the disparities: each tile's is its own fusion's, and it
+    ranks the errors as the untiled one does. PFM disparities take a streamed confidence too."""
+    from click.testing import CliRunner
+
+    from riverbed_cli.cli.main import cli
+    from riverbed_cli.io.disparity import read_disparity, write_disparity
+    from riverbed_cli.scale.tiles import match_tiled
+
+    left, right, gt = cones
+    sparse = simulate_lidar(gt, 0.05, seed=0)
+    write_disparity(tmp_path / "s.tif", sparse)
+    base = ["match", "tests/data/cones/im2.png", "tests/data/cones/im6.png", "--sparse", str(tmp_path / "s.tif"),
+            "--max-disp", "59", "--min-disp", "0", "--tile", "128", "--overlap", "64"]
+    for out in ("d.tif", "d.pfm"):
+        r = CliRunner().invoke(cli, [*base, "-o", str(tmp_path / out), "--confidence", str(tmp_path / f"{out}.c.tif")])
+        assert r.exit_code == 0, r.output
+    conf = read_disparity(tmp_path / "d.tif.c.tif")
+    ref = np.full(gt.shape, np.nan, np.float32)
+    lib = match_tiled(left, right, sparse, 0, 59, tile=128, overlap=64, confidence_out=ref)
+    assert lib.info["tiles"] == 12
+    np.testing.assert_array_equal(conf, ref)
+    np.testing.assert_array_equal(read_disparity(tmp_path / "d.pfm.c.tif"), ref)
+    np.testing.assert_array_equal(read_disparity(tmp_path / "d.tif"), lib.disparity)
+    assert np.isfinite(conf).all() and 0 <= conf.min() and conf.max() <= 1  # every tile holds LiDAR: all fused
+    g = np.isfinite(gt) & ~np.isfinite(sparse)
+    err, c = np.abs(lib.disparity - gt)[g], conf[g]
+    assert (err[c >= np.median(c)] > 1).mean() < 0.1 * (err[c < np.median(c)] > 1).mean()
+    untiled = match_pair(left, right, sparse, 0, 59).confidence
+    assert abs(float(conf.mean()) - float(untiled.mean())) < 0.02

@@ -31,7 +31,8 @@ _RUN = [s for s in MATCH_SETTINGS if s.group is None and s.name not in ("tile", 
               help="Also write a colourised disparity preview PNG.")
 @click.option("--confidence", "confidence", type=click.Path(dir_okay=False), default=None,
               help="Also write the fusion's per-pixel confidence (.tif, float32 in [0, 1]: the estimated "
-                   "probability that the disparity is within 1 px of the truth; docs/fusion.md).")
+                   "probability that the disparity is within 1 px of the truth; tiled: each tile's own fusion; "
+                   "docs/fusion.md).")
 @click.option("--tile", default="auto", show_default=True,
               help="Tile side (px) for large images, 'auto' (untiled when the whole range fits the memory budget, "
                    "else tiles sized for the widest LiDAR range; the rule blocks use) or 0 (never tile). Tiles of "

@@ -4,6 +4,7 @@ Inputs are checked before any work, outputs written to a temporary name and rena
 windows, and a tiled match into a ``.tif`` streams its tiles into the file (the whole map is never in memory).
 """
 
+import contextlib
 import logging
 import os
 
@@ -61,6 +62,10 @@ def open_inputs(left, right, sparse, sparse_scale, max_pixels):
             raise RiverbedError(f"sparse map is {sparse_src.shape[1]}x{sparse_src.shape[0]} but the images are "
                                 f"{W}x{H} (WxH)", sparse)
     return srcs[0], srcs[1], sparse_src
+
+
+#: the tag of a confidence map
+CONFIDENCE_TAG = "probability that the disparity is within 1 px of the truth"
 
 
 def _range_for_plan(vals, min_disp, max_disp):
@@ -142,10 +147,8 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
                           range_map=rmap_int if rmap is not None else None)
     warm_up(config=config)  # load the kernels this run uses now: start-up, not matching time
     if plan is not None and plan.tiled:
-        if confidence:
-            raise RiverbedError("--confidence works on an untiled match for now; pass --tile 0", confidence)
         return _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, plan.size, overlap,
-                            lidar_range, output, color_png, overwrite, progress, rmap)
+                            lidar_range, output, color_png, overwrite, progress, rmap, confidence)
 
     step = progress(3) if progress else None
     left_img, right_img = (np.asarray(s[:, :]) if isinstance(s, WindowedRaster) else s for s in (left_src, right_src))
@@ -170,7 +173,7 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     write_disparity(output, result.disparity, overwrite=overwrite, tags=tags)
     if confidence:
         write_disparity(confidence, result.confidence, overwrite=overwrite,
-                        tags={"riverbed_confidence": "probability that the disparity is within 1 px of the truth"})
+                        tags={"riverbed_confidence": CONFIDENCE_TAG})
     if color_png:
         write_picture(color_png, disparity_picture(result.disparity), overwrite=overwrite)
     if step:
@@ -181,24 +184,30 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
 
 
 def _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, size, overlap, lidar_range, output,
-                 color_png, overwrite, progress, range_map=None):
+                 color_png, overwrite, progress, range_map=None, confidence=None):
     H, W = left_src.shape[:2]
     n_tiles = -(-H // size) * -(-W // size)
     step = progress(n_tiles) if progress else None
     advance = (lambda n: step()) if step else None
-    if output.lower().endswith((".tif", ".tiff")):
-        # Stream tiles into the GeoTIFF: the whole disparity map is never in memory.
-        with atomic_output(output, overwrite) as tmp, TiffSink(tmp, H, W) as sink:
+    with contextlib.ExitStack() as stack:
+        conf_sink = None
+        if confidence:  # streamed as the disparities, renamed into place only when every tile is done
+            conf_sink = stack.enter_context(TiffSink(stack.enter_context(atomic_output(confidence, overwrite)), H, W,
+                                                     tags={"riverbed_confidence": CONFIDENCE_TAG}))
+        if output.lower().endswith((".tif", ".tiff")):
+            # Stream tiles into the GeoTIFF: the whole disparity map is never in memory.
+            with atomic_output(output, overwrite) as tmp, TiffSink(tmp, H, W) as sink:
+                result = match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, size, overlap,
+                                     lidar_range, progress=advance, out=sink, range_map=range_map,
+                                     confidence_out=conf_sink)
+                sink.update_tags(riverbed_guide=config.guide, riverbed_window=result.info["window"],
+                                 riverbed_tiles=result.info["tiles"])
+            disp = None
+        else:
             result = match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, size, overlap,
-                                 lidar_range, progress=advance, out=sink, range_map=range_map)
-            sink.update_tags(riverbed_guide=config.guide, riverbed_window=result.info["window"],
-                             riverbed_tiles=result.info["tiles"])
-        disp = None
-    else:
-        result = match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, size, overlap,
-                             lidar_range, progress=advance, range_map=range_map)
-        disp = result.disparity
-        write_disparity(output, disp, overwrite=overwrite, tags={"riverbed_guide": config.guide})
+                                 lidar_range, progress=advance, range_map=range_map, confidence_out=conf_sink)
+            disp = result.disparity
+            write_disparity(output, disp, overwrite=overwrite, tags={"riverbed_guide": config.guide})
     if color_png:
         if disp is None:
             step_px = max(1, max(H, W) // 4096)  # a preview: read the written map back decimated

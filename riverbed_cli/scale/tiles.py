@@ -251,7 +251,8 @@ def plan_tiles(height, width, sparse, d_min, d_max, tile=TILE_DEFAULT, overlap=O
     return TilePlan(plan(tile), tile, True)
 
 
-def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None, global_range=None, range_map=None):
+def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None, global_range=None, range_map=None,
+               confidence=False):
     """Match one :class:`Tile` (sources sliced like numpy arrays: arrays, memory maps, :class:`WindowedRaster`).
 
     Returns ``(block, evaluations, stages, tubes)``: the tile's own disparities (float32, ``t.y1 - t.y0`` x ``t.x1 -
@@ -261,6 +262,8 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
     With tubes (``params.range``), ``tube_share`` (the whole image's LiDAR share) and ``global_range`` (the whole
     image's ``(d_min, d_max)``) make the crop's tubes the whole image's (:func:`lidar_tubes_window`), clipped to
     the tile's range. A ``range_map`` (the whole image's ``(lo, hi)``, inclusive ints) gives the tubes instead.
+    With ``confidence`` a fifth value: the fusion's confidence of the tile's own pixels (NaN where the tile was not
+    fused: no LiDAR in its range).
     """
     H, W = left.shape[:2]
     ya, yb = max(0, t.y0 - overlap), min(H, t.y1 + overlap)
@@ -306,14 +309,22 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
         w = (range_map[1] - range_map[0] + 1)[t.y0 - ya:t.y1 - ya, t.x0 - a:t.x1 - a]
         g_lo, g_hi = global_range if global_range is not None else (t.d_min, t.d_max)
         own = TileTubes(int(w.sum()), int(w.size), int(w.max()), int((w >= g_hi - g_lo + 1).sum()))
-    return np.ascontiguousarray(block), n, res.info["stages"], own
+    out = np.ascontiguousarray(block), n, res.info["stages"], own
+    if not confidence:
+        return out
+    conf = res.confidence
+    conf = (np.full(block.shape, np.nan, np.float32) if conf is None else
+            np.ascontiguousarray(conf[t.y0 - ya:t.y1 - ya, t.x0 - a:t.x1 - a]))
+    return (*out, conf)
 
 
 def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, tile=TILE_DEFAULT,
-                overlap=OVERLAP_DEFAULT, lidar_range=True, progress=None, out=None, range_map=None, **overrides):
+                overlap=OVERLAP_DEFAULT, lidar_range=True, progress=None, out=None, range_map=None,
+                confidence_out=None, **overrides):
     """:func:`match_pair` tile by tile; same arguments plus ``tile`` (px, ``"auto"`` or 0), ``overlap`` (px) and
     ``lidar_range``; ``range_map`` (per-pixel ``(lo, hi)``, NaN: the nominal range) as :func:`match_pair`'s: each
-    tile searches the range the map spans there and its pixels their own intervals.
+    tile searches the range the map spans there and its pixels their own intervals. ``confidence_out`` receives the
+    fusion's confidence tile by tile as ``out`` the disparities (NaN in tiles that were not fused).
 
     ``left``, ``right`` and ``sparse`` may be numpy arrays or :class:`WindowedRaster` (read tile by tile); ``out``
     receives each tile by ``out[y0:y1, x0:x1] = block`` (default: a new float32 array, returned in the result).
@@ -369,9 +380,12 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
         evaluations = 0
         tube_parts = []
         for t in plan.tiles:
-            block, n, st, tube = match_tile(left, right, sparse, t, overlap, p, bits, share, (d_min, d_max), rmap)
+            block, n, st, tube, *conf = match_tile(left, right, sparse, t, overlap, p, bits, share, (d_min, d_max),
+                                                   rmap, confidence_out is not None)
             tube_parts.append(tube)
             out[t.y0:t.y1, t.x0:t.x1] = block
+            if conf:
+                confidence_out[t.y0:t.y1, t.x0:t.x1] = conf[0]
             evaluations += n
             for k, v in st.items():
                 stages[k] = round(stages.get(k, 0.0) + v, 4)
