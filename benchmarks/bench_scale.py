@@ -34,10 +34,14 @@ d, lidar_range, rng = sys.argv[1], sys.argv[2] == "1", sys.argv[3]
 warm_up()
 left, right = open_windowed(d + "/left.tif"), open_windowed(d + "/right.tif")
 sparse = open_windowed(d + "/lidar.tif", "disparity")
+extra = {"range": rng}
+if rng == "map":  # the tubes from a range map (read by windows), the LiDAR guiding the cost
+    from riverbed_cli.io.windowed import open_range_map
+    extra = {"range": "tube", "range_map": open_range_map(d + "/ranges.tif")}
 t = time.perf_counter()
 with TiffSink(d + f"/disp_{int(lidar_range)}_{rng}.tif", *left.shape[:2]) as sink:
     r = match_tiled(left, right, sparse, 0, 520, tile="auto", overlap=128, lidar_range=lidar_range, out=sink,
-                    range=rng)
+                    **extra)
 info = {k: r.info[k] for k in ("tiles", "tile", "disparity_evaluations", "tile_ranges", "window")}
 info["seconds"] = time.perf_counter() - t
 info["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
@@ -45,8 +49,9 @@ print(json.dumps(info))
 """
 
 
-def make_pair(folder, megapixels, seed=0):
-    """Write left.tif, right.tif, gt.tif, lidar.tif (tiled) for a pair of about ``megapixels`` MP."""
+def make_pair(folder, megapixels, seed=0, ranges=False):
+    """Write left.tif, right.tif, gt.tif, lidar.tif (tiled) for a pair of about ``megapixels`` MP; with ``ranges``
+    also ranges.tif, the 2-band range map of the GT +- 4 px (``--range-map``, as a coarse DSM would give)."""
     import rasterio
 
     W = int(math.sqrt(megapixels * 1e6 * 1.6))
@@ -66,6 +71,9 @@ def make_pair(folder, megapixels, seed=0):
     files = {k: rasterio.open(folder / f"{k}.tif", "w", dtype=("uint8" if k in ("left", "right") else "float32"),
                               nodata=(None if k in ("left", "right") else float("nan")), **prof)
              for k in ("left", "right", "gt", "lidar")}
+    if ranges:
+        files["ranges"] = rasterio.open(folder / "ranges.tif", "w", dtype="float32", nodata=float("nan"),
+                                        **{**prof, "count": 2})
     from rasterio.windows import Window
 
     xs = np.arange(W, dtype=np.float64)
@@ -94,6 +102,8 @@ def make_pair(folder, megapixels, seed=0):
                              window=win)
         files["gt"].write(d.astype(np.float32)[None], window=win)
         files["lidar"].write(lidar[None], window=win)
+        if ranges:
+            files["ranges"].write(np.stack([d - 4, d + 4]).astype(np.float32), window=win)
     for f in files.values():
         f.close()
     return H, W
@@ -142,7 +152,8 @@ def main():
     ap.add_argument("--sizes", default="10,20,40", help="megapixels, comma separated")
     ap.add_argument("--workdir", default=None)
     ap.add_argument("--skip-full", action="store_true", help="do not match the full range on the largest size")
-    ap.add_argument("--ranges", default="tile,tube", help="range modes matched at every size (tile, tube)")
+    ap.add_argument("--ranges", default="tile,tube",
+                    help="range modes matched at every size (tile, tube; map: a range map of the GT +- 4 px)")
     args = ap.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
     with tempfile.TemporaryDirectory(dir=args.workdir) as tmp:
@@ -151,12 +162,13 @@ def main():
             folder = Path(tmp) / f"{mp}mp"
             folder.mkdir()
             t = time.perf_counter()
-            H, W = make_pair(folder, mp)
+            H, W = make_pair(folder, mp, ranges="map" in args.ranges.split(","))
             gen = time.perf_counter() - t
             for rng in args.ranges.split(","):
                 r = run_child(folder, True, rng)
                 m = accuracy(folder, f"disp_1_{rng}.tif")
-                rows.append((mp, H, W, "LiDAR tubes" if rng == "tube" else "LiDAR tile ranges", r, m))
+                label = {"tube": "LiDAR tubes", "map": "range map (GT +- 4 px)"}.get(rng, "LiDAR tile ranges")
+                rows.append((mp, H, W, label, r, m))
                 print(f"{mp} MP ({W}x{H}, generated in {gen:.0f} s), range {rng}: {r}", file=sys.stderr, flush=True)
             if mp == max(sizes) and not args.skip_full:
                 rf = run_child(folder, False, "full")

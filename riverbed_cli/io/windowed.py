@@ -9,19 +9,20 @@ import rasterio
 from rasterio.windows import Window
 
 from ..errors import RiverbedError
-from .disparity import TIFF_COMPRESSION, read_disparity
+from .disparity import TIFF_COMPRESSION, disparity_format, read_disparity
 from .images import TIFF_MAGIC, effective_bits, read_image
+from .paths import require_file
 
 
 class WindowedRaster:
     """A raster file read window by window (rasterio), sliced like a numpy array: ``src[y0:y1, x0:x1]``.
 
-    ``kind="image"``: bands become channels (H x W or H x W x 3, samples unchanged); ``kind="disparity"``: band 1
-    as float32 with nodata, inf and NaN as NaN. Only what a tile needs is ever in memory.
+    ``kind="image"``: bands become channels (H x W or H x W x 3, samples unchanged); ``kind="disparity"``: band
+    ``band`` (default 1) as float32 with nodata, inf and NaN as NaN. Only what a tile needs is ever in memory.
     """
 
-    def __init__(self, path, kind="image"):
-        self.path, self.kind = str(path), kind
+    def __init__(self, path, kind="image", band=1):
+        self.path, self.kind, self.band = str(path), kind, int(band)
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
@@ -41,7 +42,7 @@ class WindowedRaster:
         x0, x1, _ = cols.indices(W)
         win = Window(x0, y0, max(0, x1 - x0), max(0, y1 - y0))
         if self.kind == "disparity":
-            a = self._ds.read(1, window=win, masked=True).astype(np.float32).filled(np.nan)
+            a = self._ds.read(self.band, window=win, masked=True).astype(np.float32).filled(np.nan)
             a[~np.isfinite(a)] = np.nan
             return a
         a = self._ds.read(list(range(1, self.bands + 1)), window=win)
@@ -52,10 +53,10 @@ class WindowedRaster:
             yield y, self[y:y + rows, 0:self.shape[1]]
 
     def __getstate__(self):  # dask ships sources to workers: reopen there
-        return {"path": self.path, "kind": self.kind}
+        return {"path": self.path, "kind": self.kind, "band": self.band}
 
     def __setstate__(self, state):
-        self.__init__(state["path"], state["kind"])
+        self.__init__(state["path"], state["kind"], state.get("band", 1))
 
 
 #: GDAL's block cache while rasters are read and written tile by tile. GDAL's default is 5 % of the machine's memory
@@ -82,6 +83,22 @@ def open_windowed(path, kind="image"):
     if is_tiff(path):
         return WindowedRaster(path, kind)
     return read_disparity(path) if kind == "disparity" else read_image(path)
+
+
+def open_range_map(path):
+    """A range map (``riverbed match --range-map``: a 2-band TIFF of min and max disparity) as two
+    :class:`WindowedRaster` bands ``(lo, hi)``, read by windows; :class:`RiverbedError` naming the file as
+    :func:`~riverbed_cli.io.disparity.read_range_map`'s for anything else."""
+    path = require_file(path)
+    if disparity_format(path) != "tif" or not is_tiff(path):
+        raise RiverbedError("range map must be a 2-band GeoTIFF/TIFF (min and max disparity)", path)
+    lo = WindowedRaster(path, "disparity", band=1)
+    count = lo._ds.count
+    if count != 2:
+        raise RiverbedError(f"range map needs 2 bands (min and max disparity), has {count}", path)
+    if lo._ds.dtypes[0].startswith("complex"):
+        raise RiverbedError(f"range map must be real-valued, got {lo._ds.dtypes[0]}", path)
+    return lo, WindowedRaster(path, "disparity", band=2)
 
 
 def row_blocks(a, rows=512):

@@ -19,7 +19,7 @@ from .config import MatchConfig
 from .guidance import lidar_share
 from .registry import get_fusion, get_guide, get_matcher
 from .results import MatchInfo, MatchResult
-from .tubes import HOLE_FACTOR, hole_bounds, lidar_tubes, tube_stats
+from .tubes import HOLE_FACTOR, hole_bounds, lidar_tubes, range_map_summary, tube_stats
 from .volume import TubeLayout
 
 log = logging.getLogger(__name__)
@@ -122,24 +122,49 @@ def resolve_fusion(config, guide, have_lidar):
     return name
 
 
-def check_range_map(range_map, shape, d_min, d_max):
-    """A per-pixel range ``(lo, hi)`` (float arrays, NaN: the nominal range) as inclusive int32 tube ends."""
-    lo, hi = (np.asarray(a, dtype=np.float64) for a in range_map)
-    if lo.shape != tuple(shape) or hi.shape != tuple(shape):
-        raise RiverbedError(f"range map is {lo.shape[1] if lo.ndim > 1 else '?'}x{lo.shape[0]} (WxH) but the images "
-                            f"are {shape[1]}x{shape[0]}")
-    known = np.isfinite(lo) & np.isfinite(hi)
-    if not known.any():
+def validate_range_map(range_map, shape, d_min, d_max):
+    """Check a per-pixel range ``(lo, hi)`` (arrays, memory maps or windowed rasters sliced like them; NaN: the
+    nominal range) for a match of ``shape`` over ``[d_min, d_max]``, a block of rows at a time (a tiled match of a
+    large image never holds the map): :class:`RiverbedError` for another size, no valid pixel, min > max, or a range
+    outside the nominal one."""
+    lo, hi = range_map
+    if tuple(lo.shape) != tuple(shape) or tuple(hi.shape) != tuple(shape):
+        raise RiverbedError(f"range map is {lo.shape[1] if len(lo.shape) > 1 else '?'}x{lo.shape[0]} (WxH) but the "
+                            f"images are {shape[1]}x{shape[0]}")
+    known, crossed, low, high = range_map_extent(lo, hi)
+    if not known:
         raise RiverbedError("range map has no valid pixel (all NaN)")
-    if (lo[known] > hi[known]).any():
-        n = int((lo[known] > hi[known]).sum())
-        raise RiverbedError(f"range map has min > max at {n} pixels")
-    if lo[known].min() < d_min or hi[known].max() > d_max:
-        raise RiverbedError(f"range map spans [{lo[known].min():.2f}, {hi[known].max():.2f}], outside the nominal "
-                            f"range [{d_min}, {d_max}]")
-    out_lo = np.where(known, np.floor(lo), d_min).astype(np.int32)
-    out_hi = np.where(known, np.ceil(hi), d_max).astype(np.int32)
-    return out_lo, out_hi
+    if crossed:
+        raise RiverbedError(f"range map has min > max at {crossed} pixels")
+    if low < d_min or high > d_max:
+        raise RiverbedError(f"range map spans [{low:.2f}, {high:.2f}], outside the nominal range [{d_min}, {d_max}]")
+
+
+def range_map_extent(lo, hi, rows=512):
+    """``(known, crossed, low, high)`` of a range map (:func:`~riverbed_cli.matching.tubes.range_map_summary`),
+    ``rows`` rows at a time."""
+    known, crossed, low, high = 0, 0, math.inf, -math.inf
+    for y in range(0, lo.shape[0], rows):
+        k, c, a, b = range_map_summary(np.asarray(lo[y:y + rows, :]), np.asarray(hi[y:y + rows, :]))
+        known, crossed, low, high = known + k, crossed + c, min(low, a), max(high, b)
+    return known, crossed, low, high
+
+
+def check_range_map(range_map, shape, d_min, d_max):
+    """A per-pixel range ``(lo, hi)`` (float arrays, NaN: the nominal range) as inclusive int32 tube ends
+    (:func:`validate_range_map` first)."""
+    lo, hi = (np.asarray(a) for a in range_map)
+    validate_range_map((lo, hi), shape, d_min, d_max)
+    return range_map_ends(lo, hi, d_min, d_max)
+
+
+def range_map_ends(lo, hi, d_min, d_max):
+    """Inclusive int32 ends of a checked range map (a crop of one, say): ``floor(lo)``, ``ceil(hi)``, and
+    ``[d_min, d_max]`` where the map has no range."""
+    lo, hi = np.asarray(lo), np.asarray(hi)
+    known = np.isfinite(lo) & np.isfinite(hi)
+    return (np.where(known, np.floor(lo), d_min).astype(np.int32),
+            np.where(known, np.ceil(hi), d_max).astype(np.int32))
 
 
 #: the coarse match of the tube rule's holes: unguided census SGM on the whole range. Without the left-right check:

@@ -179,6 +179,26 @@ def _window_bounds(disp, shape, factor, window):
     return cmin, cmax, np.isfinite(cmin)
 
 
+@njit(cache=True)
+def range_map_summary(lo, hi):
+    """A range map's pixels with both ends finite, those of them with ``lo > hi``, and their smallest ``lo`` and
+    largest ``hi`` (float64): one pass, no copy (a memory map is read once)."""
+    known = 0
+    crossed = 0
+    low = np.inf
+    high = -np.inf
+    for y in range(lo.shape[0]):
+        for x in range(lo.shape[1]):
+            a = np.float64(lo[y, x])
+            b = np.float64(hi[y, x])
+            if math.isfinite(a) and math.isfinite(b):
+                known += 1
+                crossed += a > b
+                low = min(low, a)
+                high = max(high, b)
+    return known, crossed, low, high
+
+
 def hole_bounds(coarse, shape, d_min, d_max, factor=HOLE_FACTOR, window=HOLE_WINDOW, margin=HOLE_MARGIN):
     """Per-pixel ranges from a coarse disparity map, for the pixels the LiDAR leaves on the nominal range.
 

@@ -6,16 +6,18 @@ windows, and a tiled match into a ``.tif`` streams its tiles into the file (the 
 
 import contextlib
 import logging
+import math
 import os
 
 import numpy as np
 
 from ..errors import RiverbedError
 from ..io.atomic import atomic_output, check_output
-from ..io.disparity import disparity_format, read_disparity, read_range_map, write_disparity
+from ..io.disparity import disparity_format, read_disparity, write_disparity
 from ..io.images import check_pair, read_image
-from ..io.windowed import TiffSink, WindowedRaster, is_tiff, sparse_points_any
-from ..matching.pipeline import check_range_map, disparity_range_from_sparse, match_pair, resolve_fusion, warm_up
+from ..io.windowed import TiffSink, WindowedRaster, is_tiff, open_range_map, sparse_points_any
+from ..matching.pipeline import (disparity_range_from_sparse, match_pair, range_map_extent, resolve_fusion,
+                                 validate_range_map, warm_up)
 from ..matching.registry import get_guide
 from ..products.visualize import disparity_picture, write_picture
 from ..matching.guidance import lidar_share_of_points
@@ -117,18 +119,18 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     H, W = left_src.shape[:2]
     rmap = None
     if range_map:
-        rmap = read_range_map(range_map)
+        rmap = open_range_map(range_map)  # read by windows: a tiled match reads each tile's
         if rmap[0].shape != (H, W):
             raise RiverbedError(f"range map is {rmap[0].shape[1]}x{rmap[0].shape[0]} but the images are {W}x{H} "
                                 "(WxH)", range_map)
         if max_disp is None or min_disp is None:
-            known = np.isfinite(rmap[0]) & np.isfinite(rmap[1])
-            if not known.any():
+            known, _, low, high = range_map_extent(*rmap)
+            if not known:
                 raise RiverbedError("range map has no valid pixel (all NaN)", range_map)
-            min_disp = int(np.floor(rmap[0][known].min())) if min_disp is None else min_disp
-            max_disp = int(np.ceil(rmap[1][known].max())) if max_disp is None else max_disp
-        try:  # checked before any work; its inclusive int ranges plan the tiles
-            rmap_int = check_range_map(rmap, (H, W), min_disp, max_disp)
+            min_disp = int(math.floor(low)) if min_disp is None else min_disp
+            max_disp = int(math.ceil(high)) if max_disp is None else max_disp
+        try:  # checked before any work
+            validate_range_map(rmap, (H, W), min_disp, max_disp)
         except RiverbedError as e:
             raise RiverbedError(str(e), range_map) from None
     # the same tiling rule as blocks: untiled when the whole range (with tubes: their volume) fits, else tiles sized
@@ -139,12 +141,12 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     if rng is not None:
         widths = None
         if rmap is not None:
-            widths = range_map_widths(*rmap_int)
+            widths = range_map_widths(*rmap, rng[0], rng[1])
         elif points is not None:
             widths = tube_widths(config, points, (H, W), rng[0], rng[1],
                                  lidar_share_of_points(points[0], points[1], (H, W)))
         plan = plan_tiles(H, W, sparse_src, rng[0], rng[1], tile, overlap, lidar_range, widths=widths,
-                          range_map=rmap_int if rmap is not None else None)
+                          range_map=rmap)
     warm_up(config=config)  # load the kernels this run uses now: start-up, not matching time
     if plan is not None and plan.tiled:
         return _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, plan.size, overlap,
@@ -156,7 +158,8 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     if step:
         step()
     try:
-        result = match_pair(left_img, right_img, sparse_map, min_disp, max_disp, config, range_map=rmap)
+        whole_map = tuple(b[:, :] for b in rmap) if rmap is not None else None
+        result = match_pair(left_img, right_img, sparse_map, min_disp, max_disp, config, range_map=whole_map)
     except RiverbedError as e:
         # Name the file the problem comes from when it is the sparse map or the range map.
         if sparse and "sparse" in str(e) and e.path is None:

@@ -24,8 +24,8 @@ from ..io.images import to_guide
 from ..io.windowed import bounded_raster_cache, image_bits, sparse_points_any
 from ..matching.config import OVERLAP_DEFAULT, TILE_DEFAULT
 from ..matching.guidance import lidar_share, lidar_share_of_points
-from ..matching.pipeline import (check_inside, check_range_map, fill_tube_holes, make_config, match_pair,
-                                 resolve_disparity_range, resolve_range)
+from ..matching.pipeline import (check_inside, fill_tube_holes, make_config, match_pair, range_map_ends,
+                                 resolve_disparity_range, resolve_range, validate_range_map)
 from ..matching.registry import get_guide, get_matcher
 from ..matching.tubes import cell_widths_from_points, lidar_tubes_window
 from ..matching.results import MatchResult, TiledMatchInfo
@@ -146,27 +146,34 @@ def lidar_ranges(tiles, sparse, d_min, d_max, reach=None, margin=4.0, thin_margi
     return tiles
 
 
-def range_map_ranges(tiles, lo, hi, reach):
-    """Give each tile the range a per-pixel range map spans over the tile grown by ``reach`` px (``lo``, ``hi``:
-    inclusive int arrays, the nominal range where the map had none: :func:`~riverbed_cli.matching.pipeline.
-    check_range_map`)."""
+def range_map_ranges(tiles, lo, hi, reach, d_min, d_max):
+    """Give each tile the range a per-pixel range map spans over the tile grown by ``reach`` px (``lo``, ``hi``: the
+    checked map, :func:`~riverbed_cli.matching.pipeline.validate_range_map`; where it has no range, the nominal
+    ``[d_min, d_max]``). Reads each tile's window only."""
     H, W = lo.shape
     for t in tiles:
         ya, yb, xa, xb = max(0, t.y0 - reach), min(H, t.y1 + reach), max(0, t.x0 - reach), min(W, t.x1 + reach)
-        t.d_min, t.d_max, t.source = int(lo[ya:yb, xa:xb].min()), int(hi[ya:yb, xa:xb].max()), "range_map"
+        a, b = range_map_ends(lo[ya:yb, xa:xb], hi[ya:yb, xa:xb], d_min, d_max)
+        t.d_min, t.d_max, t.source = int(a.min()), int(b.max()), "range_map"
     return tiles
 
 
-def range_map_widths(lo, hi, cell=4):
-    """``(cell widths, cell)`` of a range map's intervals (for :func:`plan_tiles`): the mean width of each ``cell``
-    x ``cell`` block."""
+def range_map_widths(lo, hi, d_min, d_max, cell=4, rows=512):
+    """``(cell widths, cell)`` of a checked range map's intervals (for :func:`plan_tiles`): the mean width of each
+    ``cell`` x ``cell`` block, the nominal range's where the map has none; ``rows`` at a time."""
     H, W = lo.shape
-    w = np.zeros((-(-H // cell) * cell, -(-W // cell) * cell), np.float32)
-    n = np.zeros_like(w)
-    w[:H, :W] = hi - lo + 1
-    n[:H, :W] = 1
-    blocks = (w.shape[0] // cell, cell, w.shape[1] // cell, cell)
-    return w.reshape(blocks).sum(axis=(1, 3)) / n.reshape(blocks).sum(axis=(1, 3)), cell
+    rows = max(cell, rows // cell * cell)
+    out = np.empty((-(-H // cell), -(-W // cell)), np.float32)
+    for y0 in range(0, H, rows):
+        a, b = range_map_ends(lo[y0:y0 + rows, :], hi[y0:y0 + rows, :], d_min, d_max)
+        h = a.shape[0]
+        w = np.zeros((-(-h // cell) * cell, -(-W // cell) * cell), np.float32)
+        n = np.zeros_like(w)
+        w[:h, :W] = b - a + 1
+        n[:h, :W] = 1
+        blocks = (w.shape[0] // cell, cell, w.shape[1] // cell, cell)
+        out[y0 // cell:y0 // cell + blocks[0]] = w.reshape(blocks).sum(axis=(1, 3)) / n.reshape(blocks).sum(axis=(1, 3))
+    return out, cell
 
 
 @dataclass
@@ -223,7 +230,7 @@ def plan_tiles(height, width, sparse, d_min, d_max, tile=TILE_DEFAULT, overlap=O
     def plan(size):
         ts = tile_grid(height, width, max(size, 16))
         if range_map is not None:
-            range_map_ranges(ts, *range_map, overlap)
+            range_map_ranges(ts, *range_map, overlap, d_min, d_max)
         elif sparse is not None and lidar_range:
             lidar_ranges(ts, sparse, d_min, d_max, reach=overlap)
         else:
@@ -261,7 +268,8 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
     (not "auto") so every tile uses the same riverbed window; ``bits`` is the whole pair's effective bit depth.
     With tubes (``params.range``), ``tube_share`` (the whole image's LiDAR share) and ``global_range`` (the whole
     image's ``(d_min, d_max)``) make the crop's tubes the whole image's (:func:`lidar_tubes_window`), clipped to
-    the tile's range. A ``range_map`` (the whole image's ``(lo, hi)``, inclusive ints) gives the tubes instead.
+    the tile's range. A ``range_map`` (the whole image's checked ``(lo, hi)``, NaN: no range) gives the tubes
+    instead.
     With ``confidence`` a fifth value: the fusion's confidence of the tile's own pixels (NaN where the tile was not
     fused: no LiDAR in its range).
     """
@@ -287,7 +295,8 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
     mode = resolve_range(p, get_guide(p.guide), get_matcher(p.matcher), sc is not None, range_map is not None)
     full_map, range_map = range_map, None
     if mode == "tube" and full_map is not None:
-        range_map = tuple(np.clip(m[ya:yb, a:b], t.d_min, t.d_max) - off for m in full_map)
+        ends = range_map_ends(full_map[0][ya:yb, a:b], full_map[1][ya:yb, a:b], t.d_min, t.d_max)
+        range_map = tuple(np.clip(e, t.d_min, t.d_max) - off for e in ends)
     elif mode == "tube" and sparse is not None:
         g_lo, g_hi = global_range if global_range is not None else (t.d_min, t.d_max)
         share = tube_share if tube_share is not None else lidar_share(sc)
@@ -355,7 +364,10 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
                 d_min = int(np.floor(range_map[0][known].min())) if d_min is None else d_min
                 d_max = int(np.ceil(range_map[1][known].max())) if d_max is None else d_max
         d_min, d_max = resolve_disparity_range(d_min, d_max, pv if sparse is not None else None)
-        rmap = check_range_map(range_map, (H, W), d_min, d_max) if range_map is not None else None
+        rmap = None
+        if range_map is not None:  # checked once, kept as it is (a memory map stays one): tiles read windows
+            rmap = tuple(range_map)
+            validate_range_map(rmap, (H, W), d_min, d_max)
         if overlap < 0:
             raise RiverbedError(f"--overlap must be >= 0, got {overlap}")
         # the LiDAR inside the range guides the cost, as match_pair's; all of it bounds the tubes (tube_share)
@@ -370,7 +382,7 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
             # One window for the whole image: a tile's own LiDAR share would change it from tile to tile.
             p = p.replace(window=guide.window(guide_share, p))
         if rmap is not None:
-            widths = range_map_widths(*rmap)
+            widths = range_map_widths(*rmap, d_min, d_max)
         else:
             widths = tube_widths(p, (pr, pc, pv), (H, W), d_min, d_max, share) if sparse is not None else None
         plan = plan_tiles(H, W, sparse, d_min, d_max, tile, overlap, lidar_range, widths=widths, range_map=rmap)

@@ -13,15 +13,15 @@ from ...errors import RiverbedError
 from ...geometry.projection import project_cloud
 from ...geometry.rpc_geometry import cloud_to_wgs84, output_crs
 from ...io.atomic import atomic_output
-from ...io.disparity import read_disparity, read_range_map, write_disparity
+from ...io.disparity import read_disparity, write_disparity
 from ...io.images import check_pair, check_pixels, read_image
 from ...io.lidar import lidar_info, resolve_crs
 from ...geometry.pairfile import load_pairfile, load_registration
 from ...io.pointcloud import write_points
 from ...io.raster import write_geotiff
-from ...io.windowed import WindowedRaster, image_bits, open_windowed, sparse_points_any
+from ...io.windowed import WindowedRaster, image_bits, open_range_map, open_windowed, sparse_points_any
 from ...matching.guidance import lidar_share_of_points
-from ...matching.pipeline import check_range_map, match_pair, resolve_disparity_range
+from ...matching.pipeline import match_pair, range_map_extent, resolve_disparity_range, validate_range_map
 from ...matching.registry import get_guide
 from ...products.dsm import Accumulator, Grid, default_resolution, disparity_points
 from ..tiles import Tile, match_tile, plan_tiles, range_map_widths, tube_widths
@@ -166,7 +166,7 @@ def project_stage(job):
     rmap = None
     if job.range_map:
         d_min, d_max, rmap = _pair_range_map(job.range_map, (H, W), d_min, d_max, s, folder / WORK)
-        widths = range_map_widths(*rmap)
+        widths = range_map_widths(*rmap, d_min, d_max)
     else:
         widths = tube_widths(p, (pr, pc, pv), (H, W), d_min, d_max, share)
     plan = plan_tiles(H, W, sparse, d_min, d_max, s["tile"], s["overlap"], s["lidar_range"], widths=widths,
@@ -192,23 +192,24 @@ def project_stage(job):
 
 def _pair_range_map(path, shape, d_min, d_max, s, work):
     # The pair's range map (riverbed match --range-map): checked, the pair's range widened to hold it where the
-    # manifest sets none, and kept as inclusive int32 ends in work/range_{lo,hi}.npy for the match tasks.
-    lo, hi = read_range_map(path)
+    # manifest sets none, and copied by blocks of rows to float32 work/range_{lo,hi}.npy (NaN: none) that the match
+    # tasks memory-map: no stage holds the whole map.
+    lo, hi = open_range_map(path)
     if lo.shape != tuple(shape):
         raise RiverbedError(f"range map is {lo.shape[1]}x{lo.shape[0]} but the images are {shape[1]}x{shape[0]} "
                             "(WxH)", path)
-    known = np.isfinite(lo) & np.isfinite(hi)
-    if known.any():
-        d_min = min(d_min, int(np.floor(lo[known].min()))) if s["min_disp"] is None else d_min
-        d_max = max(d_max, int(np.ceil(hi[known].max()))) if s["max_disp"] is None else d_max
+    known, _, low, high = range_map_extent(lo, hi)
+    if known:
+        d_min = min(d_min, int(np.floor(low))) if s["min_disp"] is None else d_min
+        d_max = max(d_max, int(np.ceil(high))) if s["max_disp"] is None else d_max
     try:
-        rmap = check_range_map((lo, hi), shape, d_min, d_max)
+        validate_range_map((lo, hi), shape, d_min, d_max)
     except RiverbedError as e:
         raise RiverbedError(str(e), path) from None
     work.mkdir(exist_ok=True)
-    for name, a in zip(("range_lo", "range_hi"), rmap):
-        np.save(work / f"{name}.npy", a)
-    return d_min, d_max, rmap
+    for name, src in (("range_lo", lo), ("range_hi", hi)):
+        _save_npy(src, work / f"{name}.npy")
+    return d_min, d_max, (lo, hi)
 
 
 def _load_range_map(folder, proj):
