@@ -128,10 +128,20 @@ def validate_range_map(range_map, shape, d_min, d_max):
     large image never holds the map): :class:`RiverbedError` for another size, no valid pixel, min > max, or a range
     outside the nominal one."""
     lo, hi = range_map
+    check_range_map_shape(lo, hi, shape)
+    check_range_summary(*range_map_extent(lo, hi), d_min, d_max)
+
+
+def check_range_map_shape(lo, hi, shape):
+    """:class:`RiverbedError` unless both bands of a range map are of ``shape``."""
     if tuple(lo.shape) != tuple(shape) or tuple(hi.shape) != tuple(shape):
         raise RiverbedError(f"range map is {lo.shape[1] if len(lo.shape) > 1 else '?'}x{lo.shape[0]} (WxH) but the "
                             f"images are {shape[1]}x{shape[0]}")
-    known, crossed, low, high = range_map_extent(lo, hi)
+
+
+def check_range_summary(known, crossed, low, high, d_min, d_max):
+    """:class:`RiverbedError` for a range map with no valid pixel, min > max, or a range outside ``[d_min, d_max]``
+    (from its :func:`range_map_extent`)."""
     if not known:
         raise RiverbedError("range map has no valid pixel (all NaN)")
     if crossed:

@@ -16,12 +16,11 @@ from ..io.atomic import atomic_output, check_output
 from ..io.disparity import disparity_format, read_disparity, write_disparity
 from ..io.images import check_pair, read_image
 from ..io.windowed import TiffSink, WindowedRaster, is_tiff, open_range_map, sparse_points_any
-from ..matching.pipeline import (disparity_range_from_sparse, match_pair, range_map_extent, resolve_fusion,
-                                 validate_range_map, warm_up)
+from ..matching.pipeline import disparity_range_from_sparse, match_pair, range_map_extent, resolve_fusion, warm_up
 from ..matching.registry import get_guide
 from ..products.visualize import disparity_picture, write_picture
 from ..matching.guidance import lidar_share_of_points
-from .tiles import match_tiled, plan_tiles, range_map_widths, tube_widths
+from .tiles import match_tiled, plan_tiles, scan_range_map, tube_widths
 
 log = logging.getLogger(__name__)
 
@@ -129,8 +128,8 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
                 raise RiverbedError("range map has no valid pixel (all NaN)", range_map)
             min_disp = int(math.floor(low)) if min_disp is None else min_disp
             max_disp = int(math.ceil(high)) if max_disp is None else max_disp
-        try:  # checked before any work
-            validate_range_map(rmap, (H, W), min_disp, max_disp)
+        try:  # checked before any work, in the read that plans the tiles
+            scan = scan_range_map(rmap, (H, W), min_disp, max_disp)
         except RiverbedError as e:
             raise RiverbedError(str(e), range_map) from None
     # the same tiling rule as blocks: untiled when the whole range (with tubes: their volume) fits, else tiles sized
@@ -141,12 +140,12 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     if rng is not None:
         widths = None
         if rmap is not None:
-            widths = range_map_widths(*rmap, rng[0], rng[1])
+            widths = (scan.widths, scan.cell)
         elif points is not None:
             widths = tube_widths(config, points, (H, W), rng[0], rng[1],
                                  lidar_share_of_points(points[0], points[1], (H, W)))
         plan = plan_tiles(H, W, sparse_src, rng[0], rng[1], tile, overlap, lidar_range, widths=widths,
-                          range_map=rmap)
+                          range_map=scan if rmap is not None else None)
     warm_up(config=config)  # load the kernels this run uses now: start-up, not matching time
     if plan is not None and plan.tiled:
         return _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, plan.size, overlap,

@@ -24,10 +24,10 @@ from ..io.images import to_guide
 from ..io.windowed import bounded_raster_cache, image_bits, sparse_points_any
 from ..matching.config import OVERLAP_DEFAULT, TILE_DEFAULT
 from ..matching.guidance import lidar_share, lidar_share_of_points
-from ..matching.pipeline import (check_inside, fill_tube_holes, make_config, match_pair, range_map_ends,
-                                 resolve_disparity_range, resolve_range, validate_range_map)
+from ..matching.pipeline import (check_inside, check_range_map_shape, check_range_summary, fill_tube_holes,
+                                 make_config, match_pair, range_map_ends, resolve_disparity_range, resolve_range)
 from ..matching.registry import get_guide, get_matcher
-from ..matching.tubes import cell_widths_from_points, lidar_tubes_window
+from ..matching.tubes import cell_widths_from_points, lidar_tubes_window, range_map_summary
 from ..matching.results import MatchResult, TiledMatchInfo
 
 log = logging.getLogger(__name__)
@@ -146,34 +146,58 @@ def lidar_ranges(tiles, sparse, d_min, d_max, reach=None, margin=4.0, thin_margi
     return tiles
 
 
-def range_map_ranges(tiles, lo, hi, reach, d_min, d_max):
-    """Give each tile the range a per-pixel range map spans over the tile grown by ``reach`` px (``lo``, ``hi``: the
-    checked map, :func:`~riverbed_cli.matching.pipeline.validate_range_map`; where it has no range, the nominal
-    ``[d_min, d_max]``). Reads each tile's window only."""
-    H, W = lo.shape
+@dataclass
+class RangeMapScan:
+    """A range map read once (:func:`scan_range_map`): per ``cell`` x ``cell`` block the mean width of its pixels'
+    ranges (``widths``, for :func:`plan_tiles`) and the smallest and largest range end (``lo``, ``hi``, int32, for
+    :func:`range_map_ranges`); the nominal range where the map has none."""
+
+    widths: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    cell: int
+    shape: tuple
+
+
+def scan_range_map(range_map, shape, d_min, d_max, cell=4, rows=512):
+    """Check a range map for a match of ``shape`` over ``[d_min, d_max]`` (the messages of
+    :func:`~riverbed_cli.matching.pipeline.validate_range_map`) and sum it up per cell, in one read of ``rows``
+    rows at a time (arrays, memory maps or windowed rasters): a :class:`RangeMapScan`."""
+    lo, hi = range_map
+    check_range_map_shape(lo, hi, shape)
+    H, W = shape
+    rows = max(cell, rows // cell * cell)
+    ch, cw = -(-H // cell), -(-W // cell)
+    widths, clo, chi = (np.empty((ch, cw), t) for t in (np.float32, np.int32, np.int32))
+    summary = [0, 0, math.inf, -math.inf]
+    for y0 in range(0, H, rows):
+        blo, bhi = np.asarray(lo[y0:y0 + rows, :]), np.asarray(hi[y0:y0 + rows, :])
+        k, c, a, b = range_map_summary(blo, bhi)
+        summary = [summary[0] + k, summary[1] + c, min(summary[2], a), max(summary[3], b)]
+        a, b = range_map_ends(blo, bhi, d_min, d_max)
+        h = a.shape[0]
+        pad = ((0, -(-h // cell) * cell - h), (0, cw * cell - W))
+        blocks = (-(-h // cell), cell, cw, cell)
+        w = np.pad((b - a + 1).astype(np.float32), pad).reshape(blocks).sum(axis=(1, 3))
+        n = np.pad(np.ones((h, W), np.float32), pad).reshape(blocks).sum(axis=(1, 3))
+        r = slice(y0 // cell, y0 // cell + blocks[0])
+        widths[r] = w / n
+        clo[r] = np.pad(a, pad, constant_values=d_max).reshape(blocks).min(axis=(1, 3))
+        chi[r] = np.pad(b, pad, constant_values=d_min).reshape(blocks).max(axis=(1, 3))
+    check_range_summary(*summary, d_min, d_max)
+    return RangeMapScan(widths, clo, chi, cell, (H, W))
+
+
+def range_map_ranges(tiles, scan, reach):
+    """Give each tile the range a range map spans over the tile grown by ``reach`` px, from its
+    :class:`RangeMapScan` (whole cells: up to ``cell - 1`` px more)."""
+    H, W = scan.shape
+    c = scan.cell
     for t in tiles:
         ya, yb, xa, xb = max(0, t.y0 - reach), min(H, t.y1 + reach), max(0, t.x0 - reach), min(W, t.x1 + reach)
-        a, b = range_map_ends(lo[ya:yb, xa:xb], hi[ya:yb, xa:xb], d_min, d_max)
-        t.d_min, t.d_max, t.source = int(a.min()), int(b.max()), "range_map"
+        cells = (slice(ya // c, -(-yb // c)), slice(xa // c, -(-xb // c)))
+        t.d_min, t.d_max, t.source = int(scan.lo[cells].min()), int(scan.hi[cells].max()), "range_map"
     return tiles
-
-
-def range_map_widths(lo, hi, d_min, d_max, cell=4, rows=512):
-    """``(cell widths, cell)`` of a checked range map's intervals (for :func:`plan_tiles`): the mean width of each
-    ``cell`` x ``cell`` block, the nominal range's where the map has none; ``rows`` at a time."""
-    H, W = lo.shape
-    rows = max(cell, rows // cell * cell)
-    out = np.empty((-(-H // cell), -(-W // cell)), np.float32)
-    for y0 in range(0, H, rows):
-        a, b = range_map_ends(lo[y0:y0 + rows, :], hi[y0:y0 + rows, :], d_min, d_max)
-        h = a.shape[0]
-        w = np.zeros((-(-h // cell) * cell, -(-W // cell) * cell), np.float32)
-        n = np.zeros_like(w)
-        w[:h, :W] = b - a + 1
-        n[:h, :W] = 1
-        blocks = (w.shape[0] // cell, cell, w.shape[1] // cell, cell)
-        out[y0 // cell:y0 // cell + blocks[0]] = w.reshape(blocks).sum(axis=(1, 3)) / n.reshape(blocks).sum(axis=(1, 3))
-    return out, cell
 
 
 @dataclass
@@ -224,13 +248,14 @@ def plan_tiles(height, width, sparse, d_min, d_max, tile=TILE_DEFAULT, overlap=O
     integer: tiles of that side when the image is larger. Each tile gets its LiDAR range (:func:`lidar_ranges`) or
     the global one. With tubes, ``widths`` (:func:`tube_widths`) makes the volume count their mean width instead of
     the range's disparities (the image's for the whole, the widest 1024 px tile's for tiles). With a ``range_map``
-    (``(lo, hi)``, :func:`range_map_ranges`) each tile takes the range the map spans there instead of its LiDAR's.
+    (a :class:`RangeMapScan`, :func:`range_map_ranges`) each tile takes the range the map spans there instead of its
+    LiDAR's.
     Returns a :class:`TilePlan`; an untiled plan holds the one tile covering the image.
     """
     def plan(size):
         ts = tile_grid(height, width, max(size, 16))
         if range_map is not None:
-            range_map_ranges(ts, *range_map, overlap, d_min, d_max)
+            range_map_ranges(ts, range_map, overlap)
         elif sparse is not None and lidar_range:
             lidar_ranges(ts, sparse, d_min, d_max, reach=overlap)
         else:
@@ -364,10 +389,10 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
                 d_min = int(np.floor(range_map[0][known].min())) if d_min is None else d_min
                 d_max = int(np.ceil(range_map[1][known].max())) if d_max is None else d_max
         d_min, d_max = resolve_disparity_range(d_min, d_max, pv if sparse is not None else None)
-        rmap = None
-        if range_map is not None:  # checked once, kept as it is (a memory map stays one): tiles read windows
+        rmap = scan = None
+        if range_map is not None:  # read once to check and plan, kept as it is (tiles read their windows)
             rmap = tuple(range_map)
-            validate_range_map(rmap, (H, W), d_min, d_max)
+            scan = scan_range_map(rmap, (H, W), d_min, d_max)
         if overlap < 0:
             raise RiverbedError(f"--overlap must be >= 0, got {overlap}")
         # the LiDAR inside the range guides the cost, as match_pair's; all of it bounds the tubes (tube_share)
@@ -381,11 +406,11 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
         if guide.uses_window and p.guidance.window == "auto":
             # One window for the whole image: a tile's own LiDAR share would change it from tile to tile.
             p = p.replace(window=guide.window(guide_share, p))
-        if rmap is not None:
-            widths = range_map_widths(*rmap, d_min, d_max)
+        if scan is not None:
+            widths = (scan.widths, scan.cell)
         else:
             widths = tube_widths(p, (pr, pc, pv), (H, W), d_min, d_max, share) if sparse is not None else None
-        plan = plan_tiles(H, W, sparse, d_min, d_max, tile, overlap, lidar_range, widths=widths, range_map=rmap)
+        plan = plan_tiles(H, W, sparse, d_min, d_max, tile, overlap, lidar_range, widths=widths, range_map=scan)
         if out is None:
             out = np.full((H, W), np.nan, np.float32)
         stages = {}

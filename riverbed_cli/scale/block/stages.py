@@ -21,10 +21,10 @@ from ...io.pointcloud import write_points
 from ...io.raster import write_geotiff
 from ...io.windowed import WindowedRaster, image_bits, open_range_map, open_windowed, sparse_points_any
 from ...matching.guidance import lidar_share_of_points
-from ...matching.pipeline import match_pair, range_map_extent, resolve_disparity_range, validate_range_map
+from ...matching.pipeline import match_pair, range_map_extent, resolve_disparity_range
 from ...matching.registry import get_guide
 from ...products.dsm import Accumulator, Grid, default_resolution, disparity_points
-from ..tiles import Tile, match_tile, plan_tiles, range_map_widths, tube_widths
+from ..tiles import Tile, match_tile, plan_tiles, scan_range_map, tube_widths
 from .plan import DONE, OUTPUTS, WORK, clean_temps, rectify_rpc, riverbed_version, sha256_file, write_json
 from .settings import match_params
 
@@ -166,7 +166,7 @@ def project_stage(job):
     rmap = None
     if job.range_map:
         d_min, d_max, rmap = _pair_range_map(job.range_map, (H, W), d_min, d_max, s, folder / WORK)
-        widths = range_map_widths(*rmap, d_min, d_max)
+        widths = (rmap.widths, rmap.cell)
     else:
         widths = tube_widths(p, (pr, pc, pv), (H, W), d_min, d_max, share)
     plan = plan_tiles(H, W, sparse, d_min, d_max, s["tile"], s["overlap"], s["lidar_range"], widths=widths,
@@ -203,13 +203,13 @@ def _pair_range_map(path, shape, d_min, d_max, s, work):
         d_min = min(d_min, int(np.floor(low))) if s["min_disp"] is None else d_min
         d_max = max(d_max, int(np.ceil(high))) if s["max_disp"] is None else d_max
     try:
-        validate_range_map((lo, hi), shape, d_min, d_max)
+        scan = scan_range_map((lo, hi), shape, d_min, d_max)
     except RiverbedError as e:
         raise RiverbedError(str(e), path) from None
     work.mkdir(exist_ok=True)
     for name, src in (("range_lo", lo), ("range_hi", hi)):
         _save_npy(src, work / f"{name}.npy")
-    return d_min, d_max, (lo, hi)
+    return d_min, d_max, scan
 
 
 def _load_range_map(folder, proj):
