@@ -25,7 +25,8 @@ from ..io.windowed import bounded_raster_cache, image_bits, sparse_points_any
 from ..matching.config import OVERLAP_DEFAULT, TILE_DEFAULT
 from ..matching.guidance import lidar_share, lidar_share_of_points
 from ..matching.pipeline import (check_inside, check_range_map_shape, check_range_summary, fill_tube_holes,
-                                 make_config, match_pair, range_map_ends, resolve_disparity_range, resolve_range)
+                                 make_config, match_pair, range_map_ends, range_map_extent, resolve_disparity_range,
+                                 resolve_range)
 from ..matching.registry import get_guide, get_matcher
 from ..matching.tubes import cell_widths_from_points, lidar_tubes_window, range_map_summary
 from ..matching.results import MatchResult, TiledMatchInfo
@@ -384,10 +385,10 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
                 raise RiverbedError("sparse map has no valid disparities")
             share = lidar_share_of_points(pr, pc, (H, W))
         if range_map is not None and (d_min is None or d_max is None):
-            known = np.isfinite(range_map[0]) & np.isfinite(range_map[1])
-            if known.any():
-                d_min = int(np.floor(range_map[0][known].min())) if d_min is None else d_min
-                d_max = int(np.ceil(range_map[1][known].max())) if d_max is None else d_max
+            known, _, low, high = range_map_extent(*range_map)  # a block of rows at a time, as the scan below
+            if known:
+                d_min = int(math.floor(low)) if d_min is None else d_min
+                d_max = int(math.ceil(high)) if d_max is None else d_max
         d_min, d_max = resolve_disparity_range(d_min, d_max, pv if sparse is not None else None)
         rmap = scan = None
         if range_map is not None:  # read once to check and plan, kept as it is (tiles read their windows)
