@@ -303,6 +303,16 @@ def test_range_map_on_tiles(cones, tmp_path):
     assert tiled["tubes"]["full_share"] > 0.1
     # unguided matching searched near the truth only (8.75 % bad3 on the full range)
     assert e_tiled["bad3"] < 5.0 and abs(e_tiled["bad3"] - e_untiled["bad3"]) < 0.1
+    # the library on the map read by windows, the range taken from the map (as the command does without
+    # --min-disp/--max-disp)
+    from riverbed_cli.io.windowed import open_range_map
+    from riverbed_cli.scale.tiles import match_tiled
+
+    res = match_tiled(left, right, None, tile=128, overlap=64, guide="none",
+                      range_map=open_range_map(tmp_path / "range.tif"))
+    known = np.isfinite(lo)
+    assert (res.info["d_min"], res.info["d_max"]) == (int(np.floor(np.nanmin(lo))), int(np.ceil(np.nanmax(lo + 6))))
+    assert res.info["tiles"] == 12 and res.info["tubes"]["full_share"] == pytest.approx(1 - known.mean(), abs=1e-4)
     _write_range_map(tmp_path / "order.tif", [lo + 6, lo])
     r = CliRunner().invoke(cli, [*args[:-3], "--range-map", str(tmp_path / "order.tif"), "--tile", "128", "-o",
                                  str(tmp_path / "bad.tif")])
