@@ -6,7 +6,6 @@ windows, and a tiled match into a ``.tif`` streams its tiles into the file (the 
 
 import contextlib
 import logging
-import math
 import os
 
 import numpy as np
@@ -16,7 +15,7 @@ from ..io.atomic import atomic_output, check_output
 from ..io.disparity import disparity_format, read_disparity, write_disparity
 from ..io.images import check_pair, read_image
 from ..io.windowed import TiffSink, WindowedRaster, is_tiff, open_range_map, sparse_points_any
-from ..matching.pipeline import disparity_range_from_sparse, match_pair, range_map_extent, resolve_fusion, warm_up
+from ..matching.pipeline import disparity_range_from_sparse, match_pair, resolve_fusion, warm_up
 from ..matching.registry import get_guide
 from ..products.visualize import disparity_picture, write_picture
 from ..matching.guidance import lidar_share_of_points
@@ -88,7 +87,7 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     ``config`` is a :class:`~riverbed_cli.matching.config.MatchConfig`; ``tile`` ``"auto"``, 0 (never) or a side
     in px (:func:`~riverbed_cli.scale.tiles.plan_tiles`); ``progress(n_total)`` is called once with the number of
     steps and returns a callable advanced after each (or None); ``range_map`` a 2-band TIFF of per-pixel min and
-    max disparity (:func:`~riverbed_cli.io.disparity.read_range_map`), searched instead of the LiDAR's tubes;
+    max disparity (:func:`~riverbed_cli.io.windowed.open_range_map`), searched instead of the LiDAR's tubes;
     ``confidence`` a ``.tif`` path for the fusion's per-pixel confidence (float32 in [0, 1]: the estimated
     probability that the disparity is within 1 px of the truth; :mod:`~riverbed_cli.matching.fusion`).
     Returns the ``--json`` summary (a dict).
@@ -116,20 +115,18 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     tile = check_tile_option(tile, overlap)
     left_src, right_src, sparse_src = open_inputs(left, right, sparse, sparse_scale, max_pixels)
     H, W = left_src.shape[:2]
-    rmap = None
+    rmap = scan = None
     if range_map:
         rmap = open_range_map(range_map)  # read by windows: a tiled match reads each tile's
         if rmap[0].shape != (H, W):
             raise RiverbedError(f"range map is {rmap[0].shape[1]}x{rmap[0].shape[0]} but the images are {W}x{H} "
                                 "(WxH)", range_map)
-        if max_disp is None or min_disp is None:
-            known, _, low, high = range_map_extent(*rmap)
-            if not known:
-                raise RiverbedError("range map has no valid pixel (all NaN)", range_map)
-            min_disp = int(math.floor(low)) if min_disp is None else min_disp
-            max_disp = int(math.ceil(high)) if max_disp is None else max_disp
-        try:  # checked before any work, in the read that plans the tiles
-            scan = scan_range_map(rmap, (H, W), min_disp, max_disp)
+        scan = scan_range_map(rmap, (H, W))  # the one read that checks the map and plans the tiles
+        if (max_disp is None or min_disp is None) and scan.known:
+            min_disp = scan.span()[0] if min_disp is None else min_disp
+            max_disp = scan.span()[1] if max_disp is None else max_disp
+        try:  # before any work
+            scan.check(min_disp, max_disp)
         except RiverbedError as e:
             raise RiverbedError(str(e), range_map) from None
     # the same tiling rule as blocks: untiled when the whole range (with tubes: their volume) fits, else tiles sized
@@ -140,16 +137,16 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     if rng is not None:
         widths = None
         if rmap is not None:
-            widths = (scan.widths, scan.cell)
+            widths = (scan.widths(rng[0], rng[1]), scan.cell)
         elif points is not None:
             widths = tube_widths(config, points, (H, W), rng[0], rng[1],
                                  lidar_share_of_points(points[0], points[1], (H, W)))
         plan = plan_tiles(H, W, sparse_src, rng[0], rng[1], tile, overlap, lidar_range, widths=widths,
-                          range_map=scan if rmap is not None else None)
+                          range_map=scan)
     warm_up(config=config)  # load the kernels this run uses now: start-up, not matching time
     if plan is not None and plan.tiled:
         return _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, plan.size, overlap,
-                            lidar_range, output, color_png, overwrite, progress, rmap, confidence)
+                            lidar_range, output, color_png, overwrite, progress, rmap, confidence, scan)
 
     step = progress(3) if progress else None
     left_img, right_img = (np.asarray(s[:, :]) if isinstance(s, WindowedRaster) else s for s in (left_src, right_src))
@@ -186,7 +183,7 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
 
 
 def _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, size, overlap, lidar_range, output,
-                 color_png, overwrite, progress, range_map=None, confidence=None):
+                 color_png, overwrite, progress, range_map=None, confidence=None, range_scan=None):
     H, W = left_src.shape[:2]
     n_tiles = -(-H // size) * -(-W // size)
     step = progress(n_tiles) if progress else None
@@ -201,13 +198,14 @@ def _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, si
             with atomic_output(output, overwrite) as tmp, TiffSink(tmp, H, W) as sink:
                 result = match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, size, overlap,
                                      lidar_range, progress=advance, out=sink, range_map=range_map,
-                                     confidence_out=conf_sink)
+                                     confidence_out=conf_sink, range_scan=range_scan)
                 sink.update_tags(riverbed_guide=config.guide, riverbed_window=result.info["window"],
                                  riverbed_tiles=result.info["tiles"])
             disp = None
         else:
             result = match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, size, overlap,
-                                 lidar_range, progress=advance, range_map=range_map, confidence_out=conf_sink)
+                                 lidar_range, progress=advance, range_map=range_map, confidence_out=conf_sink,
+                                 range_scan=range_scan)
             disp = result.disparity
             write_disparity(output, disp, overwrite=overwrite, tags={"riverbed_guide": config.guide})
     if color_png:

@@ -25,8 +25,7 @@ from ..io.windowed import bounded_raster_cache, image_bits, sparse_points_any
 from ..matching.config import OVERLAP_DEFAULT, TILE_DEFAULT
 from ..matching.guidance import lidar_share, lidar_share_of_points
 from ..matching.pipeline import (check_inside, check_range_map_shape, check_range_summary, fill_tube_holes,
-                                 make_config, match_pair, range_map_ends, range_map_extent, resolve_disparity_range,
-                                 resolve_range)
+                                 make_config, match_pair, range_map_ends, resolve_disparity_range, resolve_range)
 from ..matching.registry import get_guide, get_matcher
 from ..matching.tubes import cell_widths_from_points, lidar_tubes_window, range_map_summary
 from ..matching.results import MatchResult, TiledMatchInfo
@@ -147,57 +146,95 @@ def lidar_ranges(tiles, sparse, d_min, d_max, reach=None, margin=4.0, thin_margi
     return tiles
 
 
+_NO_END = np.iinfo(np.int32).max  # a cell's smallest end where it has no range (its largest: -_NO_END)
+
+
 @dataclass
 class RangeMapScan:
-    """A range map read once (:func:`scan_range_map`): per ``cell`` x ``cell`` block the mean width of its pixels'
-    ranges (``widths``, for :func:`plan_tiles`) and the smallest and largest range end (``lo``, ``hi``, int32, for
-    :func:`range_map_ranges`); the nominal range where the map has none."""
+    """A range map read once (:func:`scan_range_map`), for checking it and planning tiles before the disparity range
+    is known: its pixels with a range (``known``), those with min > max (``crossed``), their smallest and largest
+    end (``low``, ``high``), and per ``cell`` x ``cell`` block the sum of its known pixels' widths (``wsum``), their
+    count (``nknown``), its pixels' count (``npix``) and the smallest and largest end of its known pixels (``lo``,
+    ``hi``, int32). The nominal range fills the rest once it is known (:meth:`widths`, :meth:`ends`)."""
 
-    widths: np.ndarray
+    known: int
+    crossed: int
+    low: float
+    high: float
+    wsum: np.ndarray
+    nknown: np.ndarray
+    npix: np.ndarray
     lo: np.ndarray
     hi: np.ndarray
     cell: int
     shape: tuple
 
+    def span(self):
+        """``(floor(low), ceil(high))``, the disparity range the map spans, or None for a map with no range."""
+        return (int(math.floor(self.low)), int(math.ceil(self.high))) if self.known else None
 
-def scan_range_map(range_map, shape, d_min, d_max, cell=4, rows=512):
-    """Check a range map for a match of ``shape`` over ``[d_min, d_max]`` (the messages of
-    :func:`~riverbed_cli.matching.pipeline.validate_range_map`) and sum it up per cell, in one read of ``rows``
-    rows at a time (arrays, memory maps or windowed rasters): a :class:`RangeMapScan`."""
+    def check(self, d_min, d_max):
+        """:class:`RiverbedError` (the messages of :func:`~riverbed_cli.matching.pipeline.validate_range_map`) for
+        a map with no range, min > max, or a range outside ``[d_min, d_max]``."""
+        check_range_summary(self.known, self.crossed, self.low, self.high, d_min, d_max)
+
+    def widths(self, d_min, d_max):
+        """Each cell's mean range width, the nominal range's where the map has none (for :func:`plan_tiles`)."""
+        return ((self.wsum + (self.npix - self.nknown) * (d_max - d_min + 1.0)) / self.npix).astype(np.float32)
+
+    def ends(self, d_min, d_max):
+        """Each cell's smallest and largest range end, the nominal range's where a pixel of it has no range."""
+        full = self.nknown < self.npix
+        return np.where(full, d_min, self.lo), np.where(full, d_max, self.hi)
+
+
+def scan_range_map(range_map, shape, cell=4, rows=512):
+    """Read a range map for a match of ``shape`` once, ``rows`` rows at a time (arrays, memory maps or windowed
+    rasters), and sum it up (:class:`RangeMapScan`): the disparity range can be taken from it, checked against it
+    and the tiles planned without another read."""
     lo, hi = range_map
     check_range_map_shape(lo, hi, shape)
     H, W = shape
     rows = max(cell, rows // cell * cell)
     ch, cw = -(-H // cell), -(-W // cell)
-    widths, clo, chi = (np.empty((ch, cw), t) for t in (np.float32, np.int32, np.int32))
+    wsum, nknown, npix = (np.empty((ch, cw), np.float64) for _ in range(3))
+    clo, chi = np.empty((ch, cw), np.int32), np.empty((ch, cw), np.int32)
     summary = [0, 0, math.inf, -math.inf]
     for y0 in range(0, H, rows):
         blo, bhi = np.asarray(lo[y0:y0 + rows, :]), np.asarray(hi[y0:y0 + rows, :])
         k, c, a, b = range_map_summary(blo, bhi)
         summary = [summary[0] + k, summary[1] + c, min(summary[2], a), max(summary[3], b)]
-        a, b = range_map_ends(blo, bhi, d_min, d_max)
-        h = a.shape[0]
-        pad = ((0, -(-h // cell) * cell - h), (0, cw * cell - W))
-        blocks = (-(-h // cell), cell, cw, cell)
-        w = np.pad((b - a + 1).astype(np.float32), pad).reshape(blocks).sum(axis=(1, 3))
-        n = np.pad(np.ones((h, W), np.float32), pad).reshape(blocks).sum(axis=(1, 3))
-        r = slice(y0 // cell, y0 // cell + blocks[0])
-        widths[r] = w / n
-        clo[r] = np.pad(a, pad, constant_values=d_max).reshape(blocks).min(axis=(1, 3))
-        chi[r] = np.pad(b, pad, constant_values=d_min).reshape(blocks).max(axis=(1, 3))
-    check_range_summary(*summary, d_min, d_max)
-    return RangeMapScan(widths, clo, chi, cell, (H, W))
+        ok = np.isfinite(blo) & np.isfinite(bhi)
+        a = np.floor(np.where(ok, blo, 0)).astype(np.int32)
+        b = np.ceil(np.where(ok, bhi, 0)).astype(np.int32)
+        a[~ok], b[~ok] = _NO_END, -_NO_END
+        r = slice(y0 // cell, y0 // cell - (-a.shape[0] // cell))
+        wsum[r] = _per_cell(np.where(ok, b.astype(np.float64) - a + 1, 0.0), cell, np.sum)
+        nknown[r] = _per_cell(ok.astype(np.float64), cell, np.sum)
+        npix[r] = _per_cell(np.ones(a.shape), cell, np.sum)
+        clo[r] = _per_cell(a, cell, np.min, _NO_END)
+        chi[r] = _per_cell(b, cell, np.max, -_NO_END)
+    return RangeMapScan(*summary, wsum, nknown, npix, clo, chi, cell, (H, W))
 
 
-def range_map_ranges(tiles, scan, reach):
+def _per_cell(x, cell, reduce, fill=0):
+    # reduce (np.sum, np.min, np.max) each cell x cell block of x, padded with fill at the bottom and right
+    h, w = x.shape
+    x = np.pad(x, ((0, -(-h // cell) * cell - h), (0, -(-w // cell) * cell - w)), constant_values=fill)
+    return reduce(x.reshape(x.shape[0] // cell, cell, x.shape[1] // cell, cell), axis=(1, 3))
+
+
+def range_map_ranges(tiles, scan, reach, d_min, d_max):
     """Give each tile the range a range map spans over the tile grown by ``reach`` px, from its
-    :class:`RangeMapScan` (whole cells: up to ``cell - 1`` px more)."""
+    :class:`RangeMapScan` (whole cells: up to ``cell - 1`` px more; the nominal ``[d_min, d_max]`` where it has
+    none)."""
     H, W = scan.shape
     c = scan.cell
+    lo, hi = scan.ends(d_min, d_max)
     for t in tiles:
         ya, yb, xa, xb = max(0, t.y0 - reach), min(H, t.y1 + reach), max(0, t.x0 - reach), min(W, t.x1 + reach)
         cells = (slice(ya // c, -(-yb // c)), slice(xa // c, -(-xb // c)))
-        t.d_min, t.d_max, t.source = int(scan.lo[cells].min()), int(scan.hi[cells].max()), "range_map"
+        t.d_min, t.d_max, t.source = int(lo[cells].min()), int(hi[cells].max()), "range_map"
     return tiles
 
 
@@ -256,7 +293,7 @@ def plan_tiles(height, width, sparse, d_min, d_max, tile=TILE_DEFAULT, overlap=O
     def plan(size):
         ts = tile_grid(height, width, max(size, 16))
         if range_map is not None:
-            range_map_ranges(ts, range_map, overlap)
+            range_map_ranges(ts, range_map, overlap, d_min, d_max)
         elif sparse is not None and lidar_range:
             lidar_ranges(ts, sparse, d_min, d_max, reach=overlap)
         else:
@@ -355,10 +392,11 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
 
 def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, tile=TILE_DEFAULT,
                 overlap=OVERLAP_DEFAULT, lidar_range=True, progress=None, out=None, range_map=None,
-                confidence_out=None, **overrides):
+                confidence_out=None, range_scan=None, **overrides):
     """:func:`match_pair` tile by tile; same arguments plus ``tile`` (px, ``"auto"`` or 0), ``overlap`` (px) and
     ``lidar_range``; ``range_map`` (per-pixel ``(lo, hi)``, NaN: the nominal range) as :func:`match_pair`'s: each
-    tile searches the range the map spans there and its pixels their own intervals. ``confidence_out`` receives the
+    tile searches the range the map spans there and its pixels their own intervals (``range_scan``: its
+    :func:`scan_range_map`, when the caller has read it already). ``confidence_out`` receives the
     fusion's confidence tile by tile as ``out`` the disparities (NaN in tiles that were not fused).
 
     ``left``, ``right`` and ``sparse`` may be numpy arrays or :class:`WindowedRaster` (read tile by tile); ``out``
@@ -384,16 +422,17 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
             if pv.size == 0:
                 raise RiverbedError("sparse map has no valid disparities")
             share = lidar_share_of_points(pr, pc, (H, W))
-        if range_map is not None and (d_min is None or d_max is None):
-            known, _, low, high = range_map_extent(*range_map)  # a block of rows at a time, as the scan below
-            if known:
-                d_min = int(math.floor(low)) if d_min is None else d_min
-                d_max = int(math.ceil(high)) if d_max is None else d_max
-        d_min, d_max = resolve_disparity_range(d_min, d_max, pv if sparse is not None else None)
-        rmap = scan = None
+        rmap, scan = None, range_scan
         if range_map is not None:  # read once to check and plan, kept as it is (tiles read their windows)
             rmap = tuple(range_map)
-            scan = scan_range_map(rmap, (H, W), d_min, d_max)
+            scan = scan if scan is not None else scan_range_map(rmap, (H, W))
+            span = scan.span()
+            if span is not None:
+                d_min = span[0] if d_min is None else d_min
+                d_max = span[1] if d_max is None else d_max
+        d_min, d_max = resolve_disparity_range(d_min, d_max, pv if sparse is not None else None)
+        if scan is not None:
+            scan.check(d_min, d_max)
         if overlap < 0:
             raise RiverbedError(f"--overlap must be >= 0, got {overlap}")
         # the LiDAR inside the range guides the cost, as match_pair's; all of it bounds the tubes (tube_share)
@@ -408,7 +447,7 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
             # One window for the whole image: a tile's own LiDAR share would change it from tile to tile.
             p = p.replace(window=guide.window(guide_share, p))
         if scan is not None:
-            widths = (scan.widths, scan.cell)
+            widths = (scan.widths(d_min, d_max), scan.cell)
         else:
             widths = tube_widths(p, (pr, pc, pv), (H, W), d_min, d_max, share) if sparse is not None else None
         plan = plan_tiles(H, W, sparse, d_min, d_max, tile, overlap, lidar_range, widths=widths, range_map=scan)

@@ -21,7 +21,7 @@ from ...io.pointcloud import write_points
 from ...io.raster import write_geotiff
 from ...io.windowed import WindowedRaster, image_bits, open_range_map, open_windowed, sparse_points_any
 from ...matching.guidance import lidar_share_of_points
-from ...matching.pipeline import match_pair, range_map_extent, resolve_disparity_range
+from ...matching.pipeline import match_pair, resolve_disparity_range
 from ...matching.registry import get_guide
 from ...products.dsm import Accumulator, Grid, default_resolution, disparity_points
 from ..tiles import Tile, match_tile, plan_tiles, scan_range_map, tube_widths
@@ -166,7 +166,7 @@ def project_stage(job):
     rmap = None
     if job.range_map:
         d_min, d_max, rmap = _pair_range_map(job.range_map, (H, W), d_min, d_max, s, folder / WORK)
-        widths = (rmap.widths, rmap.cell)
+        widths = (rmap.widths(d_min, d_max), rmap.cell)
     else:
         widths = tube_widths(p, (pr, pc, pv), (H, W), d_min, d_max, share)
     plan = plan_tiles(H, W, sparse, d_min, d_max, s["tile"], s["overlap"], s["lidar_range"], widths=widths,
@@ -198,12 +198,12 @@ def _pair_range_map(path, shape, d_min, d_max, s, work):
     if lo.shape != tuple(shape):
         raise RiverbedError(f"range map is {lo.shape[1]}x{lo.shape[0]} but the images are {shape[1]}x{shape[0]} "
                             "(WxH)", path)
-    known, _, low, high = range_map_extent(lo, hi)
-    if known:
-        d_min = min(d_min, int(np.floor(low))) if s["min_disp"] is None else d_min
-        d_max = max(d_max, int(np.ceil(high))) if s["max_disp"] is None else d_max
+    scan = scan_range_map((lo, hi), shape)
+    if scan.known:
+        d_min = min(d_min, scan.span()[0]) if s["min_disp"] is None else d_min
+        d_max = max(d_max, scan.span()[1]) if s["max_disp"] is None else d_max
     try:
-        scan = scan_range_map((lo, hi), shape, d_min, d_max)
+        scan.check(d_min, d_max)
     except RiverbedError as e:
         raise RiverbedError(str(e), path) from None
     work.mkdir(exist_ok=True)
