@@ -11,8 +11,9 @@ from click.testing import CliRunner
 
 from riverbed_cli.cli.main import cli
 from riverbed_cli.errors import RiverbedError
-from riverbed_cli.io.disparity import read_disparity, read_range_map, write_disparity
+from riverbed_cli.io.disparity import read_disparity, write_disparity
 from riverbed_cli.io.images import read_image
+from riverbed_cli.io.windowed import read_range_map
 from riverbed_cli.matching.tubes import ranges_from_disparity
 from riverbed_cli.products.evaluate import evaluate_disparity
 

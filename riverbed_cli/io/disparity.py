@@ -180,22 +180,19 @@ def _open_tif(path):
         raise RiverbedError("cannot read TIFF disparity (not a TIFF rasterio reads)", path) from None
 
 
-def _read_tif_bands(path, what, bands=None):
-    """Bands of a real-valued TIFF as float32 with nodata, inf and NaN as NaN: ``(count, H, W)`` for ``bands=None``
-    (checked against ``bands`` when given: a number), ``(H, W)`` for band 1 only (``bands=1``)."""
+def _read_tif(path):
+    """Band 1 of a real-valued TIFF as float32 ``(H, W)``, with nodata, inf and NaN as NaN."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
         with _open_tif(path) as ds:
-            if bands is not None and bands > 1 and ds.count != bands:
-                raise RiverbedError(f"{what} needs {bands} bands (min and max disparity), has {ds.count}", path)
             if ds.dtypes[0].startswith("complex"):
-                raise RiverbedError(f"{what} must be real-valued, got {ds.dtypes[0]}", path)
+                raise RiverbedError(f"TIFF disparity must be real-valued, got {ds.dtypes[0]}", path)
             try:
-                raw = ds.read(1) if bands == 1 else ds.read()
+                raw = ds.read(1)
             except MemoryError:
                 raise
             except Exception:  # noqa: BLE001 - as in _open_tif
-                raise RiverbedError(f"cannot read {what} (corrupt or truncated data)", path) from None
+                raise RiverbedError("cannot read TIFF disparity (corrupt or truncated data)", path) from None
             nodata = ds.nodata
     out = raw.astype(np.float32)
     invalid = ~np.isfinite(out)
@@ -203,21 +200,6 @@ def _read_tif_bands(path, what, bands=None):
         invalid |= raw == nodata  # compare in the stored type: exact
     out[invalid] = np.nan
     return out
-
-
-def _read_tif(path):
-    return _read_tif_bands(path, "TIFF disparity", bands=1)
-
-
-def read_range_map(path):
-    """A per-pixel disparity range: a 2-band TIFF of min and max disparity (px, ``d = x_left - x_right``; NaN or
-    nodata: no range there). Returns ``(lo, hi)`` float32 ``H x W``; :class:`RiverbedError` naming the file for
-    anything else."""
-    path = require_file(path)
-    if disparity_format(path) != "tif":
-        raise RiverbedError("range map must be a 2-band GeoTIFF/TIFF (min and max disparity)", path)
-    out = _read_tif_bands(path, "range map", bands=2)
-    return out[0], out[1]
 
 
 def read_disparity_tags(path):
@@ -307,9 +289,9 @@ TIFF_COMPRESSION = {"compress": "deflate", "predictor": 3, "zlevel": 1, "num_thr
 
 
 def write_range_map(path, lo, hi, overwrite=False, tags=None):
-    """Write a per-pixel disparity range (the ``--range-map`` of :func:`read_range_map`): a 2-band float32 TIFF of
-    min and max disparity (px, ``d = x_left - x_right``; NaN: no range, the match's nominal range there),
-    atomically, compressed as disparity TIFFs."""
+    """Write a per-pixel disparity range (the ``--range-map`` :func:`~riverbed_cli.io.windowed.open_range_map`
+    reads): a 2-band float32 TIFF of min and max disparity (px, ``d = x_left - x_right``; NaN: no range, the match's
+    nominal range there), atomically, compressed as disparity TIFFs."""
     path = Path(path)
     if disparity_format(path) != "tif":
         raise RiverbedError("range map must be written to a .tif file", path)

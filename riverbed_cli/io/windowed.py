@@ -86,9 +86,9 @@ def open_windowed(path, kind="image"):
 
 
 def open_range_map(path):
-    """A range map (``riverbed match --range-map``: a 2-band TIFF of min and max disparity) as two
-    :class:`WindowedRaster` bands ``(lo, hi)``, read by windows; :class:`RiverbedError` naming the file as
-    :func:`~riverbed_cli.io.disparity.read_range_map`'s for anything else."""
+    """A range map (``riverbed match --range-map``: a 2-band TIFF of min and max disparity, px,
+    ``d = x_left - x_right``; NaN or nodata: no range there) as two :class:`WindowedRaster` bands ``(lo, hi)``, read
+    by windows; :class:`RiverbedError` naming the file for anything else."""
     path = require_file(path)
     if disparity_format(path) != "tif" or not is_tiff(path):
         raise RiverbedError("range map must be a 2-band GeoTIFF/TIFF (min and max disparity)", path)
@@ -99,6 +99,11 @@ def open_range_map(path):
     if lo._ds.dtypes[0].startswith("complex"):
         raise RiverbedError(f"range map must be real-valued, got {lo._ds.dtypes[0]}", path)
     return lo, WindowedRaster(path, "disparity", band=2)
+
+
+def read_range_map(path):
+    """A range map (:func:`open_range_map`) read whole: ``(lo, hi)`` float32 ``H x W``."""
+    return tuple(band[:, :] for band in open_range_map(path))
 
 
 def row_blocks(a, rows=512):
