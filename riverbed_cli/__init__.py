@@ -7,7 +7,15 @@ The names below load on first use (scientific-python's ``lazy_loader``), so ``im
 ``riverbed --help`` load no Numba kernel.
 """
 
+import os
+
 import lazy_loader
+
+# Numba's OpenMP workers sleep between parallel regions instead of spinning (unless the user chose otherwise): the
+# fusion's LiDAR side runs in a thread beside the matcher (matching/pipeline.py), and spinning workers took its core
+# (the default fused match 16 % slower than sleeping ones, docs/tubes.md). Read when the OpenMP library loads, at
+# the first parallel kernel, so it is set here, before any.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 __getattr__, __dir__, __all__ = lazy_loader.attach(
     __name__,

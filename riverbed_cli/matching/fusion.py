@@ -227,7 +227,24 @@ def _where_abs_diff(a, b, sigma, mask, limit):
     return out
 
 
-def fuse_disparity(stereo, status, sparse, gate=4.0, neighbours=6, support=4, floor=0.25, stereo_sigma="auto"):
+@dataclass
+class LidarModel:
+    """The LiDAR side of the fusion (:func:`lidar_model`): ``values`` (H, W) float32, the linear interpolation;
+    ``sigma`` (H, W) float32, its error estimate (px)."""
+
+    values: np.ndarray
+    sigma: np.ndarray
+
+
+def lidar_model(sparse, neighbours=6, support=4, floor=0.25):
+    """The interpolation of the ``sparse`` LiDAR and its per-pixel error (:class:`LidarModel`): all of the fusion
+    that needs no stereo, so :func:`~riverbed_cli.matching.pipeline.match_pair` computes it beside the matcher."""
+    fill = linear_fill(sparse)  # the interpolation and each pixel's nearest point, for its sigma
+    return LidarModel(fill.values, lidar_sigma(sparse, neighbours, support, floor, fill)[0])
+
+
+def fuse_disparity(stereo, status, sparse, gate=4.0, neighbours=6, support=4, floor=0.25, stereo_sigma="auto",
+                   lidar=None):
     """The ``confidence`` fusion of a matched disparity with the LiDAR (module docstring).
 
     Parameters
@@ -246,15 +263,17 @@ def fuse_disparity(stereo, status, sparse, gate=4.0, neighbours=6, support=4, fl
         Smallest LiDAR sigma (px).
     stereo_sigma : float or "auto"
         The stereo's error (px), or estimated from the image (:func:`estimate_stereo_sigma`).
+    lidar : LidarModel, optional
+        ``lidar_model(sparse, neighbours, support, floor)`` if already made (``neighbours``, ``support`` and
+        ``floor`` are then its).
 
     Returns
     -------
     FusionOutput
     """
     stereo = np.asarray(stereo, np.float32)
-    fill = linear_fill(sparse)  # the interpolation and each pixel's nearest point, for its sigma
-    lidar = fill.values
-    sig_l, _ = lidar_sigma(sparse, neighbours, support, floor, fill)
+    model = lidar_model(sparse, neighbours, support, floor) if lidar is None else lidar
+    lidar, sig_l = model.values, model.sigma
     fin = np.isfinite(stereo)
     consistent = fin if status is None else fin & (np.asarray(status) == 0)
     if stereo_sigma == "auto":
@@ -318,8 +337,14 @@ class Fusion:
     name = ""
     needs_status = False
 
-    def fuse(self, disparity, status, sparse, config):
-        """A :class:`FusionOutput` from the matcher's ``disparity`` and ``status`` and the ``sparse`` LiDAR."""
+    def prepare(self, sparse, config):
+        """What the fusion needs of the ``sparse`` LiDAR alone (None: nothing), made before or beside the matcher
+        and handed to :meth:`fuse` as ``prepared``."""
+        return None
+
+    def fuse(self, disparity, status, sparse, config, prepared=None):
+        """A :class:`FusionOutput` from the matcher's ``disparity`` and ``status`` and the ``sparse`` LiDAR
+        (``prepared``: :meth:`prepare`'s result for it, if made)."""
         raise NotImplementedError
 
 
@@ -329,7 +354,7 @@ class NoFusion(Fusion):
 
     name = "none"
 
-    def fuse(self, disparity, status, sparse, config):
+    def fuse(self, disparity, status, sparse, config, prepared=None):
         return FusionOutput(disparity)
 
 
@@ -340,6 +365,11 @@ class ConfidenceFusion(Fusion):
     name = "confidence"
     needs_status = True
 
-    def fuse(self, disparity, status, sparse, config):
+    def prepare(self, sparse, config):
         f = config.fuse
-        return fuse_disparity(disparity, status, sparse, f.gate, f.neighbours, f.support, f.floor, f.stereo_sigma)
+        return lidar_model(sparse, f.neighbours, f.support, f.floor)
+
+    def fuse(self, disparity, status, sparse, config, prepared=None):
+        f = config.fuse
+        return fuse_disparity(disparity, status, sparse, f.gate, f.neighbours, f.support, f.floor, f.stereo_sigma,
+                              prepared)

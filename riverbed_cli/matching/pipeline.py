@@ -7,6 +7,7 @@ Matchers live in ``matching/matchers/``, guides in ``matching/guides/``, their s
 
 import logging
 import math
+import threading
 import time
 from dataclasses import asdict
 
@@ -23,6 +24,30 @@ from .tubes import HOLE_FACTOR, hole_bounds, lidar_tubes, range_map_summary, tub
 from .volume import TubeLayout
 
 log = logging.getLogger(__name__)
+
+class _Beside(threading.Thread):
+    """``fn(*args)`` in a thread, started at once; :meth:`result` waits for it and returns its value or raises its
+    exception."""
+
+    def __init__(self, fn, *args):
+        super().__init__(daemon=True)
+        self._call = (fn, args)
+        self._value, self._error = None, None
+        self.start()
+
+    def run(self):
+        fn, args = self._call
+        try:
+            self._value = fn(*args)
+        except BaseException as e:  # handed to the caller of result()
+            self._error = e
+
+    def result(self):
+        self.join()
+        if self._error is not None:
+            raise self._error
+        return self._value
+
 
 def disparity_range_from_sparse(sparse, margin=None):
     """Inclusive integer range ``(d_min, d_max)`` covering the sparse disparities plus a margin.
@@ -261,6 +286,33 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
         lidar = np.asarray(sparse, dtype=np.float32)
         sparse = prepare_sparse(lidar, shape, d_min, d_max)
     share = lidar_share(sparse) if sparse is not None else 0.0
+    fuser = get_fusion(resolve_fusion(config, guide, sparse is not None))
+    # The fusion's LiDAR side (its Delaunay triangulation is single-threaded OpenCV) needs no stereo: it runs beside
+    # the matcher, on the core the matcher's serial parts leave idle
+    lidar_side = _Beside(fuser.prepare, sparse, config) if fuser.name != "none" else None
+    try:
+        out, mode, stats = _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, matcher, share,
+                                         range_map, stages, fuser.needs_status)
+        t0 = time.perf_counter()  # the fusion's stage is the time it adds after the matcher
+        fused = fuser.fuse(out.disparity, out.status, sparse, config,
+                           lidar_side.result() if lidar_side is not None else None)
+    finally:
+        if lidar_side is not None:  # not left running behind an error
+            lidar_side.join()
+    if fuser.name != "none":
+        stages["fusion"] = round(time.perf_counter() - t0, 4)
+    info = MatchInfo(round(time.perf_counter() - t_all, 4), stages, config.guide, config.matcher, share,
+                     int(np.isfinite(sparse).sum()) if sparse is not None else 0, out.window, d_min, d_max,
+                     [int(shape[1]), int(shape[0])], out.refinement, mode,
+                     stats.to_dict() if stats is not None else None, fuser.name,
+                     fused.stats.to_dict() if fused.stats is not None else None)
+    return MatchResult(fused.disparity, info, fused.confidence)
+
+
+def _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, matcher, share, range_map, stages,
+                  return_status):
+    # match_pair's range (tubes), guide preparation and matcher: the matcher's output, the range mode, tube stats
+    shape = left.shape[:2]
     mode = resolve_range(config, guide, matcher, sparse is not None, range_map is not None)
     tubes, stats = None, None
     if mode == "tube":
@@ -286,19 +338,9 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
     first_pass = guide.prepare(left, right, sparse, d_min, d_max, config, matcher, tubes)
     if guide.has_first_pass:
         stages["first_pass"] = round(time.perf_counter() - t0, 4)
-    fuser = get_fusion(resolve_fusion(config, guide, sparse is not None))
     out = matcher.match(left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages, tubes,
-                        return_status=fuser.needs_status)
-    t0 = time.perf_counter()
-    fused = fuser.fuse(out.disparity, out.status, sparse, config)
-    if fuser.name != "none":
-        stages["fusion"] = round(time.perf_counter() - t0, 4)
-    info = MatchInfo(round(time.perf_counter() - t_all, 4), stages, config.guide, config.matcher, share,
-                     int(np.isfinite(sparse).sum()) if sparse is not None else 0, out.window, d_min, d_max,
-                     [int(shape[1]), int(shape[0])], out.refinement, mode,
-                     stats.to_dict() if stats is not None else None, fuser.name,
-                     fused.stats.to_dict() if fused.stats is not None else None)
-    return MatchResult(fused.disparity, info, fused.confidence)
+                        return_status=return_status)
+    return out, mode, stats
 
 
 def warm_up(matcher="sgm", guide_names=("none", "gauss", "riverbed"), config=None):
