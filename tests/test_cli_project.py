@@ -307,7 +307,8 @@ def bad(tmp_path):
 PROJECT_CASES = {
     "missing cloud": (["{w}/nope.las", "{w}/pair.yaml"], "{w}/nope.las: file not found"),
     "cloud format": (["{w}/pair.yaml", "{w}/pair.yaml"],
-                     "{w}/pair.yaml: unsupported point cloud format '.yaml' (use .las, .laz or KITTI .bin)"),
+                     "{w}/pair.yaml: unsupported point cloud format '.yaml' "
+                     "(use .las, .laz, KITTI .bin, or a DSM .tif/.hgt)"),
     "missing pair": (["{w}/one.las", "{w}/nope.yaml"], "{w}/nope.yaml: file not found"),
     "bad yaml": (["{w}/one.las", "{w}/notyaml.yaml"],
                  ("{w}/notyaml.yaml: invalid YAML at line 2, column 1: expected ',' or ']', but got "

@@ -431,7 +431,7 @@ def test_missing_file_directory_and_extension(tmp_path):
     xyz = tmp_path / "cloud.xyz"
     xyz.write_text("1 2 3\n")
     assert _refused("read_lidar", xyz) == (
-        f"{xyz}: unsupported point cloud format '.xyz' (use .las, .laz or KITTI .bin)"
+        f"{xyz}: unsupported point cloud format '.xyz' (use .las, .laz, KITTI .bin, or a DSM .tif/.hgt)"
     )
 
 

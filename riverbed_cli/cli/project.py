@@ -84,6 +84,10 @@ def project_cmd(cloud, pair, output, registration, classes, drop_classes, outlie
                 footprint, edge_reach, crs, chunk_size, as_json, overwrite):
     """Project the LiDAR CLOUD (LAS/LAZ/COPC, KITTI .bin) through PAIR (a pair file) into sparse OUTPUT.
 
+    CLOUD may also be a DSM (single-band GeoTIFF .tif, or SRTM .hgt): one point per valid cell, at its centre.
+    Its sparse disparities give `riverbed range-map --window auto` the per-pixel ranges `match --range-map`
+    searches (a coarse DSM bounding the match).
+
     PAIR may be an RPC pair file (riverbed rectify --rpc): the cloud's CRS (3D, or compound with its heights'
     datum) is converted to WGS 84 by pyproj, and --visibility takes zbuffer or none.
 

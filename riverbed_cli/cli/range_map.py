@@ -2,6 +2,7 @@
 previous run, or a coarser one)."""
 
 import logging
+import math
 import time
 
 import click
@@ -12,16 +13,42 @@ from ..io.atomic import check_output
 from ..io.disparity import read_disparity, write_range_map
 from ..io.images import header_size, read_image
 from ..matching.tubes import ranges_from_disparity
-from .options import input_path, json_opt, output_opt, overwrite_opt, print_json
+from .options import input_path, json_opt, output_opt, overwrite_opt, parsed_value, print_json
 
 log = logging.getLogger(__name__)
+
+
+#: largest --window (px): a DSM cell or a LiDAR spacing of 256 image px is too coarse to bound a pixel by
+MAX_WINDOW = 256
+
+
+def _window(text):
+    # --window: "auto" or an integer 0..64
+    if str(text).strip().lower() == "auto":
+        return "auto"
+    try:
+        value = int(text)
+    except ValueError:
+        raise ValueError(f"expected 'auto' or an integer, got '{text}'") from None
+    if not 0 <= value <= MAX_WINDOW:
+        raise ValueError(f"expected 0 to {MAX_WINDOW}, got {value}")
+    return value
+
+
+def auto_window(disp):
+    """``--window auto``: the mean spacing (px) of ``disp``'s finite values, ``sqrt(pixels / values)``, rounded up
+    (at least 1): a window of that half side holds a value around each pixel where the values are spread evenly."""
+    n = int(np.isfinite(disp).sum())
+    return max(1, math.ceil(math.sqrt(disp.size / n))) if n else 1
 
 
 @click.command("range-map")
 @click.argument("disparity", type=input_path())
 @output_opt
-@click.option("--window", type=click.IntRange(0, 64), default=2, show_default=True,
-              help="Half side (px of DISPARITY) of the window whose disparities bound each pixel's range.")
+@click.option("--window", default="2", show_default=True, callback=parsed_value(_window, "--window"),
+              help="Half side (px of DISPARITY, 0-256) of the window whose disparities bound each pixel's range; "
+                   "'auto': the mean spacing of DISPARITY's values, rounded up (a sparse map: one projected by "
+                   "`riverbed project` from a coarse DSM).")
 @click.option("--margin", type=click.FloatRange(0), default=4.0, show_default=True,
               help="Disparity (px of the image to match) added on both sides of the window's min and max (for a "
                    "run at half resolution: --window 4 --margin 8, as the tube holes' coarse match).")
@@ -51,6 +78,11 @@ def range_map_cmd(disparity, output, window, margin, like, min_disp, max_disp, d
     if like:
         size = header_size(like)  # the header only; an image GDAL cannot open is read the usual way
         shape = (size[1], size[0]) if size else read_image(like).shape[:2]
+    if window == "auto":
+        window = auto_window(disp)
+        if window > MAX_WINDOW:
+            raise RiverbedError(f"--window auto: the values are {window} px apart on average, more than "
+                                f"{MAX_WINDOW}: too sparse to bound the pixels between them", disparity)
     try:
         lo, hi = ranges_from_disparity(disp, shape, window, margin)
     except RiverbedError as e:
@@ -66,7 +98,8 @@ def range_map_cmd(disparity, output, window, margin, like, min_disp, max_disp, d
     summary = {"output": str(output), "size": [int(lo.shape[1]), int(lo.shape[0])],
                "factor": int(lo.shape[1] // disp.shape[1]), "known_share": round(float(known.mean()), 4),
                "min": round(float(lo[known].min()), 3), "max": round(float(hi[known].max()), 3),
-               "mean_width": round(float(width.mean()), 3), "seconds": round(time.perf_counter() - t0, 4)}
+               "window": int(window), "mean_width": round(float(width.mean()), 3),
+               "seconds": round(time.perf_counter() - t0, 4)}
     if as_json:
         print_json(summary)
     else:

@@ -1,4 +1,5 @@
-"""Read LiDAR point clouds: LAS 1.0-1.4, LAZ (and COPC, which is LAZ 1.4), KITTI Velodyne ``.bin``.
+"""Read LiDAR point clouds: LAS 1.0-1.4, LAZ (and COPC, which is LAZ 1.4), KITTI Velodyne ``.bin``; and a DSM
+raster (``.tif``, ``.tiff``, ``.hgt``) as the points of its cells (:mod:`.dsm_cloud`).
 
 Conventions
 -----------
@@ -32,6 +33,7 @@ from pyproj import CRS
 from pyproj.exceptions import CRSError
 
 from ..errors import RiverbedError
+from .dsm_cloud import DSM_SUFFIXES, dsm_info_fields, iter_dsm_points
 from .las_checks import check_las_header, native_errors
 from .paths import require_file
 
@@ -39,7 +41,7 @@ _log = logging.getLogger(__name__)
 
 _RGB_FORMATS = {2, 3, 5, 7, 8, 10}
 _KITTI_RECORD = 16  # float32 x, y, z, reflectance
-_UNSUPPORTED = "unsupported point cloud format '{}' (use .las, .laz or KITTI .bin)"
+_UNSUPPORTED = "unsupported point cloud format '{}' (use .las, .laz, KITTI .bin, or a DSM .tif/.hgt)"
 
 
 @dataclass
@@ -110,6 +112,9 @@ def lidar_info(path):
     path, kind = _check_input(path)
     if kind == "bin":
         return _bin_info(path)
+    if kind == "dsm":
+        return LidarInfo(path=str(path), **dsm_info_fields(path), version="dsm", point_format=-1, has_rgb=False,
+                         has_classification=False)
     header = check_las_header(path)
     return _las_info(path, header)
 
@@ -151,6 +156,8 @@ def iter_lidar(path, chunk_size=1_000_000, crs=None):
     if kind == "bin":
         count = _bin_count(path)
         return _iter_bin(path, count, chunk_size)
+    if kind == "dsm":
+        return iter_dsm_points(path, chunk_size)
     header = check_las_header(path)
     return _iter_las(path, header, chunk_size)
 
@@ -206,6 +213,8 @@ def _kind(path):
         return "las"
     if name.endswith(".bin"):
         return "bin"
+    if name.endswith(DSM_SUFFIXES):
+        return "dsm"
     ext = path.suffix.lower()
     raise RiverbedError(_UNSUPPORTED.format(ext if ext else "(no extension)"), path)
 
