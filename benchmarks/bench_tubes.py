@@ -43,6 +43,7 @@ from datasets import DEV_SCENES, middlebury, speed_pair, speed_scene  # noqa: E4
 
 from riverbed_cli.io.disparity import read_disparity, write_disparity  # noqa: E402
 from riverbed_cli.io.images import read_image  # noqa: E402
+from riverbed_cli.matching import pipeline as pipeline_module  # noqa: E402
 from riverbed_cli.matching.config import MatchConfig  # noqa: E402
 from riverbed_cli.matching.pipeline import fill_tube_holes, match_pair  # noqa: E402
 from riverbed_cli.matching.tubes import lidar_tubes  # noqa: E402
@@ -271,6 +272,51 @@ def speed(data_dir, repeat):
               f"{float(np.median(w3s / hhs)):.2f} | 1.00 | | |", flush=True)
 
 
+class _After:
+    """The fusion's LiDAR side run when the fusion asks for it, after the matcher: ``match_pair`` before it ran
+    beside the matcher (``pipeline._Beside``), the same code otherwise."""
+
+    def __init__(self, fn, *args):
+        self._call = (fn, args)
+
+    def result(self):
+        fn, args = self._call
+        return fn(*args)
+
+    def join(self):
+        pass
+
+
+def beside(data_dir, repeat):
+    print("\n### The fusion's LiDAR side beside the matcher or after it (warm, this process, alternating; median "
+          f"of {repeat})\n")
+    print("| pair | after the matcher s | beside it s | ratio (median of per-round ratios) | same bits |")
+    print("|---|---:|---:|---:|---|")
+    cases = [("740x500 Reindeer, 0..79, 5 % LiDAR", *speed_pair(data_dir), 79),
+             ("740x500 Reindeer, the whole scene's LiDAR", *speed_pair(data_dir, beyond=True), 79)]
+    if (Path(data_dir) / AERIAL).is_dir():
+        left, right, gt = aerial(data_dir, pad_to=1024)
+        cases.append(("1024x1024 Dublin aerial, 1 % LiDAR", left, right, simulate_lidar(gt, 0.01, 0), 143))
+    beside_class = pipeline_module._Beside
+    for label, left, right, sparse, d_max in cases:
+        times = {"after": [], "beside": []}
+        outs = {}
+        for k in range(repeat + 1):
+            for name, cls in (("after", _After), ("beside", beside_class)):
+                pipeline_module._Beside = cls
+                try:
+                    res = match_pair(left, right, sparse, 0, d_max)
+                finally:
+                    pipeline_module._Beside = beside_class
+                if k:  # the first round loads
+                    times[name].append(res.info["seconds"])
+                outs[name] = res.disparity
+        a, b = np.array(times["after"]), np.array(times["beside"])
+        same = np.array_equal(outs["after"], outs["beside"], equal_nan=True)
+        print(f"| {label} | {np.median(a):.3f} | {np.median(b):.3f} | {float(np.median(b / a)):.2f} | {same} |",
+              flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("data_dir", nargs="?", default=os.environ.get("RIVERBED_DATA", "../shared/data"))
@@ -281,6 +327,7 @@ def main():
     ap.add_argument("--skip-speed", action="store_true")
     ap.add_argument("--skip-holes", action="store_true")
     ap.add_argument("--skip-beyond", action="store_true")
+    ap.add_argument("--skip-beside", action="store_true")
     args = ap.parse_args()
     logging.getLogger("riverbed_cli").setLevel(logging.ERROR)  # each match would warn of the points beyond the range
     shares = [float(s) for s in args.shares.split(",")]
@@ -294,6 +341,8 @@ def main():
         beyond(args.data_dir)
     if not args.skip_speed:
         speed(args.data_dir, args.repeat)
+    if not args.skip_beside:
+        beside(args.data_dir, max(args.repeat, 7))
 
 
 if __name__ == "__main__":
