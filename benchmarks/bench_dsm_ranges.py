@@ -11,6 +11,7 @@ process:
 2. ``riverbed range-map --window auto --margin M`` -> per-pixel ranges;
 3. ``riverbed match --guide none`` over the full range 0..63 and with ``--range-map``; ``riverbed densify --method
    linear`` of the DSM's sparse disparities (the coarse DSM alone, no images: the baseline the match must beat);
+   ``riverbed match --sparse`` with the DSM's sparse disparities, as if they were LiDAR (the defaults);
 4. the block's LiDAR guiding the match (the defaults), and its linear interpolation, for reference.
 
 Errors over the ground truth's pixels (bad3 %, mean px). With DATA (``$RIVERBED_DATA``) holding the Pléiades
@@ -77,8 +78,9 @@ def block(work, factors, margin):
     print(f"`--window auto --margin {margin}`; bad3 % / avg px over the {int(known.sum())} ground-truth pixels; "
           "seconds from `--json`.\n")
     print("| source | cell m | points in the image | window px | mean width | truth inside % | source alone, "
-          "linear | unguided, full range | unguided, in its ranges | match s full / ranges |")
-    print("|---|---:|---:|---:|---:|---:|---|---|---|---|")
+          "linear | unguided, full range | unguided, in its ranges | its points as LiDAR (defaults) | "
+          "match s full / ranges |")
+    print("|---|---:|---:|---:|---:|---:|---|---|---|---|---|")
     full = work / "full.tif"
     m_full = riverbed("match", left, right, "--guide", "none", "--min-disp", 0, "--max-disp", 63, "-o", full,
                       "--json", "--overwrite")
@@ -94,17 +96,19 @@ def block(work, factors, margin):
         m = riverbed("match", left, right, "--guide", "none", "--min-disp", 0, "--max-disp", 63, "--range-map",
                      ranges, "-o", out, "--json", "--overwrite")
         riverbed("densify", sparse, "-o", alone, "--method", "linear", "--overwrite")
+        # the DSM's points guiding the match as LiDAR would (riverbed guide, tubes, fusion)
+        riverbed("match", left, right, "--sparse", sparse, "-o", work / f"as_lidar{k}.tif", "--overwrite")
         print(f"| coarse DSM, {k} x {k} cells | {cell:.1f} | {p['kept']} | {r['window']} | {r['mean_width']:.1f} | "
-              f"{inside:.1f} | {err(alone)} | {err(full)} | {err(out)} | {m_full['seconds']:.3f} / "
-              f"{m['seconds']:.3f} |", flush=True)
+              f"{inside:.1f} | {err(alone)} | {err(full)} | {err(out)} | {err(work / f'as_lidar{k}.tif')} | "
+              f"{m_full['seconds']:.3f} / {m['seconds']:.3f} |", flush=True)
     # the block's own LiDAR, for reference: what the defaults do with it, and its interpolation alone
     sparse, guided, alone = work / "lidar_sparse.tif", work / "guided.tif", work / "lidar_alone.tif"
     p = riverbed("project", BLOCK / "lidar.laz", pair, "-o", sparse, "--json", "--overwrite")
     m = riverbed("match", left, right, "--sparse", sparse, "-o", guided, "--json", "--overwrite")
     riverbed("densify", sparse, "-o", alone, "--method", "linear", "--overwrite")
-    print(f"| the block's LiDAR ({100 * p['lidar_share']:.2f} % of the image pixels), guided match (defaults) | | "
-          f"{p['kept']} | | {m['tubes']['mean_width']:.1f} | | {err(alone)} | | {err(guided)} | "
-          f"{m['seconds']:.3f} |")
+    print(f"| the block's LiDAR ({100 * p['lidar_share']:.2f} % of the image pixels) | | {p['kept']} | | "
+          f"{m['tubes']['mean_width']:.1f} (tubes) | | {err(alone)} | {err(full)} | | {err(guided)} | "
+          f"{m_full['seconds']:.3f} / {m['seconds']:.3f} |")
 
 
 def ventoux(data, work):
