@@ -272,21 +272,6 @@ def speed(data_dir, repeat):
               f"{float(np.median(w3s / hhs)):.2f} | 1.00 | | |", flush=True)
 
 
-class _After:
-    """The fusion's LiDAR side run when the fusion asks for it, after the matcher: ``match_pair`` before it ran
-    beside the matcher (``pipeline._Beside``), the same code otherwise."""
-
-    def __init__(self, fn, *args):
-        self._call = (fn, args)
-
-    def result(self):
-        fn, args = self._call
-        return fn(*args)
-
-    def join(self):
-        pass
-
-
 def beside(data_dir, repeat):
     print("\n### The fusion's LiDAR side beside the matcher or after it (warm, this process, alternating; median "
           f"of {repeat})\n")
@@ -302,7 +287,7 @@ def beside(data_dir, repeat):
         times = {"after": [], "beside": []}
         outs = {}
         for k in range(repeat + 1):
-            for name, cls in (("after", _After), ("beside", beside_class)):
+            for name, cls in (("after", pipeline_module._After), ("beside", beside_class)):
                 pipeline_module._Beside = cls
                 try:
                     res = match_pair(left, right, sparse, 0, d_max)

@@ -25,6 +25,11 @@ from .volume import TubeLayout
 
 log = logging.getLogger(__name__)
 
+#: largest image (pixels) whose fusion's LiDAR side runs beside the matcher: its arrays (about 30 bytes a pixel)
+#: would add to the matcher's peak memory; a 40 MP pair's 4 MP tiles peaked at 1526 MiB beside, 1297 MiB after
+BESIDE_MAX_PIXELS = 2_000_000
+
+
 class _Beside(threading.Thread):
     """``fn(*args)`` in a thread, started at once; :meth:`result` waits for it and returns its value or raises its
     exception."""
@@ -47,6 +52,20 @@ class _Beside(threading.Thread):
         if self._error is not None:
             raise self._error
         return self._value
+
+
+class _After:
+    """``fn(*args)`` run when :meth:`result` is called (the :class:`_Beside` interface, no thread)."""
+
+    def __init__(self, fn, *args):
+        self._call = (fn, args)
+
+    def result(self):
+        fn, args = self._call
+        return fn(*args)
+
+    def join(self):
+        pass
 
 
 def disparity_range_from_sparse(sparse, margin=None):
@@ -288,8 +307,10 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
     share = lidar_share(sparse) if sparse is not None else 0.0
     fuser = get_fusion(resolve_fusion(config, guide, sparse is not None))
     # The fusion's LiDAR side (its Delaunay triangulation is single-threaded OpenCV) needs no stereo: it runs beside
-    # the matcher, on the core the matcher's serial parts leave idle
-    lidar_side = _Beside(fuser.prepare, sparse, config) if fuser.name != "none" else None
+    # the matcher, on the core the matcher's serial parts leave idle; on large images (the tiles of a large pair)
+    # after it, as before, so that its arrays do not add to the matcher's peak memory
+    beside = fuser.name != "none" and shape[0] * shape[1] <= BESIDE_MAX_PIXELS
+    lidar_side = (_Beside if beside else _After)(fuser.prepare, sparse, config) if fuser.name != "none" else None
     try:
         out, mode, stats = _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, matcher, share,
                                          range_map, stages, fuser.needs_status)
