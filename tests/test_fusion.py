@@ -1,12 +1,15 @@
 """The confidence fusion (riverbed_cli.matching.fusion): per pixel the better of stereo and LiDAR interpolation."""
 
 import math
+import threading
 
 import numpy as np
 import pytest
 from scipy.special import erf
 
-from riverbed_cli.matching.fusion import fuse_disparity, leave_one_out_residuals, lidar_sigma
+from riverbed_cli.errors import RiverbedError
+from riverbed_cli.matching import pipeline
+from riverbed_cli.matching.fusion import ConfidenceFusion, fuse_disparity, leave_one_out_residuals, lidar_sigma
 from riverbed_cli.matching.pipeline import match_pair
 from riverbed_cli.geometry.interpolation import interpolate_linear
 from riverbed_cli.products.evaluate import evaluate_disparity
@@ -113,6 +116,34 @@ def test_fusion_is_the_default_with_lidar_and_none_reproduces_the_paper(cones):
     assert (err[c >= np.median(c)] > 1).mean() < 0.1 * (err[c < np.median(c)] > 1).mean()
     unguided = match_pair(left, right, None, 0, 63, guide="none")
     assert unguided.info["fusion"] == "none"
+
+
+def test_lidar_side_beside_the_matcher_gives_the_bits_of_after_it(cones, monkeypatch):
+    # match_pair runs the fusion's LiDAR side in a thread beside the matcher (images up to BESIDE_MAX_PIXELS); run
+    # after the matcher instead, in the calling thread, it gives the same output
+    left, right, gt = cones
+    assert gt.size <= pipeline.BESIDE_MAX_PIXELS
+    sparse = simulate_lidar(gt, 0.05, seed=0)
+    beside = match_pair(left, right, sparse, 0, 63)
+    monkeypatch.setattr(pipeline, "_Beside", pipeline._After)
+    after = match_pair(left, right, sparse, 0, 63)
+    assert np.array_equal(beside.disparity, after.disparity, equal_nan=True)
+    assert np.array_equal(beside.confidence, after.confidence)
+    assert beside.info["fusion_stats"] == after.info["fusion_stats"]
+
+
+def test_an_error_of_the_lidar_side_reaches_the_caller_and_leaves_no_thread(cones, monkeypatch):
+    left, right, gt = cones
+    sparse = simulate_lidar(gt, 0.05, seed=0)
+
+    def fail(self, sparse, config):
+        raise RiverbedError("the LiDAR side failed")
+
+    monkeypatch.setattr(ConfidenceFusion, "prepare", fail)
+    before = threading.active_count()
+    with pytest.raises(RiverbedError, match="^the LiDAR side failed$"):
+        match_pair(left, right, sparse, 0, 63)
+    assert threading.active_count() == before
 
 
 @pytest.mark.parametrize("extra, message", [
