@@ -130,6 +130,11 @@ ERRORS = [
     ({"pairs": [{"raw": {"left": "a/left.png", "left_orientation": "a/pair.yaml", "right": "a/right.png",
                          "right_orientation": "a/pair.yaml"}, "cloud": "lidar/west.laz", "range_map": "a/left.png"}]},
      "pairs[0].range_map: only for a pair: entry (its ranges are of the rectified images"),
+    ({"defaults": {"range_dsm": "dsm.tif"}, "pairs": [GOOD]}, "defaults.range_dsm: file not found: dsm.tif"),
+    ({"pairs": [{**GOOD, "range_dsm": "a/left.png", "range_dsm_margin": -1}]},
+     "pairs[0].range_dsm_margin: expected a number of pixels >= 0, got -1"),
+    ({"defaults": {"range_dsm": "a/left.png"}, "pairs": [{**GOOD, "range_map": "a/left.png"}]},
+     "pairs[0]: give range_map or range_dsm (the ranges from a DSM), not both"),
     ({"pairs": []}, "pairs: expected a non-empty list of {pair: PAIR_FILE, cloud: CLOUDS}"),
     ({"pairs": [GOOD, {"pair": "x/pair.yaml", "cloud": "lidar/west.laz"}]},
      "pairs[1].pair: file not found: x/pair.yaml"),
@@ -473,6 +478,65 @@ def test_block_tiles_fill_lidar_holes_with_coarse_ranges(tmp_path):
     np.testing.assert_array_equal(disp, coarse.disparity)
     # the holes narrowed (from each tile's range, which its neighbouring LiDAR already bounds)
     assert coarse.info["tubes"]["mean_width"] < nominal.info["tubes"]["mean_width"]
+
+
+def test_block_pairs_search_the_ranges_of_a_dsm(tmp_path):
+    """``range_dsm`` (a setting, here under defaults): each pair projects the DSM as a cloud and searches the ranges
+    `riverbed project DSM` + `riverbed range-map --window auto --margin M` give (the same bits, tiled or not); a
+    changed DSM re-runs the pair."""
+    from riverbed_cli.io.windowed import read_range_map
+    from riverbed_cli.matching.pipeline import resolve_disparity_range
+
+    # the sample block's ground-truth DSM averaged over 16 x 16 cells (3.2 m), as tests/test_dsm_cloud.py does
+    with rasterio.open(SAMPLE / "gt_dsm.tif") as ds:
+        z, t, nodata, crs = ds.read(1).astype(np.float64), ds.transform, ds.nodata, ds.crs
+    z[z == nodata] = np.nan
+    k = 16
+    H, W = z.shape[0] // k * k, z.shape[1] // k * k
+    blocks = z[:H, :W].reshape(H // k, k, W // k, k).transpose(0, 2, 1, 3).reshape(H // k, W // k, k * k)
+    count = np.isfinite(blocks).sum(axis=2)
+    coarse = np.where(count > 0, np.nansum(blocks, axis=2) / np.maximum(count, 1), np.nan).astype(np.float32)
+    with rasterio.open(tmp_path / "coarse.tif", "w", driver="GTiff", width=coarse.shape[1], height=coarse.shape[0],
+                       count=1, dtype="float32", crs=crs, transform=t * rasterio.Affine.scale(k, k),
+                       nodata=np.nan) as ds:
+        ds.write(coarse, 1)
+    pairs = [{"pair": str(SAMPLE / "pair.yaml"), "cloud": str(SAMPLE / "lidar.laz"), "name": "whole"},
+             {"pair": str(SAMPLE / "pair.yaml"), "cloud": str(SAMPLE / "lidar.laz"), "name": "tiled", "tile": 256,
+              "overlap": 32}]
+    manifest = {"defaults": {"range_dsm": "coarse.tif", "range_dsm_margin": 3, "tile": 0}, "pairs": pairs}
+    (tmp_path / "block.yaml").write_text(yaml.safe_dump(manifest, sort_keys=False))
+    res = run(["block", str(tmp_path / "block.yaml"), "-o", str(tmp_path / "out"), "--workers", "0", "--json"])
+    assert res.exit_code == 0, res.stderr
+    by = {p["name"]: p for p in summary(res)["pairs"]}
+    assert by["whole"]["status"] == by["tiled"]["status"] == "done"
+    assert by["whole"]["tiles"] == 0 and by["tiled"]["tiles"] > 1
+    # the same ranges through the commands
+    for args in (["project", tmp_path / "coarse.tif", SAMPLE / "pair.yaml", "-o", tmp_path / "dsm_sparse.tif"],
+                 ["range-map", tmp_path / "dsm_sparse.tif", "--window", "auto", "--margin", "3", "-o",
+                  tmp_path / "ranges.tif"]):
+        r = CliRunner().invoke(cli, [str(a) for a in args])
+        assert r.exit_code == 0, r.output
+    lo, hi = read_range_map(tmp_path / "ranges.tif")
+    pair = load_pairfile(SAMPLE / "pair.yaml")
+    left, right = read_image(pair.left), read_image(pair.right)
+    for name in ("whole", "tiled"):
+        folder = tmp_path / "out" / "pairs" / name
+        sparse = read_disparity(folder / "sparse.tif")
+        d_min, d_max = resolve_disparity_range(None, None, sparse[np.isfinite(sparse)])
+        known = np.isfinite(lo)
+        d_min, d_max = min(d_min, int(np.floor(lo[known].min()))), max(d_max, int(np.ceil(hi[known].max())))
+        if name == "tiled":
+            ref = match_tiled(left, right, sparse, d_min, d_max, tile=256, overlap=32, range_map=(lo, hi))
+        else:
+            ref = match_pair(left, right, sparse, d_min, d_max, range_map=(lo, hi))
+        np.testing.assert_array_equal(read_disparity(folder / "disparity.tif"), ref.disparity)
+    # the DSM is an input of each pair: a changed DSM re-runs both, an unchanged one none
+    res = run(["block", str(tmp_path / "block.yaml"), "-o", str(tmp_path / "out"), "--workers", "0", "--json"])
+    assert {p["status"] for p in summary(res)["pairs"]} == {"skipped"}
+    with rasterio.open(tmp_path / "coarse.tif", "r+") as ds:
+        ds.write(coarse + np.float32(0.5), 1)
+    res = run(["block", str(tmp_path / "block.yaml"), "-o", str(tmp_path / "out"), "--workers", "0", "--json"])
+    assert {p["status"] for p in summary(res)["pairs"]} == {"done"}
 
 
 def test_block_pairs_search_their_range_maps(tmp_path):

@@ -2,7 +2,6 @@
 previous run, or a coarser one)."""
 
 import logging
-import math
 import time
 
 import click
@@ -12,14 +11,10 @@ from ..errors import RiverbedError
 from ..io.atomic import check_output
 from ..io.disparity import read_disparity, write_range_map
 from ..io.images import header_size, read_image
-from ..matching.tubes import ranges_from_disparity
+from ..matching.tubes import MAX_RANGE_WINDOW, ranges_from_disparity, spacing_window
 from .options import input_path, json_opt, output_opt, overwrite_opt, parsed_value, print_json
 
 log = logging.getLogger(__name__)
-
-
-#: largest --window (px): a DSM cell or a LiDAR spacing of 256 image px is too coarse to bound a pixel by
-MAX_WINDOW = 256
 
 
 def _window(text):
@@ -30,16 +25,9 @@ def _window(text):
         value = int(text)
     except ValueError:
         raise ValueError(f"expected 'auto' or an integer, got '{text}'") from None
-    if not 0 <= value <= MAX_WINDOW:
-        raise ValueError(f"expected 0 to {MAX_WINDOW}, got {value}")
+    if not 0 <= value <= MAX_RANGE_WINDOW:
+        raise ValueError(f"expected 0 to {MAX_RANGE_WINDOW}, got {value}")
     return value
-
-
-def auto_window(disp):
-    """``--window auto``: the mean spacing (px) of ``disp``'s finite values, ``sqrt(pixels / values)``, rounded up
-    (at least 1): a window of that half side holds a value around each pixel where the values are spread evenly."""
-    n = int(np.isfinite(disp).sum())
-    return max(1, math.ceil(math.sqrt(disp.size / n))) if n else 1
 
 
 @click.command("range-map")
@@ -79,10 +67,10 @@ def range_map_cmd(disparity, output, window, margin, like, min_disp, max_disp, d
         size = header_size(like)  # the header only; an image GDAL cannot open is read the usual way
         shape = (size[1], size[0]) if size else read_image(like).shape[:2]
     if window == "auto":
-        window = auto_window(disp)
-        if window > MAX_WINDOW:
+        window = spacing_window(disp)
+        if window > MAX_RANGE_WINDOW:
             raise RiverbedError(f"--window auto: the values are {window} px apart on average, more than "
-                                f"{MAX_WINDOW}: too sparse to bound the pixels between them", disparity)
+                                f"{MAX_RANGE_WINDOW}: too sparse to bound the pixels between them", disparity)
     try:
         lo, hi = ranges_from_disparity(disp, shape, window, margin)
     except RiverbedError as e:

@@ -131,6 +131,20 @@ def lidar_tubes(sparse, d_min, d_max, reach=2.0, margin=2.0, levels=3, level_mar
     return lo, hi, hole
 
 
+#: largest window (half side, px) of ranges from sparse disparities: a DSM cell or a spacing of more than 256 px
+#: is too coarse to bound the pixels between them
+MAX_RANGE_WINDOW = 256
+
+
+def spacing_window(disp):
+    """The window (half side, px) ranges from the sparse disparities ``disp`` need: their mean spacing
+    ``sqrt(pixels / values)`` rounded up, at least 1 (``riverbed range-map --window auto``; a DSM's cells projected
+    by ``riverbed project``): where the values are spread evenly, a window of that half side holds one around every
+    pixel."""
+    n = int(np.count_nonzero(np.isfinite(disp)))
+    return max(1, math.ceil(math.sqrt(disp.size / n))) if n else 1
+
+
 def ranges_from_disparity(disp, shape=None, window=2, margin=3.0):
     """Per-pixel disparity ranges from a disparity map: a previous run, or a coarser one (``riverbed range-map``,
     ``--range-map``; the coarse match of :func:`hole_bounds`).

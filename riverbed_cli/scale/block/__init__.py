@@ -13,6 +13,9 @@ The manifest (YAML, read with ``yaml.safe_load`` only; paths relative to the man
                                #   overlap lidar_range
       drop_classes: [7, 18]    # projection: outliers visibility side footprint classes drop_classes
                                #             registration (a 4x4 file) lidar_crs
+      range_dsm: coarse.tif    # optional: per-pixel ranges from a DSM (GeoTIFF or .hgt) projected into each pair
+                               #   as `riverbed project` + `riverbed range-map --window auto` make them (any entry
+                               #   kind); range_dsm_margin (px, default 2), range_dsm_crs (the DSM's, if it has none)
     pairs:
       - raw: {left: raw/f0.png, left_orientation: raw/f0.yaml,   # or raw frames with their orientations
               right: raw/f1.png, right_orientation: raw/f1.yaml}   # (riverbed rectify's inputs): rectified into
@@ -45,7 +48,7 @@ Rules
 -----
 - *Skipping*: a pair is skipped when its ``done.json`` verifies: every output present with the recorded size and
   sha256, and the recorded hash equal to the hash of the pair's effective settings, its inputs (pair file, images,
-  clouds, registration, range map: path, size, mtime) and the riverbed version. Anything else re-runs the pair.
+  clouds, registration, range map or DSM: path, size, mtime) and the riverbed version. Anything else re-runs the pair.
 - *Overwriting*: ``OUTDIR`` may be new (its parent must exist), empty, or the output of the same manifest (its
   ``block.json`` names it); the block then replaces its own files (the per-pair outputs of the pairs it runs, the
   merged DSM, ``block.json``) without ``--overwrite``. A folder holding anything else, or another manifest's

@@ -68,11 +68,11 @@ def _settings(raw, where, spec, path, base, block_wide):
             out[key] = spec[key][1](value)
         except SettingError as e:
             raise RiverbedError(f"{where}.{key}: {e}", path) from None
-        if key == "registration" and out[key] is not None:
-            reg = Path(os.path.normpath(base / out[key]))
-            if not reg.is_file():
-                raise RiverbedError(f"{where}.registration: file not found: {value}", path)
-            out[key] = str(reg)
+        if key in ("registration", "range_dsm") and out[key] is not None:
+            file = Path(os.path.normpath(base / out[key]))
+            if not file.is_file():
+                raise RiverbedError(f"{where}.{key}: file not found: {value}", path)
+            out[key] = str(file)
     return out
 
 
@@ -221,7 +221,7 @@ def load_manifest(path):
     'lidar/*.laz' matches no file``; pairs are numbered from 0) for: unreadable YAML, unknown keys, a missing pair
     file, a cloud glob matching nothing, a bad value, duplicate names, a block-wide setting given per pair; for an
     ``rpc:`` entry a missing image, RPC or DEM file, a malformed ROI or one outside the left image, bad heights; a
-    ``range_map`` that is missing or not on a ``pair:`` entry.
+    ``range_map`` that is missing or not on a ``pair:`` entry; a missing ``range_dsm``, or one with a ``range_map``.
     """
     path = Path(path)
     data = _read_manifest(path)
@@ -298,5 +298,7 @@ def load_manifest(path):
         lo, hi = settings["min_disp"], settings["max_disp"]
         if lo is not None and hi is not None and lo > hi:
             raise RiverbedError(f"{where}: min_disp {lo} > max_disp {hi}", path)
+        if range_map is not None and settings["range_dsm"] is not None:
+            raise RiverbedError(f"{where}: give range_map or range_dsm (the ranges from a DSM), not both", path)
         specs.append(PairSpec(i, name, pair_path, clouds, settings, raw, rpc, range_map))
     return Manifest(path.absolute(), {**default_settings(), **defaults}, specs)

@@ -300,8 +300,9 @@ def plan_block(manifest, outdir, overwrite=False):
                 if spec.range_map is not None:
                     job.range_map = str(spec.range_map)
                     files.append(spec.range_map)
-            if s["registration"]:
-                files.append(Path(s["registration"]))
+            for key in ("registration", "range_dsm"):
+                if s[key]:
+                    files.append(Path(s[key]))
             job.inputs = [_stat(p, base) for p in files]
         except RiverbedError as e:
             job.status, job.error = "failed", str(e)

@@ -72,6 +72,12 @@ def _optional_str(v):
     return v
 
 
+def _margin(v):
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v >= 0):
+        raise SettingError(f"expected a number of pixels >= 0, got {show(v)}")
+    return float(v)
+
+
 # -- matching settings ----------------------------------------------------------------------------------------------
 # Everything about the matcher's settings is in this section: their rows come from the matching settings table
 # (riverbed_cli.matching.config.MATCH_SETTINGS: matcher, guides, disparity range, input size, tiling), and
@@ -108,6 +114,10 @@ def settings_spec():
         "drop_classes": (sorted(NOISE_CLASSES), _classes(none=False)),
         "registration": (None, _optional_str),
         "lidar_crs": (None, _crs),
+        # per-pixel search ranges from a DSM (projected as a cloud, riverbed range-map --window auto)
+        "range_dsm": (None, _optional_str),
+        "range_dsm_margin": (2.0, _margin),
+        "range_dsm_crs": (None, _crs),
     }
 
 

@@ -23,6 +23,7 @@ from ...io.windowed import WindowedRaster, image_bits, open_range_map, open_wind
 from ...matching.guidance import lidar_share_of_points
 from ...matching.pipeline import match_pair, resolve_disparity_range
 from ...matching.registry import get_guide
+from ...matching.tubes import MAX_RANGE_WINDOW, ranges_from_disparity, spacing_window
 from ...products.dsm import Accumulator, Grid, default_resolution, disparity_points
 from ..tiles import Tile, match_tile, plan_tiles, scan_range_map, tube_widths
 from .plan import DONE, OUTPUTS, WORK, clean_temps, rectify_rpc, riverbed_version, sha256_file, write_json
@@ -163,9 +164,14 @@ def project_stage(job):
     share = lidar_share_of_points(pr, pc, (H, W))
     d_min, d_max = resolve_disparity_range(s["min_disp"], s["max_disp"], pv)
 
-    rmap = None
+    rmap, dsm_stats = None, {}
     if job.range_map:
         d_min, d_max, rmap = _pair_range_map(job.range_map, (H, W), d_min, d_max, s, folder / WORK)
+    elif s["range_dsm"]:
+        lo, hi, dsm_stats = _dsm_ranges(s, pair, reg, (H, W))
+        d_min, d_max, rmap = _pair_ranges(lo, hi, (H, W), d_min, d_max, s, folder / WORK, s["range_dsm"])
+        del lo, hi
+    if rmap is not None:
         widths = (rmap.widths(d_min, d_max), rmap.cell)
     else:
         widths = tube_widths(p, (pr, pc, pv), (H, W), d_min, d_max, share)
@@ -184,20 +190,41 @@ def project_stage(job):
             _save_npy(src, work / f"{side}.npy")
     stats = {"clouds": len(used), "clouds_without_points": len(empty), "lidar_points_read": counts["points_read"],
              "lidar_points_kept": counts["kept"], "lidar_share": share, "lidar_crs": counts["crs"],
-             "tile": int(plan.size) if tiles else None}
+             "tile": int(plan.size) if tiles else None, **dsm_stats}
     return {"tiles": tiles, "window": window, "bits": bits, "d_min": d_min, "d_max": d_max, "stats": stats,
             "shape": [H, W], "range_map": rmap is not None, "rectify_seconds": t_rectify,
             "seconds": round(time.perf_counter() - t0, 4)}
 
 
 def _pair_range_map(path, shape, d_min, d_max, s, work):
-    # The pair's range map (riverbed match --range-map): checked, the pair's range widened to hold it where the
-    # manifest sets none, and copied by blocks of rows to float32 work/range_{lo,hi}.npy (NaN: none) that the match
-    # tasks memory-map: no stage holds the whole map.
+    # The pair's range map (riverbed match --range-map), read by windows: no stage holds the whole map
     lo, hi = open_range_map(path)
     if lo.shape != tuple(shape):
         raise RiverbedError(f"range map is {lo.shape[1]}x{lo.shape[0]} but the images are {shape[1]}x{shape[0]} "
                             "(WxH)", path)
+    return _pair_ranges(lo, hi, shape, d_min, d_max, s, work, path)
+
+
+def _dsm_ranges(s, pair, reg, shape):
+    # The pair's ranges from the range_dsm setting, as `riverbed project DSM` and `riverbed range-map --window auto
+    # --margin range_dsm_margin` make them: the DSM's cells projected as the pair's clouds are, each pixel bounded
+    # by those within their mean spacing. (lo, hi) (H, W) float32, and stats for the project stage's record.
+    path = s["range_dsm"]
+    sparse, st = project_cloud(path, pair, registration=reg, outliers=s["outliers"], side=s["side"],
+                               visibility=s["visibility"], footprint=s["footprint"], crs=s["range_dsm_crs"],
+                               shape=shape)
+    window = spacing_window(sparse)
+    if window > MAX_RANGE_WINDOW:
+        raise RiverbedError(f"range_dsm: its cells are {window} px apart in the pair on average, more than "
+                            f"{MAX_RANGE_WINDOW}: too coarse to bound the pixels between them", path)
+    lo, hi = ranges_from_disparity(sparse, None, window, s["range_dsm_margin"])
+    return lo, hi, {"range_dsm_points": int(st["kept"]), "range_dsm_window": int(window)}
+
+
+def _pair_ranges(lo, hi, shape, d_min, d_max, s, work, source):
+    # The pair's per-pixel ranges (a map, or made from a DSM): checked, the pair's range widened to hold them where
+    # the manifest sets none, and copied by blocks of rows to float32 work/range_{lo,hi}.npy (NaN: none) that the
+    # match tasks memory-map. Errors name source.
     scan = scan_range_map((lo, hi), shape)
     if scan.known:
         d_min = min(d_min, scan.span()[0]) if s["min_disp"] is None else d_min
@@ -205,7 +232,7 @@ def _pair_range_map(path, shape, d_min, d_max, s, work):
     try:
         scan.check(d_min, d_max)
     except RiverbedError as e:
-        raise RiverbedError(str(e), path) from None
+        raise RiverbedError(str(e), source) from None
     work.mkdir(exist_ok=True)
     for name, src in (("range_lo", lo), ("range_hi", hi)):
         _save_npy(src, work / f"{name}.npy")
