@@ -25,8 +25,9 @@ from .volume import TubeLayout
 
 log = logging.getLogger(__name__)
 
-#: largest image (pixels) whose fusion's LiDAR side runs beside the matcher: its arrays (about 30 bytes a pixel)
-#: would add to the matcher's peak memory; a 40 MP pair's 4 MP tiles peaked at 1526 MiB beside, 1297 MiB after
+#: largest image (pixels) whose fusion's LiDAR side runs beside the matcher (``beside="auto"``): its arrays (about
+#: 30 bytes a pixel) would add to the matcher's peak memory; a 40 MP pair's 4 MP tiles peaked at 1526 MiB beside,
+#: 1297 MiB after
 BESIDE_MAX_PIXELS = 2_000_000
 
 
@@ -255,7 +256,8 @@ def fill_tube_holes(left, right, lo, hi, hole, d_min, d_max, config):
     return np.where(hole, clo, lo), np.where(hole, chi, hi)
 
 
-def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, range_map=None, **overrides):
+def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, range_map=None, beside="auto",
+               **overrides):
     """Dense disparity of a rectified pair, optionally guided by sparse LiDAR disparities.
 
     Parameters
@@ -275,6 +277,10 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
     range_map : (lo, hi) of (H, W) float, optional
         Per-pixel disparity ranges from elsewhere (a coarse DSM, a previous run; NaN: the nominal range), used as
         the tubes instead of the LiDAR's.
+    beside : "auto" or bool
+        Run the fusion's LiDAR side (``Fusion.prepare``) in a thread beside the matcher; ``auto``: for images up to
+        ``BESIDE_MAX_PIXELS``. The output is the same either way. Tiled matches pass False: a second thread's
+        allocator arena keeps its freed memory beside the main one's, from tile to tile.
 
     Returns
     -------
@@ -309,7 +315,9 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
     # The fusion's LiDAR side (its Delaunay triangulation is single-threaded OpenCV) needs no stereo: it runs beside
     # the matcher, on the core the matcher's serial parts leave idle; on large images (the tiles of a large pair)
     # after it, as before, so that its arrays do not add to the matcher's peak memory
-    beside = fuser.name != "none" and shape[0] * shape[1] <= BESIDE_MAX_PIXELS
+    if beside == "auto":
+        beside = shape[0] * shape[1] <= BESIDE_MAX_PIXELS
+    beside = fuser.name != "none" and bool(beside)
     lidar_side = (_Beside if beside else _After)(fuser.prepare, sparse, config) if fuser.name != "none" else None
     try:
         out, mode, stats = _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, matcher, share,

@@ -372,7 +372,9 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
             # whole image: the untiled match's)
             lo, hi = fill_tube_holes(lc, rc, lo, hi, hole[0], t.d_min - off, t.d_max - off, p)
         range_map = (lo, hi)
-    res = match_pair(lc, rc, sc, t.d_min - off, t.d_max - off, p, range_map=range_map)
+    # the fusion's LiDAR side in this thread: a thread's malloc arena would keep its freed memory from tile to tile
+    # (10 MP: 1233-1267 MiB peak against 1193-1201)
+    res = match_pair(lc, rc, sc, t.d_min - off, t.d_max - off, p, range_map=range_map, beside=False)
     block = res.disparity[t.y0 - ya:t.y1 - ya, t.x0 - a:t.x1 - a] + np.float32(off)
     tubes = res.info.get("tubes")
     n = int(lc.shape[0] * lc.shape[1] * (tubes["mean_width"] if tubes else (t.d_max - t.d_min + 1)))
