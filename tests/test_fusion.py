@@ -125,9 +125,11 @@ def test_lidar_side_beside_the_matcher_gives_the_bits_of_after_it(cones, monkeyp
     assert gt.size <= pipeline.BESIDE_MAX_PIXELS
     sparse = simulate_lidar(gt, 0.05, seed=0)
     beside = match_pair(left, right, sparse, 0, 63)
+    asked = match_pair(left, right, sparse, 0, 63, beside=False)  # what tiles ask for
     monkeypatch.setattr(pipeline, "_Beside", pipeline._After)
     after = match_pair(left, right, sparse, 0, 63)
     assert np.array_equal(beside.disparity, after.disparity, equal_nan=True)
+    assert np.array_equal(asked.disparity, after.disparity, equal_nan=True)
     assert np.array_equal(beside.confidence, after.confidence)
     assert beside.info["fusion_stats"] == after.info["fusion_stats"]
 
