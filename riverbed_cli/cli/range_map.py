@@ -67,10 +67,10 @@ def range_map_cmd(disparity, output, window, margin, like, min_disp, max_disp, d
         size = header_size(like)  # the header only; an image GDAL cannot open is read the usual way
         shape = (size[1], size[0]) if size else read_image(like).shape[:2]
     if window == "auto":
-        window = spacing_window(disp)
-        if window > MAX_RANGE_WINDOW:
-            raise RiverbedError(f"--window auto: the values are {window} px apart on average, more than "
-                                f"{MAX_RANGE_WINDOW}: too sparse to bound the pixels between them", disparity)
+        try:
+            window = spacing_window(disp)
+        except RiverbedError as e:
+            raise RiverbedError(f"--window auto: {e}", disparity) from None
     try:
         lo, hi = ranges_from_disparity(disp, shape, window, margin)
     except RiverbedError as e:

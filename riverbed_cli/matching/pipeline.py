@@ -167,26 +167,16 @@ def resolve_fusion(config, guide, have_lidar):
     return name
 
 
-def validate_range_map(range_map, shape, d_min, d_max):
-    """Check a per-pixel range ``(lo, hi)`` (arrays, memory maps or windowed rasters sliced like them; NaN: the
-    nominal range) for a match of ``shape`` over ``[d_min, d_max]``, a block of rows at a time (a tiled match of a
-    large image never holds the map): :class:`RiverbedError` for another size, no valid pixel, min > max, or a range
-    outside the nominal one."""
-    lo, hi = range_map
-    check_range_map_shape(lo, hi, shape)
-    check_range_summary(*range_map_extent(lo, hi), d_min, d_max)
-
-
 def check_range_map_shape(lo, hi, shape):
     """:class:`RiverbedError` unless both bands of a range map are of ``shape``."""
     if tuple(lo.shape) != tuple(shape) or tuple(hi.shape) != tuple(shape):
-        raise RiverbedError(f"range map is {lo.shape[1] if len(lo.shape) > 1 else '?'}x{lo.shape[0]} (WxH) but the "
-                            f"images are {shape[1]}x{shape[0]}")
+        raise RiverbedError(f"range map is {lo.shape[1] if len(lo.shape) > 1 else '?'}x{lo.shape[0]} but the images "
+                            f"are {shape[1]}x{shape[0]} (WxH)")
 
 
 def check_range_summary(known, crossed, low, high, d_min, d_max):
     """:class:`RiverbedError` for a range map with no valid pixel, min > max, or a range outside ``[d_min, d_max]``
-    (from its :func:`range_map_extent`)."""
+    (from its :func:`~riverbed_cli.matching.tubes.range_map_summary`)."""
     if not known:
         raise RiverbedError("range map has no valid pixel (all NaN)")
     if crossed:
@@ -195,21 +185,13 @@ def check_range_summary(known, crossed, low, high, d_min, d_max):
         raise RiverbedError(f"range map spans [{low:.2f}, {high:.2f}], outside the nominal range [{d_min}, {d_max}]")
 
 
-def range_map_extent(lo, hi, rows=512):
-    """``(known, crossed, low, high)`` of a range map (:func:`~riverbed_cli.matching.tubes.range_map_summary`),
-    ``rows`` rows at a time."""
-    known, crossed, low, high = 0, 0, math.inf, -math.inf
-    for y in range(0, lo.shape[0], rows):
-        k, c, a, b = range_map_summary(np.asarray(lo[y:y + rows, :]), np.asarray(hi[y:y + rows, :]))
-        known, crossed, low, high = known + k, crossed + c, min(low, a), max(high, b)
-    return known, crossed, low, high
-
-
 def check_range_map(range_map, shape, d_min, d_max):
-    """A per-pixel range ``(lo, hi)`` (float arrays, NaN: the nominal range) as inclusive int32 tube ends
-    (:func:`validate_range_map` first)."""
+    """A per-pixel range ``(lo, hi)`` (float arrays, NaN: the nominal range) checked for a match of ``shape`` over
+    ``[d_min, d_max]`` (:class:`RiverbedError` for another size, no valid pixel, min > max, or a range outside the
+    nominal one), as inclusive int32 tube ends."""
     lo, hi = (np.asarray(a) for a in range_map)
-    validate_range_map((lo, hi), shape, d_min, d_max)
+    check_range_map_shape(lo, hi, shape)
+    check_range_summary(*range_map_summary(lo, hi), d_min, d_max)
     return range_map_ends(lo, hi, d_min, d_max)
 
 
@@ -315,10 +297,11 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
     # The fusion's LiDAR side (its Delaunay triangulation is single-threaded OpenCV) needs no stereo: it runs beside
     # the matcher, on the core the matcher's serial parts leave idle; on large images (the tiles of a large pair)
     # after it, as before, so that its arrays do not add to the matcher's peak memory
-    if beside == "auto":
-        beside = shape[0] * shape[1] <= BESIDE_MAX_PIXELS
-    beside = fuser.name != "none" and bool(beside)
-    lidar_side = (_Beside if beside else _After)(fuser.prepare, sparse, config) if fuser.name != "none" else None
+    lidar_side = None
+    if fuser.name != "none":
+        if beside == "auto":
+            beside = shape[0] * shape[1] <= BESIDE_MAX_PIXELS
+        lidar_side = (_Beside if beside else _After)(fuser.prepare, sparse, config)
     try:
         out, mode, stats = _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, matcher, share,
                                          range_map, stages, fuser.needs_status)

@@ -140,9 +140,13 @@ def spacing_window(disp):
     """The window (half side, px) ranges from the sparse disparities ``disp`` need: their mean spacing
     ``sqrt(pixels / values)`` rounded up, at least 1 (``riverbed range-map --window auto``; a DSM's cells projected
     by ``riverbed project``): where the values are spread evenly, a window of that half side holds one around every
-    pixel."""
+    pixel. :class:`RiverbedError` when that is more than ``MAX_RANGE_WINDOW``."""
     n = int(np.count_nonzero(np.isfinite(disp)))
-    return max(1, math.ceil(math.sqrt(disp.size / n))) if n else 1
+    window = max(1, math.ceil(math.sqrt(disp.size / n))) if n else 1
+    if window > MAX_RANGE_WINDOW:
+        raise RiverbedError(f"the values are {window} px apart on average, more than {MAX_RANGE_WINDOW}: too sparse "
+                            "to bound the pixels between them")
+    return window
 
 
 def ranges_from_disparity(disp, shape=None, window=2, margin=3.0):

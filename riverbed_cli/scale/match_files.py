@@ -118,14 +118,11 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     rmap = scan = None
     if range_map:
         rmap = open_range_map(range_map)  # read by windows: a tiled match reads each tile's
-        if rmap[0].shape != (H, W):
-            raise RiverbedError(f"range map is {rmap[0].shape[1]}x{rmap[0].shape[0]} but the images are {W}x{H} "
-                                "(WxH)", range_map)
-        scan = scan_range_map(rmap, (H, W))  # the one read that checks the map and plans the tiles
-        if (max_disp is None or min_disp is None) and scan.known:
-            min_disp = scan.span()[0] if min_disp is None else min_disp
-            max_disp = scan.span()[1] if max_disp is None else max_disp
         try:  # before any work
+            scan = scan_range_map(rmap, (H, W))  # the one read that checks the map and plans the tiles
+            if (max_disp is None or min_disp is None) and scan.known:
+                min_disp = scan.span()[0] if min_disp is None else min_disp
+                max_disp = scan.span()[1] if max_disp is None else max_disp
             scan.check(min_disp, max_disp)
         except RiverbedError as e:
             raise RiverbedError(str(e), range_map) from None

@@ -174,7 +174,7 @@ class RangeMapScan:
         return (int(math.floor(self.low)), int(math.ceil(self.high))) if self.known else None
 
     def check(self, d_min, d_max):
-        """:class:`RiverbedError` (the messages of :func:`~riverbed_cli.matching.pipeline.validate_range_map`) for
+        """:class:`RiverbedError` (the messages of :func:`~riverbed_cli.matching.pipeline.check_range_map`) for
         a map with no range, min > max, or a range outside ``[d_min, d_max]``."""
         check_range_summary(self.known, self.crossed, self.low, self.high, d_min, d_max)
 

@@ -23,7 +23,7 @@ from ...io.windowed import WindowedRaster, image_bits, open_range_map, open_wind
 from ...matching.guidance import lidar_share_of_points
 from ...matching.pipeline import match_pair, resolve_disparity_range
 from ...matching.registry import get_guide
-from ...matching.tubes import MAX_RANGE_WINDOW, ranges_from_disparity, spacing_window
+from ...matching.tubes import ranges_from_disparity, spacing_window
 from ...products.dsm import Accumulator, Grid, default_resolution, disparity_points
 from ..tiles import Tile, match_tile, plan_tiles, scan_range_map, tube_widths
 from .plan import DONE, OUTPUTS, WORK, clean_temps, rectify_rpc, riverbed_version, sha256_file, write_json
@@ -198,11 +198,7 @@ def project_stage(job):
 
 def _pair_range_map(path, shape, d_min, d_max, s, work):
     # The pair's range map (riverbed match --range-map), read by windows: no stage holds the whole map
-    lo, hi = open_range_map(path)
-    if lo.shape != tuple(shape):
-        raise RiverbedError(f"range map is {lo.shape[1]}x{lo.shape[0]} but the images are {shape[1]}x{shape[0]} "
-                            "(WxH)", path)
-    return _pair_ranges(lo, hi, shape, d_min, d_max, s, work, path)
+    return _pair_ranges(*open_range_map(path), shape, d_min, d_max, s, work, path)
 
 
 def _dsm_ranges(s, pair, reg, shape):
@@ -213,10 +209,10 @@ def _dsm_ranges(s, pair, reg, shape):
     sparse, st = project_cloud(path, pair, registration=reg, outliers=s["outliers"], side=s["side"],
                                visibility=s["visibility"], footprint=s["footprint"], crs=s["range_dsm_crs"],
                                shape=shape)
-    window = spacing_window(sparse)
-    if window > MAX_RANGE_WINDOW:
-        raise RiverbedError(f"range_dsm: its cells are {window} px apart in the pair on average, more than "
-                            f"{MAX_RANGE_WINDOW}: too coarse to bound the pixels between them", path)
+    try:
+        window = spacing_window(sparse)
+    except RiverbedError as e:
+        raise RiverbedError(f"range_dsm: {e}", path) from None
     lo, hi = ranges_from_disparity(sparse, None, window, s["range_dsm_margin"])
     return lo, hi, {"range_dsm_points": int(st["kept"]), "range_dsm_window": int(window)}
 
@@ -225,11 +221,11 @@ def _pair_ranges(lo, hi, shape, d_min, d_max, s, work, source):
     # The pair's per-pixel ranges (a map, or made from a DSM): checked, the pair's range widened to hold them where
     # the manifest sets none, and copied by blocks of rows to float32 work/range_{lo,hi}.npy (NaN: none) that the
     # match tasks memory-map. Errors name source.
-    scan = scan_range_map((lo, hi), shape)
-    if scan.known:
-        d_min = min(d_min, scan.span()[0]) if s["min_disp"] is None else d_min
-        d_max = max(d_max, scan.span()[1]) if s["max_disp"] is None else d_max
     try:
+        scan = scan_range_map((lo, hi), shape)
+        if scan.known:
+            d_min = min(d_min, scan.span()[0]) if s["min_disp"] is None else d_min
+            d_max = max(d_max, scan.span()[1]) if s["max_disp"] is None else d_max
         scan.check(d_min, d_max)
     except RiverbedError as e:
         raise RiverbedError(str(e), source) from None
