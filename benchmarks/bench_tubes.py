@@ -43,7 +43,6 @@ from datasets import DEV_SCENES, middlebury, speed_pair, speed_scene  # noqa: E4
 
 from riverbed_cli.io.disparity import read_disparity, write_disparity  # noqa: E402
 from riverbed_cli.io.images import read_image  # noqa: E402
-from riverbed_cli.matching import pipeline as pipeline_module  # noqa: E402
 from riverbed_cli.matching.config import MatchConfig  # noqa: E402
 from riverbed_cli.matching.pipeline import fill_tube_holes, match_pair  # noqa: E402
 from riverbed_cli.matching.tubes import lidar_tubes  # noqa: E402
@@ -282,17 +281,12 @@ def beside(data_dir, repeat):
     if (Path(data_dir) / AERIAL).is_dir():
         left, right, gt = aerial(data_dir, pad_to=1024)
         cases.append(("1024x1024 Dublin aerial, 1 % LiDAR", left, right, simulate_lidar(gt, 0.01, 0), 143))
-    beside_class = pipeline_module._Beside
     for label, left, right, sparse, d_max in cases:
         times = {"after": [], "beside": []}
         outs = {}
         for k in range(repeat + 1):
-            for name, cls in (("after", pipeline_module._After), ("beside", beside_class)):
-                pipeline_module._Beside = cls
-                try:
-                    res = match_pair(left, right, sparse, 0, d_max)
-                finally:
-                    pipeline_module._Beside = beside_class
+            for name, beside_matcher in (("after", False), ("beside", True)):
+                res = match_pair(left, right, sparse, 0, d_max, beside=beside_matcher)
                 if k:  # the first round loads
                     times[name].append(res.info["seconds"])
                 outs[name] = res.disparity

@@ -18,7 +18,7 @@ log = logging.getLogger(__name__)
 
 
 def _window(text):
-    # --window: "auto" or an integer 0..64
+    # --window: "auto" or an integer 0..MAX_RANGE_WINDOW
     if str(text).strip().lower() == "auto":
         return "auto"
     try:
