@@ -3,6 +3,7 @@ that skip verified pairs, tampered outputs and changed settings that re-run only
 
 import json
 import shutil
+import sys
 import time
 from pathlib import Path
 
@@ -25,6 +26,9 @@ from riverbed_cli.products.dsm import Grid, rasterize
 from riverbed_cli.products.visualize import write_png
 from riverbed_cli.scale.block import load_manifest, plan_block, project_stage, run_block
 from riverbed_cli.scale.tiles import match_tiled
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from bench_dsm_ranges import coarse_dsm  # noqa: E402  (the sample block's GT DSM averaged over k x k cells)
 
 DATA = Path(__file__).parent / "data" / "cones"
 SAMPLE = Path(__file__).parent.parent / "sample_data" / "block"
@@ -487,19 +491,7 @@ def test_block_pairs_search_the_ranges_of_a_dsm(tmp_path):
     from riverbed_cli.io.windowed import read_range_map
     from riverbed_cli.matching.pipeline import resolve_disparity_range
 
-    # the sample block's ground-truth DSM averaged over 16 x 16 cells (3.2 m), as tests/test_dsm_cloud.py does
-    with rasterio.open(SAMPLE / "gt_dsm.tif") as ds:
-        z, t, nodata, crs = ds.read(1).astype(np.float64), ds.transform, ds.nodata, ds.crs
-    z[z == nodata] = np.nan
-    k = 16
-    H, W = z.shape[0] // k * k, z.shape[1] // k * k
-    blocks = z[:H, :W].reshape(H // k, k, W // k, k).transpose(0, 2, 1, 3).reshape(H // k, W // k, k * k)
-    count = np.isfinite(blocks).sum(axis=2)
-    coarse = np.where(count > 0, np.nansum(blocks, axis=2) / np.maximum(count, 1), np.nan).astype(np.float32)
-    with rasterio.open(tmp_path / "coarse.tif", "w", driver="GTiff", width=coarse.shape[1], height=coarse.shape[0],
-                       count=1, dtype="float32", crs=crs, transform=t * rasterio.Affine.scale(k, k),
-                       nodata=np.nan) as ds:
-        ds.write(coarse, 1)
+    coarse_dsm(tmp_path / "coarse.tif", 16)  # the sample block's ground-truth DSM averaged to 3.2 m cells
     pairs = [{"pair": str(SAMPLE / "pair.yaml"), "cloud": str(SAMPLE / "lidar.laz"), "name": "whole"},
              {"pair": str(SAMPLE / "pair.yaml"), "cloud": str(SAMPLE / "lidar.laz"), "name": "tiled", "tile": 256,
               "overlap": 32}]
@@ -534,7 +526,7 @@ def test_block_pairs_search_the_ranges_of_a_dsm(tmp_path):
     res = run(["block", str(tmp_path / "block.yaml"), "-o", str(tmp_path / "out"), "--workers", "0", "--json"])
     assert {p["status"] for p in summary(res)["pairs"]} == {"skipped"}
     with rasterio.open(tmp_path / "coarse.tif", "r+") as ds:
-        ds.write(coarse + np.float32(0.5), 1)
+        ds.write(ds.read(1) + np.float32(0.5), 1)
     res = run(["block", str(tmp_path / "block.yaml"), "-o", str(tmp_path / "out"), "--workers", "0", "--json"])
     assert {p["status"] for p in summary(res)["pairs"]} == {"done"}
 

@@ -7,6 +7,7 @@ full range (docs/tubes.md, "Range maps from a coarse DSM").
 
 import json
 import math
+import sys
 import warnings
 from pathlib import Path
 
@@ -23,7 +24,8 @@ from riverbed_cli.io.lidar import lidar_info, read_lidar
 from riverbed_cli.io.windowed import read_range_map
 from riverbed_cli.products.evaluate import evaluate_disparity
 
-BLOCK = Path(__file__).resolve().parents[1] / "sample_data" / "block"
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from bench_dsm_ranges import BLOCK, coarse_dsm  # noqa: E402  (the sample block's GT DSM averaged over k x k cells)
 
 
 def run(*args):
@@ -73,15 +75,7 @@ def test_the_ground_truth_dsm_projects_onto_the_ground_truth_disparity(tmp_path)
 @pytest.fixture(scope="module")
 def coarse_dsm_ranges(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("coarse_dsm")
-    with rasterio.open(BLOCK / "gt_dsm.tif") as ds:
-        z, t, nodata, crs = ds.read(1).astype(np.float64), ds.transform, ds.nodata, ds.crs
-    z[z == nodata] = np.nan
-    k = 16  # 0.2 m cells -> 3.2 m: a coarse DSM, one point per ~17 x 17 px of the left image
-    H, W = z.shape[0] // k * k, z.shape[1] // k * k
-    blocks = z[:H, :W].reshape(H // k, k, W // k, k).transpose(0, 2, 1, 3).reshape(H // k, W // k, k * k)
-    count = np.isfinite(blocks).sum(axis=2)
-    coarse = np.where(count > 0, np.nansum(blocks, axis=2) / np.maximum(count, 1), np.nan)
-    write_raster(tmp / "coarse.tif", coarse, t * Affine.scale(k, k), crs=crs.to_wkt())
+    coarse_dsm(tmp / "coarse.tif", 16)  # 0.2 m cells -> 3.2 m: one point per ~17 x 17 px of the left image
     code, out = run("project", tmp / "coarse.tif", BLOCK / "pair.yaml", "-o", tmp / "s.tif", "--json")
     assert code == 0, out
     code, out = run("range-map", tmp / "s.tif", "--window", "auto", "--margin", "2", "-o", tmp / "ranges.tif",
