@@ -10,6 +10,8 @@ vertical part means ellipsoidal heights: give ``--crs`` with one otherwise, as f
 a time, so memory is bounded by the chunk size.
 """
 
+import functools
+import os
 import warnings
 
 import numpy as np
@@ -59,7 +61,16 @@ def _cells(ds, row0, rows):
 
 def dsm_info_fields(path):
     """What :class:`~riverbed_cli.io.lidar.LidarInfo` holds for a DSM: ``point_count`` (valid cells), ``mins``,
-    ``maxs`` (of the points), ``crs`` (pyproj, or None). The raster is read once, a block of rows at a time."""
+    ``maxs`` (of the points), ``crs`` (pyproj, or None). The raster is read a block of rows at a time, once per
+    version of the file in a process (``riverbed project`` asks for the count, then the projection again)."""
+    st = os.stat(path)
+    fields = _dsm_info(os.path.abspath(path), st.st_mtime_ns, st.st_size)
+    return {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in fields.items()}  # the cache's stay as made
+
+
+@functools.lru_cache(maxsize=8)
+def _dsm_info(path, mtime_ns, size):
+    # dsm_info_fields of one version of the file (mtime and size in the key)
     with _open(path) as ds:
         crs = None
         if ds.crs is not None:
