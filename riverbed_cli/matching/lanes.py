@@ -75,45 +75,48 @@ def _reduce_min(builder, v, signed=True):
     return builder.extract_element(v, ir.Constant(ir.IntType(32), 0))
 
 
-def _finish(context, builder, sig_args, v, mask, L, cur, acc, ai):
+def _finish(context, builder, sig_args, v, mask, L, cur, acc, ai, keep):
     # lanes past the tube hold the sentinel (unreachable for the next pixel); the path cost joins the half-sum
+    # (keep 0: the pixel's first direction starts it, so the half-sum needs no zeroing per pixel)
     v = builder.select(mask, v, ir.Constant(_V16, [SENTINEL] * LANES))
     _store(context, builder, sig_args[0], L, cur, v)
     accty = sig_args[1]
-    _store(context, builder, accty, acc, ai, builder.add(_load(context, builder, accty, acc, ai), v))
+    kept = builder.and_(_load(context, builder, accty, acc, ai), _splat(builder, keep))
+    _store(context, builder, accty, acc, ai, builder.add(kept, v))
     return _reduce_min(builder, v)
 
 
 @intrinsic
-def lanes_first(typingctx, L, acc, cur, cost, ci, ai, lanes):
+def lanes_first(typingctx, L, acc, cur, cost, ci, ai, lanes, keep):
     """The first pixel of a path: its path costs are its costs.
 
-    Lane ``d``: ``L[cur + d] = cost[ci + d]`` (the sentinel for ``d >= lanes``), ``acc[ai + d] +=`` that; returns the
-    minimum over the lanes (int16).
+    Lane ``d``: ``L[cur + d] = cost[ci + d]`` (the sentinel for ``d >= lanes``), ``acc[ai + d] = (acc[ai + d] &
+    keep) +`` that (``keep`` int16 -1: adds to the half-sum, 0: starts it); returns the minimum over the lanes
+    (int16).
     """
-    sig = types.int16(L, acc, cur, cost, ci, ai, lanes)
+    sig = types.int16(L, acc, cur, cost, ci, ai, lanes, keep)
 
     def codegen(context, builder, signature, args):
-        L_, acc_, cur_, cost_, ci_, ai_, lanes_ = args
+        L_, acc_, cur_, cost_, ci_, ai_, lanes_, keep_ = args
         c = _load(context, builder, signature.args[3], cost_, ci_)
-        return _finish(context, builder, signature.args, c, _valid(builder, lanes_), L_, cur_, acc_, ai_)
+        return _finish(context, builder, signature.args, c, _valid(builder, lanes_), L_, cur_, acc_, ai_, keep_)
 
     return sig, codegen
 
 
 @intrinsic
-def lanes_step(typingctx, L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp):
+def lanes_step(typingctx, L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, keep):
     """One SGM step along a path on ``LANES`` disparities.
 
     Lane ``d``: with ``a, b, e = L[prev + d + 1], L[prev + d], L[prev + d + 2]`` (the previous pixel's path costs at
     the same disparity and its two neighbours), ``L[cur + d] = cost[ci + d] + min(a, min(b, e) + p1, jump) - mp``
     (``jump = mp + P2``, ``mp`` the previous pixel's minimum) for ``d < lanes``, the sentinel past them;
-    ``acc[ai + d] +=`` that. Returns the minimum over the lanes (int16).
+    ``acc[ai + d]`` as in :func:`lanes_first`. Returns the minimum over the lanes (int16).
     """
-    sig = types.int16(L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp)
+    sig = types.int16(L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, keep)
 
     def codegen(context, builder, signature, args):
-        L_, acc_, cur_, cost_, ci_, ai_, lanes_, prev_, p1_, jump_, mp_ = args
+        L_, acc_, cur_, cost_, ci_, ai_, lanes_, prev_, p1_, jump_, mp_, keep_ = args
         lt = signature.args[0]
         b = _load(context, builder, lt, L_, prev_)
         a = _load(context, builder, lt, L_, builder.add(prev_, ir.Constant(_I64, 1)))
@@ -122,7 +125,7 @@ def lanes_step(typingctx, L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp):
         v = _smin(builder, v, _splat(builder, jump_))
         c = _load(context, builder, signature.args[3], cost_, ci_)
         v = builder.sub(builder.add(c, v), _splat(builder, mp_))
-        return _finish(context, builder, signature.args, v, _valid(builder, lanes_), L_, cur_, acc_, ai_)
+        return _finish(context, builder, signature.args, v, _valid(builder, lanes_), L_, cur_, acc_, ai_, keep_)
 
     return sig, codegen
 
