@@ -19,6 +19,7 @@ from ..matching.pipeline import disparity_range_from_sparse, match_pair, resolve
 from ..matching.registry import get_guide
 from ..products.visualize import disparity_picture, write_picture
 from ..matching.guidance import lidar_share_of_points
+from .heap import match_heap_bytes, prefault_heap
 from .tiles import match_tiled, plan_tiles, scan_range_map, tube_widths
 
 log = logging.getLogger(__name__)
@@ -79,6 +80,21 @@ def _range_for_plan(vals, min_disp, max_disp):
     return (lo if min_disp is None else min_disp), (hi if max_disp is None else max_disp)
 
 
+def _heap_estimate(H, W, rng, widths, plan, overlap):
+    # the heap the match (its first tile) will take: prefault_heap's size
+    if rng is None:
+        return 0
+    tiled = plan is not None and plan.tiled
+    pixels = min(H * W, (plan.size + 2 * overlap) ** 2) if tiled else H * W
+    if widths is not None:
+        width = float(np.mean(widths[0]))
+    elif tiled:
+        width = max(t.d_max - t.d_min + 1 for t in plan.tiles)
+    else:
+        width = rng[1] - rng[0] + 1
+    return match_heap_bytes(pixels, width)
+
+
 def match_files(left, right, output, config, sparse=None, sparse_scale=None, min_disp=None, max_disp=None,
                 max_pixels=None, tile="auto", overlap=128, lidar_range=True, color_png=None, overwrite=False,
                 progress=None, range_map=None, confidence=None):
@@ -128,19 +144,22 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
             raise RiverbedError(str(e), range_map) from None
     # the same tiling rule as blocks: untiled when the whole range (with tubes: their volume) fits, else tiles sized
     # for the widest LiDAR range; the LiDAR points are read once for both
-    plan = None
-    points = sparse_points_any(sparse_src) if sparse_src is not None and tile != 0 else None
-    rng = _range_for_plan(points[2] if points else None, min_disp, max_disp) if tile != 0 else None
+    plan = widths = None
+    points = sparse_points_any(sparse_src) if sparse_src is not None else None
+    rng = _range_for_plan(points[2] if points else None, min_disp, max_disp)
     if rng is not None:
-        widths = None
         if rmap is not None:
             widths = (scan.widths(rng[0], rng[1]), scan.cell)
         elif points is not None:
             widths = tube_widths(config, points, (H, W), rng[0], rng[1],
                                  lidar_share_of_points(points[0], points[1], (H, W)))
-        plan = plan_tiles(H, W, sparse_src, rng[0], rng[1], tile, overlap, lidar_range, widths=widths,
-                          range_map=scan)
-    warm_up(config=config)  # load the kernels this run uses now: start-up, not matching time
+        if tile != 0:
+            plan = plan_tiles(H, W, sparse_src, rng[0], rng[1], tile, overlap, lidar_range, widths=widths,
+                              range_map=scan)
+    # load the kernels this run uses now (start-up, not matching time), while a thread faults in the heap the match
+    # will take (scale/heap.py)
+    with prefault_heap(_heap_estimate(H, W, rng, widths, plan, overlap)):
+        warm_up(config=config)
     if plan is not None and plan.tiled:
         return _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, plan.size, overlap,
                             lidar_range, output, color_png, overwrite, progress, rmap, confidence, scan)
