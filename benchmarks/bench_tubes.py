@@ -166,7 +166,9 @@ def holes(data_dir, share=0.05, seed=1):
 
 
 # The default (tubes, 8 paths, fused) and what each part costs: the full range, the matcher alone (no fusion), and
-# 4 paths (OpenCV's SGBM_3WAY sweeps fewer directions than HH's 8).
+# 4 paths (OpenCV's SGBM_3WAY sweeps fewer directions than HH's 8). A fourth item sets environment variables of the
+# fresh process: RIVERBED_PREFAULT=0 is the command without its heap prefault (scale/heap.py).
+NO_PREFAULT = {"RIVERBED_PREFAULT": "0"}
 VARIANTS = [
     ("range full", ["--range", "full"], {"range": "full"}),
     ("range tube (default)", ["--range", "tube"], {"range": "tube"}),
@@ -174,6 +176,10 @@ VARIANTS = [
     ("range tube, --paths 4", ["--range", "tube", "--paths", "4"], {"range": "tube", "paths": 4}),
     ("range tube, --paths 4 --fusion none", ["--range", "tube", "--paths", "4", "--fusion", "none"],
      {"range": "tube", "paths": 4, "fusion": "none"}),
+    ("range tube (default), RIVERBED_PREFAULT=0", ["--range", "tube"], {"range": "tube"}, NO_PREFAULT),
+    ("range tube, --paths 4 --fusion none, RIVERBED_PREFAULT=0",
+     ["--range", "tube", "--paths", "4", "--fusion", "none"], {"range": "tube", "paths": 4, "fusion": "none"},
+     NO_PREFAULT),
     ("range tube, --tube-holes coarse", ["--range", "tube", "--tube-holes", "coarse"],
      {"range": "tube", "tube": {"holes": "coarse"}}),
     ("range tube, --tube-holes coarse --fusion none", ["--range", "tube", "--tube-holes", "coarse", "--fusion", "none"],
@@ -242,20 +248,20 @@ def speed(data_dir, repeat):
                     "--min-disp", "0", "--max-disp", str(d_max), "--tile", "0", "-o", os.path.join(tmp, "d.tif")]
             run_cli(base, env)  # load Numba's cache once
             # round-robin (each round: OpenCV, then every variant once), so that the machine's drift hits all alike
-            runs = {name: [] for name, _, _ in VARIANTS}
-            warm = {name: [] for name, _, _ in VARIANTS}
-            for _, _, kw in VARIANTS:
+            runs = {name: [] for name, *_ in VARIANTS}
+            warm = {name: [] for name, *_ in VARIANTS}
+            for _, _, kw, *_ in VARIANTS:
                 match_pair(left, right, sparse, 0, d_max, **kw)  # this process's kernels loaded
             for _ in range(repeat):
                 for mode, times in opencv.items():
                     times.append(opencv_sgbm(left, right, 0, d_max, mode)[1])
-                for name, extra, kw in VARIANTS:
-                    runs[name].append(run_cli(base + extra, env))
+                for name, extra, kw, *more in VARIANTS:
+                    runs[name].append(run_cli(base + extra, {**env, **(more[0] if more else {})}))
                     warm[name].append(match_pair(left, right, sparse, 0, d_max, **kw).info["seconds"])
             hhs = np.array(opencv[cv2.STEREO_SGBM_MODE_HH])
             w3s = np.array(opencv[cv2.STEREO_SGBM_MODE_SGBM_3WAY])
             hh, w3 = float(np.median(hhs)), float(np.median(w3s))
-            for name, _, _ in VARIANTS:
+            for name, *_ in VARIANTS:
                 runs_v = runs[name]
                 secs = np.array([r[0]["seconds"] for r in runs_v])
                 wall = float(np.median([r[1] for r in runs_v]))
