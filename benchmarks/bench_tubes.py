@@ -31,8 +31,9 @@ import tempfile
 import time
 from pathlib import Path
 
-# warm runs in this process as the riverbed command runs (riverbed_cli/cli/__init__.py): no NumPy huge pages
-os.environ.setdefault("NUMPY_MADVISE_HUGEPAGE", "0")
+# warm runs in this process with the riverbed command's memory settings (riverbed_cli/cli/__init__.py): no NumPy huge
+# pages, freed arrays kept by glibc (without them each warm run faulted its arrays in anew)
+import riverbed_cli.cli  # noqa: E402,F401
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
