@@ -102,6 +102,7 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
     C = (wmax + LANES - 1) // LANES
     R = _GUARD + (C + 1) * LANES
     RA = C * LANES
+    # ring buffer of the last three rows of path costs (16-path directions reach two rows back), flat
     L = np.full(nd * 3 * W * R, sent, dtype=np.int16)
     Lmin = np.zeros(nd * 3 * W, dtype=np.int16)
     acc = np.zeros(W * RA + LANES, dtype=np.int16)  # the row's half-sums, RA per pixel (sweep order)
@@ -136,7 +137,7 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
                 b = rb[xx]
                 w = rw[slot, xx]
                 span = (w + LANES - 1) // LANES * LANES
-                safe = b + span <= n
+                safe = b + span <= n  # every lane's cost and result lie inside the volume
                 ai = xx * RA
                 px = xx - dx
                 cur = (cbase + xx) * R + _GUARD
