@@ -247,21 +247,23 @@ def hole_bounds(coarse, shape, d_min, d_max, factor=HOLE_FACTOR, window=HOLE_WIN
     return lo, np.maximum(hi, lo)
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _cell_extrema(sparse, cell, d_min, d_max):
     # min and max of the finite values of each cell x cell cell (+inf / -inf: none): of those inside [d_min, d_max],
-    # and of those outside it
+    # and of those outside it; a row of cells per parallel iteration (it alone writes them)
     H, W = sparse.shape
     ch, cw = -(-H // cell), -(-W // cell)
     cmin = np.full((ch, cw), np.inf, np.float32)
     cmax = np.full((ch, cw), -np.inf, np.float32)
     omin = np.full((ch, cw), np.inf, np.float32)
     omax = np.full((ch, cw), -np.inf, np.float32)
-    for y in range(H):
-        for x in range(W):
-            v = sparse[y, x]
-            if np.isfinite(v):
-                cy, cx = y // cell, x // cell
+    for cy in prange(ch):
+        for y in range(cy * cell, min(H, (cy + 1) * cell)):
+            for x in range(W):
+                v = sparse[y, x]
+                if not np.isfinite(v):
+                    continue
+                cx = x // cell
                 if d_min <= v <= d_max:
                     cmin[cy, cx] = min(cmin[cy, cx], v)
                     cmax[cy, cx] = max(cmax[cy, cx], v)
