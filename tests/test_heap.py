@@ -12,7 +12,8 @@ from riverbed_cli.scale.heap import HEAP_PER_CELL, HEAP_PER_PIXEL, match_heap_by
 # A fresh process as the commands run: their memory settings, then a block of the heap prefaulted (or not), then the
 # page faults of a 48 MiB array first touched afterwards, as a match's volumes are.
 PROBE = """
-import json, resource
+import ctypes, json, resource
+ctypes.CDLL(None).prctl(41, 1, 0, 0, 0)  # PR_SET_THP_DISABLE: 4 KiB pages whatever the system's THP setting
 import riverbed_cli.cli  # the commands' memory settings
 from riverbed_cli.scale.heap import prefault_heap
 import numpy as np
