@@ -4,6 +4,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -47,3 +48,39 @@ def test_prefaulted_heap_serves_the_next_arrays_without_faults():
 def test_heap_estimate_counts_pixels_and_the_cells_searched():
     assert match_heap_bytes(1000, 0) == 1000 * HEAP_PER_PIXEL
     assert match_heap_bytes(370_000, 6.9) == int(370_000 * (HEAP_PER_PIXEL + HEAP_PER_CELL * 6.9))
+
+
+def test_riverbed_match_prefaults_what_its_match_will_take(tmp_path, cones, monkeypatch):
+    # match_files sizes the prefault by the match's own volume: its pixels and mean tube width (with LiDAR), or the
+    # nominal range (without)
+    import contextlib
+    from click.testing import CliRunner
+
+    from riverbed_cli.cli.main import cli
+    from riverbed_cli.io.disparity import write_disparity
+    from riverbed_cli.products.simulate import simulate_lidar
+    from riverbed_cli.scale import match_files
+
+    left, right, gt = cones
+    sizes = []
+
+    @contextlib.contextmanager
+    def record(nbytes):
+        sizes.append(nbytes)
+        yield
+
+    monkeypatch.setattr(match_files, "prefault_heap", record)
+    data = Path(__file__).parent / "data" / "cones"
+    write_disparity(tmp_path / "sparse.tif", simulate_lidar(gt, 0.05, seed=0))
+    H, W = gt.shape
+    for tile in ("auto", "0"):
+        r = CliRunner().invoke(cli, ["match", f"{data}/im2.png", f"{data}/im6.png", "--sparse",
+                                     str(tmp_path / "sparse.tif"), "-o", str(tmp_path / f"d{tile}.tif"), "--json",
+                                     "--tile", tile])
+        assert r.exit_code == 0, r.output
+        width = json.loads(r.output)["tubes"]["mean_width"]
+        assert abs(sizes[-1] - match_heap_bytes(H * W, width)) <= H * W * HEAP_PER_CELL * 0.01
+    r = CliRunner().invoke(cli, ["match", f"{data}/im2.png", f"{data}/im6.png", "--max-disp", "63", "--tile", "0",
+                                 "-o", str(tmp_path / "u.tif")])
+    assert r.exit_code == 0, r.output
+    assert sizes[-1] == match_heap_bytes(H * W, 64)
