@@ -68,7 +68,8 @@ def keep_freed_memory():
 
 
 def match_heap_bytes(pixels, mean_width):
-    """The heap a match of ``pixels`` pixels searching ``mean_width`` disparities each grows by (bytes, estimate)."""
+    """What to prefault for a match of ``pixels`` pixels searching ``mean_width`` disparities each (bytes): a little
+    under the heap such a match grows by (:data:`HEAP_PER_PIXEL`)."""
     return int(pixels * (HEAP_PER_PIXEL + HEAP_PER_CELL * float(mean_width)))
 
 
