@@ -299,6 +299,10 @@ def _decide(stereo, lidar, sig_l, consistent, sig_s, gate):
     ws = 1.0 / (sig_s * sig_s) if finite_s else 0.0
     root2 = math.sqrt(2.0)
     for y in prange(H):
+        # the confidence's erf once per run of equal sigmas: neighbours that agree share their nearest LiDAR point's
+        # sigma, hence sigma_f (the same value in, the same value out)
+        last_sf = -1.0
+        last_conf = np.float32(0.0)
         for x in range(W):
             s = np.float64(stereo[y, x])
             li = np.float64(lidar[y, x])
@@ -321,7 +325,10 @@ def _decide(stereo, lidar, sig_l, consistent, sig_s, gate):
                 sf = max(sl, diff / 2.0) if consistent[y, x] else sl
                 kind = 2
             out[y, x] = np.float32(v)
-            conf[y, x] = np.float32(math.erf(1.0 / (max(sf, 1e-6) * root2)))
+            if sf != last_sf:
+                last_sf = sf
+                last_conf = np.float32(math.erf(1.0 / (max(sf, 1e-6) * root2)))
+            conf[y, x] = last_conf
             per_row[y, kind] += 1
     counts = np.zeros(3, np.int64)
     for y in range(H):
