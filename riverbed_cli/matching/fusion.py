@@ -303,16 +303,22 @@ def _decide(stereo, lidar, sig_l, consistent, sig_s, gate):
         # sigma, hence sigma_f (the same value in, the same value out)
         last_sf = -1.0
         last_conf = np.float32(0.0)
+        last_sl = -1.0  # and the gate, weight and sigma_f of agreeing sources once per run of equal LiDAR sigmas
+        limit = wl = sf_agree = 0.0
         for x in range(W):
             s = np.float64(stereo[y, x])
             li = np.float64(lidar[y, x])
             sl = np.float64(sig_l[y, x])
+            if sl != last_sl:
+                last_sl = sl
+                limit = gate * math.sqrt(sig_s * sig_s + sl * sl)
+                wl = 1.0 / (sl * sl)
+                sf_agree = 1.0 / math.sqrt(ws + wl)
             fin = math.isfinite(s)
             diff = abs(s - li) if fin else 0.0
-            if fin and finite_s and diff <= gate * math.sqrt(sig_s * sig_s + sl * sl):
-                wl = 1.0 / (sl * sl)
+            if fin and finite_s and diff <= limit:
                 v = (s * ws + li * wl) / (ws + wl)
-                sf = 1.0 / math.sqrt(ws + wl)
+                sf = sf_agree
                 kind = 0
             elif fin and (consistent[y, x] or sig_s <= sl):
                 # against a credible rival the choice is unsure by half the disagreement
