@@ -110,8 +110,7 @@ def lidar_tubes(sparse, d_min, d_max, reach=2.0, margin=2.0, levels=3, level_mar
     d_min, d_max = int(d_min), int(d_max)
     if d_max < d_min:
         raise RiverbedError(f"empty disparity range [{d_min}, {d_max}]")
-    valid = np.isfinite(sparse)
-    if not valid.any():
+    if not np.isfinite(sparse).any():
         lo, hi = np.full((H, W), d_min, np.int32), np.full((H, W), d_max, np.int32)
         return (lo, hi, np.zeros((H, W), bool)) if return_holes else (lo, hi)
     lo, hi = np.empty((H, W), np.int32), np.empty((H, W), np.int32)  # every pixel takes its cell's tube below

@@ -84,7 +84,7 @@ def prefault_heap(nbytes):
     """
     libc = _libc
     nbytes = min(int(nbytes), PREFAULT_MAX)
-    wanted = _kept and libc is not None and nbytes > 0 and os.environ.get("RIVERBED_PREFAULT", "1") != "0"
+    wanted = libc is not None and nbytes > 0 and os.environ.get("RIVERBED_PREFAULT", "1") != "0"  # set: kept
     block = libc.malloc(nbytes) if wanted else None
     if not block:
         yield
