@@ -47,6 +47,28 @@ def opencv_sgbm(left, right, d_min, d_max, mode):
     return disp, dt
 
 
+OPENCV_TIMER = Path(__file__).with_name("opencv_timer.py")
+
+
+def opencv_grey_files(left, right, folder):
+    """The 8-bit grey images :func:`opencv_sgbm` matches, written to ``folder`` for :func:`opencv_times_apart`."""
+    paths = []
+    for name, img in (("opencv_left.png", left), ("opencv_right.png", right)):
+        path = str(Path(folder) / name)
+        cv2.imwrite(path, np.clip(to_grey(img), 0, 255).astype(np.uint8))
+        paths.append(path)
+    return paths
+
+
+def opencv_times_apart(files, d_min, d_max, modes=("HH", "SGBM_3WAY"), repeat=1):
+    """Seconds of warm ``compute()`` calls of OpenCV StereoSGBM in a process of its own (``opencv_timer.py``: none
+    of riverbed's process settings, which speed OpenCV up in riverbed's process), ``{mode: [seconds, ...]}``."""
+    nd = int(math.ceil((d_max - d_min + 1) / 16.0) * 16)
+    p = subprocess.run([sys.executable, str(OPENCV_TIMER), *files, str(d_min), str(nd), ",".join(modes), str(repeat)],
+                       capture_output=True, text=True, check=True)
+    return json.loads(p.stdout)
+
+
 def fmt(v, nd=2):
     return "—" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.{nd}f}"
 
