@@ -22,6 +22,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from datasets import all_scenes, speed_pair  # noqa: E402
+from opencv_timer import create_sgbm, num_disparities  # noqa: E402
 
 from riverbed_cli.io.disparity import write_disparity  # noqa: E402
 from riverbed_cli.io.images import to_grey  # noqa: E402
@@ -30,14 +31,15 @@ from riverbed_cli.products.evaluate import evaluate_disparity  # noqa: E402
 from riverbed_cli.products.simulate import simulate_lidar  # noqa: E402
 
 
+def opencv_grey(img):
+    """The 8-bit grey image OpenCV StereoSGBM matches."""
+    return np.clip(to_grey(img), 0, 255).astype(np.uint8)
+
+
 def opencv_sgbm(left, right, d_min, d_max, mode):
-    """OpenCV StereoSGBM with the usual block-size-5 penalties; returns (disparity, seconds of compute())."""
-    gl = np.clip(to_grey(left), 0, 255).astype(np.uint8)
-    gr = np.clip(to_grey(right), 0, 255).astype(np.uint8)
-    nd = int(math.ceil((d_max - d_min + 1) / 16.0) * 16)
-    bs = 5
-    sgbm = cv2.StereoSGBM_create(minDisparity=d_min, numDisparities=nd, blockSize=bs, P1=8 * bs * bs,
-                                 P2=32 * bs * bs, mode=mode)
+    """OpenCV StereoSGBM (:func:`opencv_timer.create_sgbm`); returns (disparity, seconds of compute())."""
+    gl, gr = opencv_grey(left), opencv_grey(right)
+    sgbm = create_sgbm(d_min, num_disparities(d_min, d_max), mode)
     sgbm.compute(gl, gr)  # warm-up (allocations)
     t = time.perf_counter()
     raw = sgbm.compute(gl, gr)
@@ -51,21 +53,19 @@ OPENCV_TIMER = Path(__file__).with_name("opencv_timer.py")
 
 
 def opencv_grey_files(left, right, folder):
-    """The 8-bit grey images :func:`opencv_sgbm` matches, written to ``folder`` for :func:`opencv_times_apart`."""
-    paths = []
-    for name, img in (("opencv_left.png", left), ("opencv_right.png", right)):
-        path = str(Path(folder) / name)
-        cv2.imwrite(path, np.clip(to_grey(img), 0, 255).astype(np.uint8))
-        paths.append(path)
+    """The images :func:`opencv_sgbm` matches (:func:`opencv_grey`), written to ``folder`` for
+    :func:`opencv_times_apart`."""
+    paths = [str(Path(folder) / name) for name in ("opencv_left.png", "opencv_right.png")]
+    for path, img in zip(paths, (left, right)):
+        cv2.imwrite(path, opencv_grey(img))
     return paths
 
 
 def opencv_times_apart(files, d_min, d_max, modes=("HH", "SGBM_3WAY"), repeat=1):
     """Seconds of warm ``compute()`` calls of OpenCV StereoSGBM in a process of its own (``opencv_timer.py``: none
     of riverbed's process settings, which speed OpenCV up in riverbed's process), ``{mode: [seconds, ...]}``."""
-    nd = int(math.ceil((d_max - d_min + 1) / 16.0) * 16)
-    p = subprocess.run([sys.executable, str(OPENCV_TIMER), *files, str(d_min), str(nd), ",".join(modes), str(repeat)],
-                       capture_output=True, text=True, check=True)
+    p = subprocess.run([sys.executable, str(OPENCV_TIMER), *files, str(d_min), str(num_disparities(d_min, d_max)),
+                        ",".join(modes), str(repeat)], capture_output=True, text=True, check=True)
     return json.loads(p.stdout)
 
 

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from opencv_timer import create_sgbm  # benchmarks/: the same StereoSGBM settings as bench_match
 
 CHILD = r"""
 import json, resource, sys, time
@@ -138,8 +139,7 @@ def opencv_tile(folder, size=1024, d_range=512):
     with rasterio.open(folder / "left.tif") as a, rasterio.open(folder / "right.tif") as b:
         L = a.read(1, window=Window(d_range, 0, size + d_range, size))
         R = b.read(1, window=Window(d_range, 0, size + d_range, size))
-    bs = 5
-    sgbm = cv2.StereoSGBM_create(0, d_range, bs, P1=8 * bs * bs, P2=32 * bs * bs, mode=cv2.STEREO_SGBM_MODE_HH)
+    sgbm = create_sgbm(0, d_range, cv2.STEREO_SGBM_MODE_HH)
     sgbm.compute(L[:64], R[:64])
     t = time.perf_counter()
     sgbm.compute(L, R)

@@ -11,14 +11,27 @@ NumPy.
 Usage: ``python opencv_timer.py LEFT RIGHT MIN_DISP NUM_DISP MODE[,MODE...] [REPEAT]`` with 8-bit grey images
 (read unchanged) and modes named as OpenCV's (``HH``, ``SGBM_3WAY``, ``SGBM``, ``HH4``). Each mode gets one warm-up
 ``compute()`` (its allocations), then ``REPEAT`` (default 1) timed ones. Prints ``{"HH": [seconds, ...], ...}`` as
-JSON on stdout. The penalties are :func:`bench_match.opencv_sgbm`'s (block size 5, ``P1 = 8 * 25``, ``P2 = 32 * 25``).
+JSON on stdout. :func:`create_sgbm` sets the penalties (:func:`bench_match.opencv_sgbm` uses it too).
 """
 
 import json
+import math
 import sys
 import time
 
 import cv2
+
+
+def num_disparities(d_min, d_max):
+    """OpenCV's ``numDisparities`` for the range ``[d_min, d_max]``: its width rounded up to a multiple of 16."""
+    return int(math.ceil((d_max - d_min + 1) / 16.0) * 16)
+
+
+def create_sgbm(d_min, num, mode):
+    """StereoSGBM with the usual block-size-5 penalties (``mode`` an OpenCV ``STEREO_SGBM_MODE_*`` constant)."""
+    bs = 5
+    return cv2.StereoSGBM_create(minDisparity=int(d_min), numDisparities=int(num), blockSize=bs, P1=8 * bs * bs,
+                                 P2=32 * bs * bs, mode=mode)
 
 
 def main(argv):
@@ -28,11 +41,9 @@ def main(argv):
     gr = cv2.imread(right, cv2.IMREAD_UNCHANGED)
     if gl is None or gr is None:
         sys.exit(f"opencv_timer: cannot read {left if gl is None else right}")
-    bs = 5
     out = {}
     for name in modes.split(","):
-        sgbm = cv2.StereoSGBM_create(minDisparity=int(d_min), numDisparities=int(num), blockSize=bs,
-                                     P1=8 * bs * bs, P2=32 * bs * bs, mode=getattr(cv2, f"STEREO_SGBM_MODE_{name}"))
+        sgbm = create_sgbm(d_min, num, getattr(cv2, f"STEREO_SGBM_MODE_{name}"))
         sgbm.compute(gl, gr)  # warm-up (allocations)
         times = []
         for _ in range(repeat):
