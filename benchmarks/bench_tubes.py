@@ -171,6 +171,10 @@ def holes(data_dir, share=0.05, seed=1):
 # 4 paths (OpenCV's SGBM_3WAY sweeps fewer directions than HH's 8). A fourth item sets environment variables of the
 # fresh process: RIVERBED_PREFAULT=0 is the command without its heap prefault (scale/heap.py).
 NO_PREFAULT = {"RIVERBED_PREFAULT": "0"}
+#: OpenCV StereoSGBM modes timed beside riverbed: the issue's two references and the mode StereoSGBM_create gives
+#: when none is asked for (MODE_SGBM: 5 directions in one pass, single-threaded)
+OPENCV_MODES = ("HH", "SGBM_3WAY", "SGBM")
+
 VARIANTS = [
     ("range full", ["--range", "full"], {"range": "full"}),
     ("range tube (default)", ["--range", "tube"], {"range": "tube"}),
@@ -237,10 +241,10 @@ def speed(data_dir, repeat):
     print("Ratios: medians over the rounds of each round's ratio (riverbed's time over OpenCV's of the same round: "
           "the machine's drift between rounds cancels); the times are medians over the rounds.\n")
     print("| pair | method | seconds (--json) | wall s | warm s | mean tube width | vs OpenCV HH | vs OpenCV 3WAY | "
-          "warm vs HH | warm vs 3WAY |")
-    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+          "vs OpenCV SGBM | warm vs HH | warm vs 3WAY |")
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for label, left, right, sparse, d_max in cases:
-        opencv = {"HH": [], "SGBM_3WAY": []}
+        opencv = {mode: [] for mode in OPENCV_MODES}
         with tempfile.TemporaryDirectory() as tmp:
             for n, img in (("l.png", left), ("r.png", right)):
                 cv2.imwrite(os.path.join(tmp, n), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
@@ -257,28 +261,28 @@ def speed(data_dir, repeat):
                 match_pair(left, right, sparse, 0, d_max, **kw)  # this process's kernels loaded
             for _ in range(repeat):
                 # OpenCV apart: in this process riverbed's memory settings (riverbed_cli.cli) made HH 1.5-1.8x faster
-                for mode, times in opencv_times_apart(grey, 0, d_max).items():
+                for mode, times in opencv_times_apart(grey, 0, d_max, OPENCV_MODES).items():
                     opencv[mode] += times
                 for name, extra, kw, *more in VARIANTS:
                     runs[name].append(run_cli(base + extra, {**env, **(more[0] if more else {})}))
                     warm[name].append(match_pair(left, right, sparse, 0, d_max, **kw).info["seconds"])
-            hhs = np.array(opencv["HH"])
-            w3s = np.array(opencv["SGBM_3WAY"])
-            hh, w3 = float(np.median(hhs)), float(np.median(w3s))
+            refs = {mode: np.array(times) for mode, times in opencv.items()}
+            hhs, w3s, sgs = (refs[m] for m in OPENCV_MODES)
             for name, *_ in VARIANTS:
                 runs_v = runs[name]
                 secs = np.array([r[0]["seconds"] for r in runs_v])
                 wall = float(np.median([r[1] for r in runs_v]))
                 width = (runs_v[0][0].get("tubes") or {}).get("mean_width", d_max + 1)
                 sws = np.array(warm[name])
-                ratios = [float(np.median(a / b)) for a in (secs, sws) for b in (hhs, w3s)]
+                ratios = [float(np.median(a / b)) for a, b in ((secs, hhs), (secs, w3s), (secs, sgs), (sws, hhs),
+                                                               (sws, w3s))]
                 print(f"| {label} | riverbed, {name} | {np.median(secs):.3f} | {wall:.2f} | {np.median(sws):.3f} | "
-                      f"{width:.1f} | {ratios[0]:.2f} | {ratios[1]:.2f} | {ratios[2]:.2f} | {ratios[3]:.2f} |",
-                      flush=True)
-        print(f"| {label} | OpenCV MODE_HH | {hh:.3f} | | {hh:.3f} | {d_max + 1} | 1.00 | "
-              f"{float(np.median(hhs / w3s)):.2f} | | |")
-        print(f"| {label} | OpenCV MODE_SGBM_3WAY | {w3:.3f} | | {w3:.3f} | {d_max + 1} | "
-              f"{float(np.median(w3s / hhs)):.2f} | 1.00 | | |", flush=True)
+                      f"{width:.1f} | " + " | ".join(f"{r:.2f}" for r in ratios) + " |", flush=True)
+        for mode, title in zip(OPENCV_MODES, ("MODE_HH", "MODE_SGBM_3WAY", "MODE_SGBM (its default)")):
+            t = refs[mode]
+            vs = " | ".join(f"{float(np.median(t / refs[m])):.2f}" for m in OPENCV_MODES)
+            print(f"| {label} | OpenCV {title} | {np.median(t):.3f} | | {np.median(t):.3f} | {d_max + 1} | {vs} | | |",
+                  flush=True)
 
 
 def beside(data_dir, repeat):
