@@ -172,7 +172,9 @@ def owners_reference(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0.3
     return owner, dis
 
 
-@pytest.mark.parametrize("window,channels", [(5, 1), (9, 3), (25, 1)])
+# windows of one, two and three 16-pixel chunks (lanes.py), grey, RGB (its fused distances) and two channels, the
+# chunks at the rows' ends masked
+@pytest.mark.parametrize("window,channels", [(5, 1), (9, 3), (21, 3), (25, 1), (35, 2)])
 def test_ownership_matches_brute_force(window, channels):
     rng = np.random.default_rng(window)
     H, W = 57, 41  # tall enough for several parallel bands at the small windows

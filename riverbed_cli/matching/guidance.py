@@ -30,7 +30,8 @@ from ..errors import RiverbedError
 from .volume import volume_layout
 from ..geometry.coverage import lidar_points, lidar_share, lidar_share_of_points, pixels_where  # noqa: F401  (re-exported)
 from ..geometry.interpolation import first_at_least
-from .lanes import LANES, lanes_flat, lanes_walls
+from .lanes import (LANES, lanes_claim, lanes_claim_rgb, lanes_claim_rgb_whole, lanes_claim_whole, lanes_colour,
+                    lanes_colour_whole, lanes_flat, lanes_walls)
 
 FORMS = {"additive": 0, "product": 1}
 
@@ -52,37 +53,43 @@ def auto_window(share, target=4.0, smallest=5, largest=25):
 
 
 @njit(cache=True, inline="always")
-def _claim(j, rows, cols, planes, half, a, b, e_lo, e_hi, owner, dissim, dd):
+def _claim(j, rows, cols, planes, H, W, C, half, a, b, e_lo, e_hi, owner, dissim, dd):
     # Offer LiDAR point j's window to its pixels; a pixel keeps the most similar point (ties: lower index), so the
     # result does not depend on the order in which points are offered. Works on the exponent e of eq. 2
     # (W = 1 - exp(-e), increasing in e): no exp in the loop; pixels with e outside [e_lo, e_hi] are not homogeneous.
-    # planes: the guide channel by channel (C, H, W), so that a window row's colour distances (dd, scratch) and its
-    # claims are loops over contiguous pixels that vectorise; a claim is a select, no branch (a LiDAR pixel, dissim
-    # 0, is never taken: e > e_lo >= 0 there).
-    C, H, W = planes.shape
+    # planes: the guide channel by channel (C, H, W), owner and dissim (H, W), all flat; a window row goes LANES
+    # pixels at a time (lanes.lanes_colour, lanes.lanes_claim): Numba's own loops over these short rows did not
+    # vectorise (docs/tubes.md). A LiDAR pixel (dissim 0) is never taken: e > e_lo >= 0 there.
     r0 = rows[j]
     c0 = cols[j]
     ca = max(0, c0 - half)
-    n = np.uint64(min(W, c0 + half + 1) - ca)
-    uca = np.uint64(ca)
+    n = min(W, c0 + half + 1) - ca
     for r in range(max(0, r0 - half), min(H, r0 + half + 1)):
-        for i in range(n):
-            dd[i] = 0.0
-        for ch in range(C):
-            ref = planes[ch, r0, c0]
-            for i in range(n):
-                t = planes[ch, r, uca + i] - ref
-                dd[i] += t * t
         dr2 = (r - r0) ** 2
-        for i in range(n):
-            c = uca + i
-            dc = np.int64(c) - c0
-            e = (dr2 + dc * dc) * a + dd[i] * b
-            d = dissim[r, c]
-            o = owner[r, c]
-            take = (e_lo < e) & (e <= e_hi) & ((e < d) | ((e == d) & (j < o)))
-            dissim[r, c] = e if take else d
-            owner[r, c] = j if take else o
+        for i0 in range(0, n, LANES):
+            c = ca + i0
+            whole = c + LANES <= W  # the chunk inside the row: whole-vector loads and stores
+            k = r * W + c
+            if C == 3:  # an RGB guide: its three distances in registers
+                p0 = r0 * W + c0
+                if whole:
+                    lanes_claim_rgb_whole(planes, r * W + c, H * W, planes[p0], planes[H * W + p0],
+                                          planes[2 * H * W + p0], dissim, owner, k, dr2, c - c0, a, b, e_lo, e_hi, j,
+                                          n - i0)
+                else:  # the row's last pixels: masked, the next row may be another thread's
+                    lanes_claim_rgb(planes, r * W + c, H * W, planes[p0], planes[H * W + p0], planes[2 * H * W + p0],
+                                    dissim, owner, k, dr2, c - c0, a, b, e_lo, e_hi, j, n - i0)
+                continue
+            for ch in range(C):
+                ref = planes[(ch * H + r0) * W + c0]
+                if whole:
+                    lanes_colour_whole(planes, (ch * H + r) * W + c, ref, dd, ch == 0, n - i0)
+                else:
+                    lanes_colour(planes, (ch * H + r) * W + c, ref, dd, ch == 0, n - i0)
+            if whole:
+                lanes_claim_whole(dissim, owner, k, dd, dr2, c - c0, a, b, e_lo, e_hi, j, n - i0)
+            else:
+                lanes_claim(dissim, owner, k, dd, dr2, c - c0, a, b, e_lo, e_hi, j, n - i0)
 
 
 @njit(cache=True, parallel=True)
@@ -99,6 +106,7 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
                 planes[ch, y, x] = guide[y, x, ch]
     owner = np.full((H, W), -1, dtype=np.int32)
     dissim = np.full((H, W), np.inf, dtype=np.float64)  # float64 while comparing, so ties are real ties
+    pflat, oflat, dflat = planes.reshape(-1), owner.reshape(-1), dissim.reshape(-1)
     n = rows.shape[0]
     for j in range(n):
         owner[rows[j], cols[j]] = j
@@ -117,9 +125,9 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
     for phase in range(2):
         for kk in prange((nb + 1 - phase) // 2):
             k = 2 * kk + phase
-            dd = np.empty(2 * half + 1, np.float64)
+            dd = np.empty(LANES, np.float64)
             for j in range(first_at_least(rows, edges[k]), first_at_least(rows, edges[k + 1])):
-                _claim(j, rows, cols, planes, half, a, b, e_lo, e_hi, owner, dissim, dd)
+                _claim(j, rows, cols, pflat, H, W, C, half, a, b, e_lo, e_hi, oflat, dflat, dd)
     # exponent -> W (0 stays 0 at LiDAR pixels, inf stays inf where there is no owner)
     w = np.empty((H, W), np.float32)
     for y in prange(H):
