@@ -31,7 +31,7 @@ from .volume import volume_layout
 from ..geometry.coverage import lidar_points, lidar_share, lidar_share_of_points, pixels_where  # noqa: F401  (re-exported)
 from ..geometry.interpolation import first_at_least
 from .lanes import (LANES, lanes_claim, lanes_claim_rgb, lanes_claim_rgb_whole, lanes_claim_whole, lanes_colour,
-                    lanes_colour_whole, lanes_flat, lanes_walls)
+                    lanes_colour_whole, lanes_flat, lanes_flat_whole, lanes_walls, lanes_walls_whole)
 
 FORMS = {"additive": 0, "product": 1}
 
@@ -190,34 +190,53 @@ def _modulate_kernel(flat, W, D0, grows, gcols, owner, dissim, values, d_min0, k
     fcap = np.float32(cap)
     fcap64 = np.float64(cap)
     tube = tstart.shape[0] > 0
-    for j in prange(grows.shape[0]):
-        y = grows[j]
-        x = gcols[j]
-        if tube:
-            base, D, d_min = tstart[y, x], np.int64(twidth[y, x]), d_min0 + np.int64(toffset[y, x])
+    n = grows.shape[0]
+    # Blocks of guided pixels in parallel, each in order. A chunk of LANES disparities may reach past its pixel's
+    # tube into the next pixels' (or the volume's end): inside the block (before its limit, the start of the next
+    # block's first tube) those are this thread's, to come, or nobody's, and whole vectors are read and written back;
+    # past the limit the chunk is masked.
+    nb = max(1, min(n, 64))
+    for blk in prange(nb):
+        j1 = (blk + 1) * n // nb
+        if j1 < n:
+            limit = tstart[grows[j1], gcols[j1]] if tube else (grows[j1] * W + gcols[j1]) * D0
         else:
-            base, D, d_min = (y * W + x) * D0, D0, d_min0  # index 0 of this pixel is disparity d_min
-        dm = values[owner[y, x]]
-        w = np.float64(dissim[y, x])
-        lidar_pixel = w == 0.0
-        if form == 0:
-            alpha, beta, gamma = (1.0 if lidar_pixel else w), 0.0, scale * k * fbar
-        else:
-            alpha, beta, gamma = (0.0 if lidar_pixel else w), k, 0.0
-        half = band * w
-        # indices whose wall is not yet flat: |d - dm| < half + tfar
-        lo = min(D, max(0, int(math.floor(dm - half - tfar)) - d_min))
-        hi = max(lo, min(D, int(math.ceil(dm + half + tfar)) - d_min + 1))
-        a1 = np.float32(alpha + beta)
-        g1 = np.float32(gamma + 0.5)  # + 0.5: truncating a positive value then rounds
-        # LANES disparities at a time, the wall's Gaussian by a polynomial (lanes.lanes_walls): the scalar loops with
-        # a multiplicative recurrence for the Gaussians took 1.8-2x as long for the same bits on the dev pairs
-        for i0 in range(0, D, LANES):
-            if i0 >= hi or i0 + LANES <= lo:  # flat all along: no wall to evaluate
-                lanes_flat(flat, base + i0, a1, g1, fcap, D - i0)
+            limit = flat.shape[0]
+        for j in range(blk * n // nb, j1):
+            y = grows[j]
+            x = gcols[j]
+            if tube:
+                base, D, d_min = tstart[y, x], np.int64(twidth[y, x]), d_min0 + np.int64(toffset[y, x])
             else:
-                lanes_walls(flat, base + i0, i0, d_min, dm + half, dm - half, lo, hi, alpha, beta, gamma, a1, g1,
-                            inv2c2, fcap64, fcap, D - i0)
+                base, D, d_min = (y * W + x) * D0, D0, d_min0  # index 0 of this pixel is disparity d_min
+            dm = values[owner[y, x]]
+            w = np.float64(dissim[y, x])
+            lidar_pixel = w == 0.0
+            if form == 0:
+                alpha, beta, gamma = (1.0 if lidar_pixel else w), 0.0, scale * k * fbar
+            else:
+                alpha, beta, gamma = (0.0 if lidar_pixel else w), k, 0.0
+            half = band * w
+            # indices whose wall is not yet flat: |d - dm| < half + tfar
+            lo = min(D, max(0, int(math.floor(dm - half - tfar)) - d_min))
+            hi = max(lo, min(D, int(math.ceil(dm + half + tfar)) - d_min + 1))
+            a1 = np.float32(alpha + beta)
+            g1 = np.float32(gamma + 0.5)  # + 0.5: truncating a positive value then rounds
+            # LANES disparities at a time, the wall's Gaussian by a polynomial (lanes.lanes_walls): the scalar loops
+            # with a multiplicative recurrence for the Gaussians took 2.5-3x as long for the same bits on the dev pairs
+            for i0 in range(0, D, LANES):
+                whole = base + i0 + LANES <= limit
+                if i0 >= hi or i0 + LANES <= lo:  # flat all along: no wall to evaluate
+                    if whole:
+                        lanes_flat_whole(flat, base + i0, a1, g1, fcap, D - i0)
+                    else:
+                        lanes_flat(flat, base + i0, a1, g1, fcap, D - i0)
+                elif whole:
+                    lanes_walls_whole(flat, base + i0, i0, d_min, dm + half, dm - half, lo, hi, alpha, beta, gamma,
+                                      a1, g1, inv2c2, fcap64, fcap, D - i0)
+                else:
+                    lanes_walls(flat, base + i0, i0, d_min, dm + half, dm - half, lo, hi, alpha, beta, gamma, a1, g1,
+                                inv2c2, fcap64, fcap, D - i0)
 
 
 def check_volume(cost, sparse, tubes=None):
