@@ -75,3 +75,24 @@ def test_census_window_errors(spec, msg):
     with pytest.raises(RiverbedError) as e:
         parse_census_window(spec)
     assert str(e.value) == msg
+
+
+@pytest.mark.parametrize("d_min", [-30, 0, 9])
+def test_tube_census_cost_equals_the_reference_tube_by_tube(d_min):
+    """Tubes up to 40 wide (several 16-lane chunks, lanes.lanes_census) and right pixels past both image borders:
+    every pixel's tube holds the reference costs of its own disparities, uint8 and scaled uint16 volumes alike."""
+    from riverbed_cli.matching.volume import TubeLayout
+
+    rng = np.random.default_rng(abs(d_min) + 1)
+    H, W, D = 6, 75, 40
+    img = rng.integers(0, 255, (H, W + 30)).astype(np.float32)
+    cl, cr = census_transform(img[:, 30:], (9, 7)), census_transform(img[:, :W], (9, 7))
+    lo = rng.integers(0, D, (H, W))
+    hi = np.minimum(D - 1, lo + rng.integers(0, D, (H, W)))
+    layout = TubeLayout.from_bounds(d_min + lo, d_min + hi, d_min)
+    ref = cost_reference(cl, cr, d_min, d_min + D - 1, 6)
+    expected = np.concatenate([ref[y, x, lo[y, x]:hi[y, x] + 1] for y in range(H) for x in range(W)])
+    for scale in (1, 4):
+        tube = census_cost(cl, cr, d_min, None, 6, scale, tubes=layout)
+        assert tube.dtype == (np.uint8 if scale == 1 else np.uint16)
+        np.testing.assert_array_equal(tube, expected * scale)

@@ -9,6 +9,7 @@ from numba import njit, prange
 
 from ..errors import RiverbedError
 from ..settings import parse_census_window
+from .lanes import LANES, lanes_census
 
 # SWAR popcount constants. They must be np.uint64: mixing uint64 with int64 silently gives float64 in Numba.
 _M1 = np.uint64(0x5555555555555555)
@@ -101,13 +102,31 @@ def _census_cost_kernel(cl, cr, d_min, cost, outside, scale):
 
 
 @njit(cache=True, parallel=True)
-def _census_tube_kernel(cl, cr, d_min, flat, start, width, offset, outside, scale):
+def _census_tube_kernel(cl, cr, d_min, flat, start, width, offset, outside, scale, vector):
+    # vector (a uint16 volume, scale > 1): a row's pixels in order, LANES costs at a time (lanes.lanes_census) while
+    # the chunk's right pixels lie in the image and it ends before the row's tubes do; its lanes past the pixel's
+    # tube are the next pixels', which write theirs after. The rest, and uint8 volumes, one cost at a time.
     H, W = cl.shape
+    n = flat.shape[0]
     for y in prange(H):
         row = cr[y]
+        if not vector:
+            for x in range(W):
+                _pixel_costs(flat, np.uint64(start[y, x]), np.int64(width[y, x]), x - d_min - np.int64(offset[y, x]),
+                             cl[y, x], row, outside, scale)
+            continue
+        end = start[y + 1, 0] if y + 1 < H else n  # where the next row's tubes start
         for x in range(W):
-            _pixel_costs(flat, np.uint64(start[y, x]), np.int64(width[y, x]), x - d_min - np.int64(offset[y, x]),
-                         cl[y, x], row, outside, scale)
+            b = np.int64(start[y, x])
+            w = np.int64(width[y, x])
+            top = x - d_min - np.int64(offset[y, x])
+            a = cl[y, x]
+            i = 0
+            while i < w and top - i - LANES + 1 >= 0 and top - i < W and b + i + LANES <= end:
+                lanes_census(flat, b + i, a, row, top - i, scale)
+                i += LANES
+            if i < w:
+                _pixel_costs(flat, np.uint64(b + i), w - i, top - i, a, row, outside, scale)
 
 
 def census_cost(census_left, census_right, d_min, d_max, outside_cost, scale=1, tubes=None):
@@ -148,7 +167,7 @@ def census_cost(census_left, census_right, d_min, d_max, outside_cost, scale=1, 
             raise RiverbedError(f"tube layout {tubes.shape} and census images {(H, W)} differ in size")
         flat = np.empty(tubes.size, dtype=dtype)
         _census_tube_kernel(census_left, census_right, int(d_min), flat, tubes.start, tubes.width, tubes.offset,
-                            dtype(outside_cost * scale), dtype(scale))
+                            dtype(outside_cost * scale), dtype(scale), dtype == np.uint16)
         return flat
     cost = np.empty((H, W, D), dtype=dtype)
     _census_cost_kernel(census_left, census_right, int(d_min), cost, dtype(outside_cost * scale), dtype(scale))
