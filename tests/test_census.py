@@ -38,7 +38,9 @@ def cost_reference(cl, cr, d_min, d_max, outside):
 @pytest.mark.parametrize("win", [(3, 3), (5, 5), (9, 7), (7, 9)])
 def test_census_transform_matches_brute_force(win):
     rng = np.random.default_rng(1)
-    img = rng.integers(0, 8, (13, 17)).astype(np.float32)  # few levels: many ties, which must not set bits
+    # few levels: many ties, which must not set bits; 37 columns: two 16-pixel chunks (lanes.lanes_census_bits)
+    # and the row's last pixels one at a time
+    img = rng.integers(0, 8, (13, 37)).astype(np.float32)
     np.testing.assert_array_equal(census_transform(img, win), census_reference(img, *win))
 
 

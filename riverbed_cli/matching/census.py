@@ -9,7 +9,7 @@ from numba import njit, prange
 
 from ..errors import RiverbedError
 from ..settings import parse_census_window
-from .lanes import LANES, lanes_census
+from .lanes import LANES, lanes_census, lanes_census_bits
 
 # SWAR popcount constants. They must be np.uint64: mixing uint64 with int64 silently gives float64 in Numba.
 _M1 = np.uint64(0x5555555555555555)
@@ -33,19 +33,36 @@ def popcount64(x):
 
 @njit(cache=True, parallel=True)
 def _census_kernel(pad, H, W, hw, hh):
-    # pad is the image with hh rows / hw columns of replicated border on each side. The loop over x is innermost
-    # and branch-free so it vectorises; bits are appended in row-major window order.
+    # pad is the image with hh rows / hw columns of replicated border on each side. A row's pixels LANES at a time,
+    # all their bits in registers (lanes.lanes_census_bits); the row's last pixels one neighbour at a time over the
+    # remaining columns (the loop over x innermost and branch-free, so it vectorises). Bits are appended in
+    # row-major window order.
     out = np.zeros((H, W), dtype=np.uint64)
     one = np.uint64(1)
+    Wp = W + 2 * hw
+    offsets = np.empty((2 * hh + 1) * (2 * hw + 1) - 1, np.int64)  # flat offsets of the neighbours in pad
+    k = 0
+    for dy in range(-hh, hh + 1):
+        for dx in range(-hw, hw + 1):
+            if dy != 0 or dx != 0:
+                offsets[k] = dy * Wp + dx
+                k += 1
+    flat_pad = pad.reshape(-1)
+    flat_out = out.reshape(-1)
+    full = W // LANES * LANES
     for y in prange(H):
-        row = out[y]
-        centre = pad[y + hh, hw:hw + W]
+        for x0 in range(0, full, LANES):
+            lanes_census_bits(flat_pad, (y + hh) * Wp + hw + x0, offsets, flat_out, y * W + x0)
+        if full == W:
+            continue
+        row = out[y, full:]
+        centre = pad[y + hh, hw + full:hw + W]
         for dy in range(-hh, hh + 1):
             for dx in range(-hw, hw + 1):
                 if dy == 0 and dx == 0:
                     continue
-                nb = pad[y + hh + dy, hw + dx:hw + dx + W]
-                for x in range(W):
+                nb = pad[y + hh + dy, hw + dx + full:hw + dx + W]
+                for x in range(W - full):
                     row[x] = (row[x] << one) | np.uint64(nb[x] < centre[x])
     return out
 
