@@ -2,7 +2,7 @@
 
 import cv2
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 
 def lidar_points(sparse):
@@ -13,21 +13,27 @@ def lidar_points(sparse):
     return rows, cols, sparse[rows, cols].astype(np.float64)
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def pixels_where(mask):
     """``np.nonzero`` of a 2-D boolean ``mask`` as int64 rows and columns (row-major order).
 
     Two passes (count, then fill): a third of NumPy's time with its int64 copies (a run asks for the LiDAR points
-    four times and for the guided pixels once; 0.9-1.7 ms each by NumPy on 740 x 500 px)."""
+    four times and for the guided pixels once; 0.9-1.7 ms each by NumPy on 740 x 500 px). Both over the rows in
+    parallel, each row filled from its running total: the aerial pair's guided pixels (70 % of 1024 x 1024) 3.5 ->
+    2.2 ms; a sparse mask of 740 x 500 px 0.29 -> 0.34 ms."""
     H, W = mask.shape
-    n = 0
-    for y in range(H):
+    ends = np.zeros(H + 1, np.int64)
+    for y in prange(H):
+        n = 0
         for x in range(W):
             n += mask[y, x]
-    rows = np.empty(n, np.int64)
-    cols = np.empty(n, np.int64)
-    k = 0
+        ends[y + 1] = n
     for y in range(H):
+        ends[y + 1] += ends[y]
+    rows = np.empty(ends[H], np.int64)
+    cols = np.empty(ends[H], np.int64)
+    for y in prange(H):
+        k = ends[y]
         for x in range(W):
             if mask[y, x]:
                 rows[k] = y
