@@ -223,7 +223,7 @@ def _modulate_kernel(flat, W, D0, grows, gcols, owner, dissim, values, d_min0, k
             a1 = np.float32(alpha + beta)
             g1 = np.float32(gamma + 0.5)  # + 0.5: truncating a positive value then rounds
             # LANES disparities at a time, the wall's Gaussian by a polynomial (lanes.lanes_walls): the scalar loops
-            # with a multiplicative recurrence for the Gaussians took 2.5-3x as long for the same bits on the dev pairs
+            # with a multiplicative recurrence for the Gaussians took 2-2.3x as long for the same bits on the dev pairs
             for i0 in range(0, D, LANES):
                 whole = base + i0 + LANES <= limit
                 if i0 >= hi or i0 + LANES <= lo:  # flat all along: no wall to evaluate
