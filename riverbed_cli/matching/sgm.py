@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
-from .lanes import LANES, SENTINEL, lanes_copy, lanes_fill, lanes_first, lanes_step
+from .lanes import LANES, SENTINEL, lanes_copy, lanes_fill, lanes_first, lanes_reduce, lanes_step, lanes_step_min
 from .volume import volume_layout
 
 # Directions (dx, dy) swept in the forward raster pass; the reverse pass sweeps their opposites.
@@ -106,6 +106,7 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
     L = np.full(nd * 3 * W * R, sent, dtype=np.int16)
     Lmin = np.zeros(nd * 3 * W, dtype=np.int16)
     acc = np.zeros(W * RA + LANES, dtype=np.int16)  # the row's half-sums, RA per pixel (sweep order)
+    mv = np.empty(LANES, np.int16)  # a wide tube's running minimum over its chunks
     n = flat.shape[0]
     starts, widths, offsets = start.reshape(-1), width.reshape(-1), offset.reshape(-1)
     # the layout of the last three rows in sweep order (start, width, offset), beside the ring buffer
@@ -156,10 +157,13 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
                     jump = np.int16(mp + P2)
                     prev = q * R + _GUARD
                     if safe and 1 - _GUARD <= s <= (wq + LANES - 1) // LANES * LANES + LANES - 1 - span:
-                        m = sent
-                        for i in range(0, span, LANES):
-                            m = min(m, lanes_step(L, acc, cur + i, flat, b + i, ai + i, w - i, prev + s - 1 + i, P1,
-                                                  jump, mp, keep))
+                        if span == LANES:
+                            m = lanes_step(L, acc, cur, flat, b, ai, w, prev + s - 1, P1, jump, mp, keep)
+                        else:  # one horizontal minimum for the pixel, not one per chunk
+                            for i in range(0, span, LANES):
+                                lanes_step_min(L, acc, cur + i, flat, b + i, ai + i, w - i, prev + s - 1 + i, P1,
+                                               jump, mp, keep, mv, i == 0)
+                            m = lanes_reduce(mv)
                     else:
                         m = _step_scalar(L, acc[ai:], cur, flat, b, w, span, prev, wq, s, P1, jump, mp, False, keep)
                 lanes_fill(L, cur + span, sent)
