@@ -112,6 +112,18 @@ def _finish(context, builder, sig_args, v, mask, L, cur, acc, ai, keep):
     return _reduce_min(builder, v)
 
 
+def _step_value(context, builder, sig_args, L, cost, ci, prev, p1, jump, mp):
+    # cost + min(a, min(b, e) + P1, jump) - mp with a, b, e the previous path costs at prev + 1, prev, prev + 2
+    lt = sig_args[0]
+    b = _load(context, builder, lt, L, prev)
+    a = _load(context, builder, lt, L, builder.add(prev, ir.Constant(_I64, 1)))
+    e = _load(context, builder, lt, L, builder.add(prev, ir.Constant(_I64, 2)))
+    v = _smin(builder, a, builder.add(_smin(builder, b, e), _splat(builder, p1)))
+    v = _smin(builder, v, _splat(builder, jump))
+    c = _load(context, builder, sig_args[3], cost, ci)
+    return builder.sub(builder.add(c, v), _splat(builder, mp))
+
+
 @intrinsic
 def lanes_first(typingctx, L, acc, cur, cost, ci, ai, lanes, keep):
     """The first pixel of a path: its path costs are its costs.
@@ -143,14 +155,7 @@ def lanes_step(typingctx, L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, 
 
     def codegen(context, builder, signature, args):
         L_, acc_, cur_, cost_, ci_, ai_, lanes_, prev_, p1_, jump_, mp_, keep_ = args
-        lt = signature.args[0]
-        b = _load(context, builder, lt, L_, prev_)
-        a = _load(context, builder, lt, L_, builder.add(prev_, ir.Constant(_I64, 1)))
-        e = _load(context, builder, lt, L_, builder.add(prev_, ir.Constant(_I64, 2)))
-        v = _smin(builder, a, builder.add(_smin(builder, b, e), _splat(builder, p1_)))
-        v = _smin(builder, v, _splat(builder, jump_))
-        c = _load(context, builder, signature.args[3], cost_, ci_)
-        v = builder.sub(builder.add(c, v), _splat(builder, mp_))
+        v = _step_value(context, builder, signature.args, L_, cost_, ci_, prev_, p1_, jump_, mp_)
         return _finish(context, builder, signature.args, v, _valid(builder, lanes_), L_, cur_, acc_, ai_, keep_)
 
     return sig, codegen
@@ -166,13 +171,7 @@ def lanes_step_min(typingctx, L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, 
     def codegen(context, builder, signature, args):
         L_, acc_, cur_, cost_, ci_, ai_, lanes_, prev_, p1_, jump_, mp_, keep_, mv_, first_ = args
         lt = signature.args[0]
-        b = _load(context, builder, lt, L_, prev_)
-        a = _load(context, builder, lt, L_, builder.add(prev_, ir.Constant(_I64, 1)))
-        e = _load(context, builder, lt, L_, builder.add(prev_, ir.Constant(_I64, 2)))
-        v = _smin(builder, a, builder.add(_smin(builder, b, e), _splat(builder, p1_)))
-        v = _smin(builder, v, _splat(builder, jump_))
-        c = _load(context, builder, signature.args[3], cost_, ci_)
-        v = builder.sub(builder.add(c, v), _splat(builder, mp_))
+        v = _step_value(context, builder, signature.args, L_, cost_, ci_, prev_, p1_, jump_, mp_)
         v = builder.select(_valid(builder, lanes_), v, ir.Constant(_V16, [SENTINEL] * LANES))
         _store(context, builder, lt, L_, cur_, v)
         accty = signature.args[1]
