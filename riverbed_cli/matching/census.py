@@ -122,7 +122,8 @@ def _census_cost_kernel(cl, cr, d_min, cost, outside, scale):
 def _census_tube_kernel(cl, cr, d_min, flat, start, width, offset, outside, scale, vector):
     # vector (a uint16 volume, scale > 1): a row's pixels in order, LANES costs at a time (lanes.lanes_census) while
     # the chunk's right pixels lie in the image and it ends before the row's tubes do; its lanes past the pixel's
-    # tube are the next pixels', which write theirs after. The rest, and uint8 volumes, one cost at a time.
+    # tube are the next pixels', which write theirs after. The rest, and uint8 volumes, one cost at a time (uint8
+    # keeps its own loop: through the vector path's bookkeeping it took 1.18x as long on the aerial pair).
     H, W = cl.shape
     n = flat.shape[0]
     for y in prange(H):

@@ -72,12 +72,11 @@ def _claim(j, rows, cols, planes, H, W, C, half, a, b, e_lo, e_hi, owner, dissim
             k = r * W + c
             if C == 3:  # an RGB guide: its three distances in registers
                 p0 = r0 * W + c0
-                if whole:
-                    lanes_claim_rgb_whole(planes, r * W + c, H * W, planes[p0], planes[H * W + p0],
-                                          planes[2 * H * W + p0], dissim, owner, k, dr2, c - c0, a, b, e_lo, e_hi, j,
-                                          n - i0)
+                if whole:  # k: the pixel's index in the first plane as in owner and dissim
+                    lanes_claim_rgb_whole(planes, k, H * W, planes[p0], planes[H * W + p0], planes[2 * H * W + p0],
+                                          dissim, owner, k, dr2, c - c0, a, b, e_lo, e_hi, j, n - i0)
                 else:  # the row's last pixels: masked, the next row may be another thread's
-                    lanes_claim_rgb(planes, r * W + c, H * W, planes[p0], planes[H * W + p0], planes[2 * H * W + p0],
+                    lanes_claim_rgb(planes, k, H * W, planes[p0], planes[H * W + p0], planes[2 * H * W + p0],
                                     dissim, owner, k, dr2, c - c0, a, b, e_lo, e_hi, j, n - i0)
                 continue
             for ch in range(C):

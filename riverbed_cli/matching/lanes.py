@@ -44,15 +44,18 @@ LANES = 16  # 256 bits of int16: on the dev machine 16 lanes beat 32 (most tubes
 SENTINEL = 16384  # above any path cost (sgm.check_sgm_bounds); SENTINEL + P1 still fits int16
 
 _I16 = ir.IntType(16)
+_I32 = ir.IntType(32)
 _I64 = ir.IntType(64)
 _F32 = ir.FloatType()
 _F64 = ir.DoubleType()
 _V16 = ir.VectorType(_I16, LANES)
 _VI64 = ir.VectorType(_I64, LANES)
+_VI32 = ir.VectorType(_I32, LANES)
 _VF32 = ir.VectorType(_F32, LANES)
 _VF64 = ir.VectorType(_F64, LANES)
 _MASK = ir.VectorType(ir.IntType(1), LANES)
 _LANE_INDEX = ir.Constant(_VI64, list(range(LANES)))
+_REVERSE = ir.Constant(ir.VectorType(_I32, LANES), list(range(LANES - 1, -1, -1)))
 
 
 def _vector_ptr(context, builder, arrty, arr, index, elem=None):
@@ -297,11 +300,6 @@ def _elem_bytes(vty):
     return e.width // 8 if isinstance(e, ir.IntType) else (8 if isinstance(e, ir.DoubleType) else 4)
 
 
-def _typed_ptr(context, builder, arrty, arr, index, vty):
-    data = context.make_array(arrty)(context, builder, arr).data
-    return builder.bitcast(builder.gep(data, [index]), vty.as_pointer())
-
-
 def _flat_wall(builder, q16, a1, g1, fcap):
     # min(a1 * q + g1, fcap) in float32, truncated to uint16: where the walls are flat (g = 1)
     flat = builder.fmul(_splat(builder, a1, _VF32), builder.uitofp(q16, _VF32))
@@ -324,8 +322,6 @@ def _neg_exp(builder, x):
         p = builder.fmul(p, p)
     return p
 
-
-_VI32 = ir.VectorType(ir.IntType(32), LANES)
 
 
 def _load_lanes(builder, ptr, mask, vty, masked):
@@ -427,10 +423,10 @@ def _colour_intrinsic(masked):
         def codegen(context, builder, signature, args):
             planes_, pi_, ref_, dd_, first_, lanes_ = args
             mask = _valid(builder, lanes_)
-            ptr = _typed_ptr(context, builder, signature.args[0], planes_, pi_, _VF32)
+            ptr = _vector_ptr(context, builder, signature.args[0], planes_, pi_, _F32)
             t = builder.fsub(_load_lanes(builder, ptr, mask, _VF32, masked), _splat(builder, ref_, _VF32))
             sq = builder.fpext(builder.fmul(t, t), _VF64)
-            ptr = _typed_ptr(context, builder, signature.args[3], dd_, ir.Constant(_I64, 0), _VF64)
+            ptr = _vector_ptr(context, builder, signature.args[3], dd_, ir.Constant(_I64, 0), _F64)
             acc = builder.fadd(builder.load(ptr, align=8), sq)
             first_ = builder.icmp_signed("!=", first_, ir.Constant(first_.type, 0))
             builder.store(builder.select(first_, sq, acc), ptr, align=8)
@@ -446,8 +442,8 @@ def _claim_codegen(context, builder, dd, dissim, owner, ki, dr2, dc0, a, b, e_lo
     dc = builder.add(_splat(builder, dc0, _VI64), _LANE_INDEX)
     sq = builder.sitofp(builder.add(_splat(builder, dr2, _VI64), builder.mul(dc, dc)), _VF64)
     e = builder.fadd(builder.fmul(sq, _splat(builder, a, _VF64)), builder.fmul(dd, _splat(builder, b, _VF64)))
-    dptr = _typed_ptr(context, builder, arrtys[0], dissim, ki, _VF64)
-    optr = _typed_ptr(context, builder, arrtys[1], owner, ki, _VI32)
+    dptr = _vector_ptr(context, builder, arrtys[0], dissim, ki, _F64)
+    optr = _vector_ptr(context, builder, arrtys[1], owner, ki, _I32)
     d = _load_lanes(builder, dptr, mask, _VF64, masked)
     o = _load_lanes(builder, optr, mask, _VI32, masked)
     jv = _splat(builder, j, _VI64)
@@ -465,7 +461,7 @@ def _claim_intrinsic(masked):
 
         def codegen(context, builder, signature, args):
             dissim_, owner_, ki_, dd_, dr2_, dc0_, a_, b_, elo_, ehi_, j_, lanes_ = args
-            ddv = builder.load(_typed_ptr(context, builder, signature.args[3], dd_, ir.Constant(_I64, 0), _VF64),
+            ddv = builder.load(_vector_ptr(context, builder, signature.args[3], dd_, ir.Constant(_I64, 0), _F64),
                                align=8)
             _claim_codegen(context, builder, ddv, dissim_, owner_, ki_, dr2_, dc0_, a_, b_, elo_, ehi_, j_,
                            _valid(builder, lanes_), signature.args[:2], masked)
@@ -488,7 +484,7 @@ def _claim_rgb_intrinsic(masked):
             dd = None
             for ch, ref in enumerate((r0_, r1_, r2_)):
                 index = builder.add(pi_, builder.mul(stride_, ir.Constant(_I64, ch)))
-                ptr = _typed_ptr(context, builder, signature.args[0], planes_, index, _VF32)
+                ptr = _vector_ptr(context, builder, signature.args[0], planes_, index, _F32)
                 t = builder.fsub(_load_lanes(builder, ptr, mask, _VF32, masked), _splat(builder, ref, _VF32))
                 sq = builder.fpext(builder.fmul(t, t), _VF64)
                 dd = sq if dd is None else builder.fadd(dd, sq)  # (0 + x0) + x1 + x2 as the channel loop adds them
@@ -533,9 +529,6 @@ lanes_claim_rgb_whole = intrinsic(_claim_rgb_intrinsic(False))
 lanes_claim_rgb_whole.__doc__ = _RGB_DOC.format(reads=_WHOLE)
 
 
-_REVERSE = ir.Constant(ir.VectorType(ir.IntType(32), LANES), list(range(LANES - 1, -1, -1)))
-_VU64 = _VI64
-
 
 @intrinsic
 def lanes_census(typingctx, flat, fi, a, row, top, scale):
@@ -550,10 +543,10 @@ def lanes_census(typingctx, flat, fi, a, row, top, scale):
     def codegen(context, builder, signature, args):
         flat_, fi_, a_, row_, top_, scale_ = args
         low = builder.sub(top_, ir.Constant(_I64, LANES - 1))
-        r = builder.load(_typed_ptr(context, builder, signature.args[3], row_, low, _VU64), align=8)
-        r = builder.shuffle_vector(r, ir.Constant(_VU64, ir.Undefined), _REVERSE)
-        x = builder.xor(r, _splat(builder, a_, _VU64))
-        ctpop = _declared(builder, f"llvm.ctpop.v{LANES}i64", _VU64, [_VU64])
+        r = builder.load(_vector_ptr(context, builder, signature.args[3], row_, low, _I64), align=8)
+        r = builder.shuffle_vector(r, ir.Constant(_VI64, ir.Undefined), _REVERSE)
+        x = builder.xor(r, _splat(builder, a_, _VI64))
+        ctpop = _declared(builder, f"llvm.ctpop.v{LANES}i64", _VI64, [_VI64])
         c = builder.mul(builder.trunc(builder.call(ctpop, [x]), _V16), _splat(builder, scale_))
         builder.store(c, _vector_ptr(context, builder, signature.args[0], flat_, fi_), align=2)
         return context.get_dummy_value()
@@ -575,17 +568,17 @@ def lanes_census_bits(typingctx, pad, ci, offsets, out, oi):
     def codegen(context, builder, signature, args):
         pad_, ci_, offsets_, out_, oi_ = args
         padty, _, offty, outty, _ = signature.args
-        centre = builder.load(_typed_ptr(context, builder, padty, pad_, ci_, _VF32), align=4)
+        centre = builder.load(_vector_ptr(context, builder, padty, pad_, ci_, _F32), align=4)
         offs = context.make_array(offty)(context, builder, offsets_)
         n = builder.extract_value(offs.shape, 0)
         acc = cgutils.alloca_once_value(builder, ir.Constant(_VI64, [0] * LANES))
         with cgutils.for_range(builder, n) as loop:
             k = builder.load(builder.gep(offs.data, [loop.index]))
-            nb = builder.load(_typed_ptr(context, builder, padty, pad_, builder.add(ci_, k), _VF32), align=4)
+            nb = builder.load(_vector_ptr(context, builder, padty, pad_, builder.add(ci_, k), _F32), align=4)
             bit = builder.zext(builder.fcmp_ordered("<", nb, centre), _VI64)
             shifted = builder.shl(builder.load(acc), ir.Constant(_VI64, [1] * LANES))
             builder.store(builder.or_(shifted, bit), acc)
-        builder.store(builder.load(acc), _typed_ptr(context, builder, outty, out_, oi_, _VI64), align=8)
+        builder.store(builder.load(acc), _vector_ptr(context, builder, outty, out_, oi_, _I64), align=8)
         return context.get_dummy_value()
 
     return sig, codegen
