@@ -17,8 +17,9 @@ Usage: python benchmarks/bench_tubes.py [DATA_DIR] [--skip-speed] [--skip-covera
 5. Speed as a user runs it: fresh ``riverbed match`` processes (``seconds`` from --json and whole-process wall time),
    full range and tubes (the default, the matcher alone, 4 paths), against OpenCV StereoSGBM MODE_HH,
    MODE_SGBM_3WAY and MODE_SGBM (what ``StereoSGBM_create`` gives by default) at the same nominal range (warm calls
-   in a process of its own that imports only OpenCV, as a user's program runs it: ``opencv_timer.py``), on the 740 x 500 / 80-disparity speed pair and on the aerial pair
-   padded to 1024 x 1024 (144 disparities). Ratios are medians of each round's ratio.
+   in a process of its own that imports only OpenCV, as a user's program runs it: ``opencv_timer.py``), on the
+   740 x 500 / 80-disparity speed pair and on the aerial pair padded to 1024 x 1024 (144 disparities). Ratios are
+   medians of each round's ratio.
 """
 
 import argparse

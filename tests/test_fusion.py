@@ -213,3 +213,18 @@ def test_confidence_of_a_tiled_match(cones, tmp_path):
     assert (err[c >= np.median(c)] > 1).mean() < 0.1 * (err[c < np.median(c)] > 1).mean()
     untiled = match_pair(left, right, sparse, 0, 59).confidence
     assert abs(float(conf.mean()) - float(untiled.mean())) < 0.02
+
+
+def test_median_of_is_numpys_median():
+    # the same bits as np.median for odd and even sizes, both float widths, ties; NaN as NumPy
+    from riverbed_cli.matching.fusion import median_of
+
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 3, 4, 7, 10, 1001, 20000):
+        for dtype in (np.float32, np.float64):
+            for values in ((rng.random(n) * 10).astype(dtype), np.round(rng.random(n) * 3, 1).astype(dtype)):
+                got, want = median_of(values), np.median(values)
+                assert got.dtype == want.dtype and got == want, (n, dtype, got, want)
+    values = rng.random(101).astype(np.float32)
+    values[7] = np.nan
+    assert np.isnan(median_of(values))

@@ -146,7 +146,7 @@ def lidar_sigma(sparse, neighbours=6, support=4, floor=0.25, fill=None):
     nn, idx = nearest_points(rows, cols, max(kn + 1, k, 2), fill.ptr, fill.nbr)
     res = _residuals(rows, cols, values, idx[:, 1:kn + 1])
     point_sigma = np.sqrt(np.mean(res[idx[:, :k]] ** 2, axis=1)) if k > 1 else res
-    typical = max(1.0, float(np.median(nn[:, 1])))
+    typical = max(1.0, float(median_of(nn[:, 1])))
     return _pixel_sigma(fill.anchor, fill.distance, point_sigma, float(floor), GROWTH * typical), fill.distance
 
 
@@ -175,7 +175,22 @@ def estimate_stereo_sigma(stereo, lidar, sigma_l, consistent=None, share=0.3, sm
     sigma_l = np.ascontiguousarray(sigma_l)
     limit = np.percentile(_where_values(sigma_l, fin), 100.0 * share)
     r = _where_abs_diff(stereo, np.ascontiguousarray(lidar, np.float32), sigma_l, fin, float(limit))
-    return max(smallest, 1.4826 * float(np.median(r))) if r.size else float("inf")
+    return max(smallest, 1.4826 * float(median_of(r))) if r.size else float("inf")
+
+
+def median_of(values):
+    """``np.median`` of a 1-D array, the same bits, from a partition at its middle only: NumPy's median also
+    partitions at the last element to find a NaN (1.4 of the 3.2 ms of :func:`estimate_stereo_sigma` on the speed
+    pair's 168 000 values); one test for NaN is cheaper."""
+    values = np.asarray(values)
+    n = values.size
+    if n == 0 or (values.dtype.kind == "f" and np.isnan(values).any()):
+        return np.median(values)
+    half = n // 2
+    if n % 2:
+        return np.partition(values, half)[half]
+    part = np.partition(values, [half - 1, half])
+    return np.mean(part[half - 1:half + 1])
 
 
 @njit(cache=True, parallel=True)
