@@ -14,9 +14,11 @@ index (+2 for the previous path costs), which the caller keeps inside the arrays
 (uint8 or uint16) are widened to int16. The vector type is generic: LLVM lowers it to whatever SIMD the CPU has.
 
 The guidance's walls (:func:`lanes_walls`, :func:`lanes_flat`) work on ``LANES`` disparities of one pixel's tube in
-float64 (float32 where the walls are flat, as the scalar code did), with masked loads and stores: the lanes past a
-tube are neither read nor written (another thread may be modulating the next pixel). Measured on the captured
-inputs of the dev pairs: the modulation 1.8-2x faster than its scalar loops, the same bits (docs/tubes.md). The
+float64 (float32 where the walls are flat, as the scalar code did). Their ``_whole`` forms read and write all lanes
+(those past the tube written back unchanged), for chunks inside a block of pixels one thread modulates; the masked
+forms neither read nor write the lanes past a tube, for chunks that reach into another thread's block. Measured on
+the captured inputs of the dev pairs: the modulation 2-2.3x faster than its scalar loops, the same bits
+(docs/tubes.md). The
 ownership's claims (:func:`lanes_claim` and its variants) work on ``LANES`` pixels of a window row in float64, the
 comparisons of the scalar code lane by lane: 0.64-0.70x of its time on the dev pairs, the same owners and weights.
 Inside a row they load and store whole vectors (the lanes past the window written back unchanged: only the thread
@@ -104,15 +106,21 @@ def _reduce_min(builder, v, signed=True):
     return builder.extract_element(v, ir.Constant(ir.IntType(32), 0))
 
 
-def _finish(context, builder, sig_args, v, mask, L, cur, acc, ai, keep):
+def _store_path_costs(context, builder, sig_args, v, mask, L, cur, acc, ai, keep):
     # lanes past the tube hold the sentinel (unreachable for the next pixel); the path cost joins the half-sum
-    # (keep 0: the pixel's first direction starts it, so the half-sum needs no zeroing per pixel)
+    # (keep 0: the pixel's first direction starts it, so the half-sum needs no zeroing per pixel); returns the
+    # stored lanes
     v = builder.select(mask, v, ir.Constant(_V16, [SENTINEL] * LANES))
     _store(context, builder, sig_args[0], L, cur, v)
     accty = sig_args[1]
     kept = builder.and_(_load(context, builder, accty, acc, ai), _splat(builder, keep))
     _store(context, builder, accty, acc, ai, builder.add(kept, v))
-    return _reduce_min(builder, v)
+    return v
+
+
+def _finish(context, builder, sig_args, v, mask, L, cur, acc, ai, keep):
+    # _store_path_costs, then the minimum over the lanes
+    return _reduce_min(builder, _store_path_costs(context, builder, sig_args, v, mask, L, cur, acc, ai, keep))
 
 
 def _step_value(context, builder, sig_args, L, cost, ci, prev, p1, jump, mp):
@@ -173,13 +181,9 @@ def lanes_step_min(typingctx, L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, 
 
     def codegen(context, builder, signature, args):
         L_, acc_, cur_, cost_, ci_, ai_, lanes_, prev_, p1_, jump_, mp_, keep_, mv_, first_ = args
-        lt = signature.args[0]
         v = _step_value(context, builder, signature.args, L_, cost_, ci_, prev_, p1_, jump_, mp_)
-        v = builder.select(_valid(builder, lanes_), v, ir.Constant(_V16, [SENTINEL] * LANES))
-        _store(context, builder, lt, L_, cur_, v)
-        accty = signature.args[1]
-        kept = builder.and_(_load(context, builder, accty, acc_, ai_), _splat(builder, keep_))
-        _store(context, builder, accty, acc_, ai_, builder.add(kept, v))
+        v = _store_path_costs(context, builder, signature.args, v, _valid(builder, lanes_), L_, cur_, acc_, ai_,
+                              keep_)
         zero = ir.Constant(_I64, 0)
         old = _load(context, builder, signature.args[12], mv_, zero)
         first_ = builder.icmp_signed("!=", first_, ir.Constant(first_.type, 0))
@@ -321,7 +325,6 @@ def _neg_exp(builder, x):
     for _ in range(5):
         p = builder.fmul(p, p)
     return p
-
 
 
 def _load_lanes(builder, ptr, mask, vty, masked):
@@ -527,7 +530,6 @@ lanes_claim_rgb = intrinsic(_claim_rgb_intrinsic(True))
 lanes_claim_rgb.__doc__ = _RGB_DOC.format(reads=_MASKED)
 lanes_claim_rgb_whole = intrinsic(_claim_rgb_intrinsic(False))
 lanes_claim_rgb_whole.__doc__ = _RGB_DOC.format(reads=_WHOLE)
-
 
 
 @intrinsic
