@@ -135,7 +135,7 @@ def test_an_error_of_the_lidar_side_reaches_the_caller_and_leaves_no_thread(cone
     left, right, gt = cones
     sparse = simulate_lidar(gt, 0.05, seed=0)
 
-    def fail(self, sparse, config):
+    def fail(self, sparse, config, points=None):
         raise RiverbedError("the LiDAR side failed")
 
     monkeypatch.setattr(ConfidenceFusion, "prepare", fail)

@@ -138,9 +138,20 @@ def test_lidar_share_from_row_ends_equals_the_hull_of_every_point():
             shuffled = rng.permutation(rows.size)
             for r, c in ((rows, cols), (rows[shuffled], cols[shuffled]), (rows, cols[::-1].copy())):
                 assert lidar_share_of_points(r, c, (H, W)) == every_point(r, c, (H, W))
+            # and from the map itself (each row's first and last finite pixel, found in one pass; inf is no LiDAR)
+            sparse = np.full((H, W), np.nan, np.float32)
+            sparse[rows, cols] = 3.0
+            sparse[rng.random((H, W)) < 0.01] = np.inf
+            r, c = np.nonzero(np.isfinite(sparse))
+            if r.size >= 3:
+                assert lidar_share(sparse) == every_point(r, c, (H, W))
     line = np.full((40, 40), np.nan, np.float32)
     line[7, 3:30] = 1.0  # collinear points: the hull is the segment (27 pixels)
     assert lidar_share(line) == 1.0
+    few = np.full((10, 20), np.nan, np.float32)
+    assert lidar_share(few) == 0.0
+    few[2, 3] = few[8, 15] = 1.0  # fewer than three points: their share of the whole image
+    assert lidar_share(few) == 2 / 200
 
 
 @pytest.mark.parametrize("p,s", [(0.05, 9), (0.0123, 19), (0.0016, 25), (0.5, 5), (1e-6, 25)])

@@ -213,3 +213,22 @@ def test_tiled_matches_check_the_lidar_against_the_range_as_untiled_ones(cones, 
     warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
     assert warned == [f"{n_out} of {n} sparse disparities lie outside [0, 39]: they guide no cost (tubes keep the "
                       "pixels only they reach at the range's end)"]
+
+
+def test_prepare_sparse_keeps_the_finite_values_inside_the_range():
+    # one pass of counts and one copy: the same map as NumPy's masks (bounds inclusive, inf and NaN no LiDAR)
+    from riverbed_cli.matching.pipeline import prepare_sparse
+
+    rng = np.random.default_rng(3)
+    sparse = np.where(rng.random((40, 50)) < 0.2, rng.uniform(-5.0, 45.0, (40, 50)), np.nan).astype(np.float32)
+    sparse[0, :6] = [np.inf, -np.inf, 0.0, 39.0, 39.00001, -0.00001]
+    kept = prepare_sparse(sparse, (40, 50), 0, 39)
+    inside = np.isfinite(sparse) & (sparse >= 0) & (sparse <= 39)
+    assert np.array_equal(kept, np.where(inside, sparse, np.float32(np.nan)), equal_nan=True)
+    assert kept.dtype == np.float32 and np.isnan(sparse).sum() < np.isnan(kept).sum()
+    assert kept[0, 2] == 0.0 and kept[0, 3] == 39.0 and np.isnan(kept[0, [0, 1, 4, 5]]).all()
+    whole = np.where(inside, sparse, np.float32(np.nan))
+    assert prepare_sparse(whole, (40, 50), 0, 39) is whole  # all inside: the map itself, no copy
+    with pytest.raises(RiverbedError) as e:
+        prepare_sparse(np.full((40, 50), np.inf, np.float32), (40, 50), 0, 39)
+    assert str(e.value) == "sparse map has no valid disparities"

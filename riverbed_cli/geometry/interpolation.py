@@ -335,18 +335,21 @@ def _graph_knn(rows, cols, ptr, nbr, cap, nblocks, dist, idx):
 class LinearFill:
     """:func:`linear_fill`: ``values`` (H, W) float32, the interpolation; ``anchor`` (H, W) int32, each pixel's
     nearest LiDAR point (index into the row-major list of LiDAR pixels); ``distance`` (H, W) float32, px to it;
-    ``ptr``, ``nbr``: the Delaunay graph of the LiDAR pixels (CSR neighbour lists, :func:`delaunay_graph`)."""
+    ``ptr``, ``nbr``: the Delaunay graph of the LiDAR pixels (CSR neighbour lists, :func:`delaunay_graph`);
+    ``points``: their ``(rows, cols, values)``, as :func:`~riverbed_cli.geometry.coverage.lidar_points` gives them."""
 
     values: np.ndarray
     anchor: np.ndarray
     distance: np.ndarray
     ptr: np.ndarray
     nbr: np.ndarray
+    points: tuple = None
 
 
-def linear_fill(sparse):
+def linear_fill(sparse, points=None):
     """Linear interpolation over the Delaunay triangulation of the LiDAR pixels, nearest outside their hull, and each
-    pixel's nearest LiDAR point (:class:`LinearFill`).
+    pixel's nearest LiDAR point (:class:`LinearFill`); ``points``: the LiDAR's ``(rows, cols, values)``
+    (:func:`~riverbed_cli.geometry.coverage.lidar_points`) if already found.
 
     The triangles (:func:`delaunay_triangles`) are rasterised in one Numba kernel (barycentric weights at the pixel
     centres): 0.01 s for 18 500 points on 740 x 500 px, where
@@ -357,15 +360,18 @@ def linear_fill(sparse):
     """
     sparse, valid = checked_points(sparse)
     H, W = sparse.shape
-    rows, cols = pixels_where(valid)
-    values = sparse[rows, cols]
+    if points is None:
+        rows, cols = pixels_where(valid)
+        values = sparse[rows, cols].astype(np.float64)
+    else:
+        rows, cols, values = points
     out = np.full((H, W), np.nan, np.float32)
     anchor = np.empty((H, W), np.int32)
     dist = np.empty((H, W), np.float32)
     if rows.size >= 3:
         tx, ty, tp, ends = _delaunay(rows, cols, sparse.shape)
         if tx.shape[0]:  # collinear points: no triangle, nearest is all there is
-            _raster_triangles(tx, ty, values[tp].astype(np.float64), tp, out)
+            _raster_triangles(tx, ty, values[tp], tp, out)
         ptr, nbr = _adjacency(np.ascontiguousarray(ends, dtype=np.int64), rows.size)
         _nearest_walk(rows, cols, ptr, nbr, anchor, dist)
     else:  # one or two points: each pixel compares them
@@ -374,7 +380,7 @@ def linear_fill(sparse):
     out[rows, cols] = values
     outside = np.isnan(out)
     out[outside] = values[anchor[outside]]
-    return LinearFill(out, anchor, dist, ptr, nbr)
+    return LinearFill(out, anchor, dist, ptr, nbr, (rows, cols, values))
 
 
 def interpolate_linear(sparse):

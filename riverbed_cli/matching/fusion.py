@@ -136,8 +136,8 @@ def lidar_sigma(sparse, neighbours=6, support=4, floor=0.25, fill=None):
     made). With fewer than ``neighbours + 1`` LiDAR pixels nothing can be measured: every pixel gets the span of the
     LiDAR disparities plus 1 px (the interpolation is taken to know little).
     """
-    rows, cols, values = lidar_points(sparse)
     fill = linear_fill(sparse) if fill is None else fill
+    rows, cols, values = lidar_points(sparse) if fill.points is None else fill.points
     if len(values) < int(neighbours) + 1:
         span = float(values.max() - values.min()) + 1.0 if len(values) else 1.0
         return np.full(sparse.shape, max(span, floor), np.float32), fill.distance
@@ -251,10 +251,11 @@ class LidarModel:
     sigma: np.ndarray
 
 
-def lidar_model(sparse, neighbours=6, support=4, floor=0.25):
+def lidar_model(sparse, neighbours=6, support=4, floor=0.25, points=None):
     """The interpolation of the ``sparse`` LiDAR and its per-pixel error (:class:`LidarModel`): all of the fusion
-    that needs no stereo, so :func:`~riverbed_cli.matching.pipeline.match_pair` computes it beside the matcher."""
-    fill = linear_fill(sparse)  # the interpolation and each pixel's nearest point, for its sigma
+    that needs no stereo, so :func:`~riverbed_cli.matching.pipeline.match_pair` computes it beside the matcher.
+    ``points``: ``lidar_points(sparse)`` if already found."""
+    fill = linear_fill(sparse, points)  # the interpolation and each pixel's nearest point, for its sigma
     return LidarModel(fill.values, lidar_sigma(sparse, neighbours, support, floor, fill)[0])
 
 
@@ -365,9 +366,9 @@ class Fusion:
     name = ""
     needs_status = False
 
-    def prepare(self, sparse, config):
+    def prepare(self, sparse, config, points=None):
         """What the fusion needs of the ``sparse`` LiDAR alone (None: nothing), made before or beside the matcher
-        and handed to :meth:`fuse` as ``prepared``."""
+        and handed to :meth:`fuse` as ``prepared`` (``points``: ``lidar_points(sparse)`` if already found)."""
         return None
 
     def fuse(self, disparity, status, sparse, config, prepared=None):
@@ -393,9 +394,9 @@ class ConfidenceFusion(Fusion):
     name = "confidence"
     needs_status = True
 
-    def prepare(self, sparse, config):
+    def prepare(self, sparse, config, points=None):
         f = config.fuse
-        return lidar_model(sparse, f.neighbours, f.support, f.floor)
+        return lidar_model(sparse, f.neighbours, f.support, f.floor, points)
 
     def fuse(self, disparity, status, sparse, config, prepared=None):
         f = config.fuse

@@ -147,7 +147,7 @@ def guide_image(guide, shape):
     return np.ascontiguousarray(guide)
 
 
-def homogeneous_owners(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0.3, literal_eq3=False):
+def homogeneous_owners(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0.3, literal_eq3=False, points=None):
     """Ownership image of the riverbed enhancement.
 
     Parameters
@@ -161,6 +161,8 @@ def homogeneous_owners(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0
     literal_eq3 : bool
         Select pixels with ``W > gamma`` as eq. 3 is printed (the *least* similar ones), only to reproduce that
         reading; the default keeps the similar ones, ``1 - W >= gamma``.
+    points : tuple, optional
+        ``lidar_points(sparse)`` if already found.
 
     Returns
     -------
@@ -173,7 +175,7 @@ def homogeneous_owners(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0
     if window < 1 or window % 2 == 0:
         raise RiverbedError(f"riverbed window must be a positive odd number, got {window}")
     guide = guide_image(guide, sparse.shape)
-    rows, cols, _ = lidar_points(sparse)
+    rows, cols, _ = lidar_points(sparse) if points is None else points
     return _owners_kernel(rows, cols, guide, window // 2,
                           float(sigma_xy), float(sigma_i), float(gamma), bool(literal_eq3))
 
@@ -279,7 +281,7 @@ def _apply(cost, owner, dissim, values, rows, cols, d_min, k, c, band, form, cos
 
 
 def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_scale=4, cap=65535, inplace=False,
-                   fbar=None, tubes=None):
+                   fbar=None, tubes=None, points=None):
     """Gauss enhancement (paper eq. 5, Poggi et al. 2019) at the LiDAR pixels.
 
     Parameters
@@ -303,6 +305,8 @@ def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_sca
         ``F_bar`` of the additive walls, in plain cost units. Default: the mean cost at the LiDAR pixels
         (:func:`wall_scale`). A fixed value (the matcher passes half the census bits) makes the result independent
         of which LiDAR points a tile holds; the walls' height barely matters (docs/method.md).
+    points : tuple, optional
+        ``lidar_points(sparse)`` (rows, columns, disparities) if already found.
 
     Returns
     -------
@@ -310,7 +314,7 @@ def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_sca
         Scaled costs, modulated at the LiDAR pixels and unchanged (times ``cost_scale``) elsewhere.
     """
     check_volume(cost, sparse, tubes)
-    rows, cols, values = lidar_points(sparse)
+    rows, cols, values = lidar_points(sparse) if points is None else points
     owner = np.full(sparse.shape, -1, dtype=np.int32)
     owner[rows, cols] = np.arange(rows.size, dtype=np.int32)
     dissim = np.zeros(sparse.shape, dtype=np.float32)
@@ -320,22 +324,24 @@ def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_sca
 
 def riverbed_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, sigma_xy=8.0, sigma_i=8.0, gamma=0.3,
                       band=3.0, form="additive", cost_scale=4, cap=65535, owners=None, inplace=False,
-                      literal_eq3=False, fbar=None, tubes=None):
+                      literal_eq3=False, fbar=None, tubes=None, points=None):
     """Riverbed enhancement (paper eqs. 2, 3, 6): Gauss at LiDAR pixels, band-and-walls at homogeneous pixels.
 
     Parameters are those of :func:`gauss_modulate` plus: ``guide`` the left image (0..255 scale) for the colour
     similarity, ``window`` the odd window side ``s``, ``sigma_xy`` (px), ``sigma_i`` (grey levels), ``gamma`` the
     similarity threshold (homogeneous where ``1 - W >= gamma``), and ``band`` the band half-width per unit of ``W``
-    (disparity px). ``owners`` may pass a precomputed :func:`homogeneous_owners` result.
+    (disparity px). ``owners`` may pass a precomputed :func:`homogeneous_owners` result, ``points`` the
+    ``lidar_points(sparse)``.
 
     Returns
     -------
     (H, W, D) uint16
     """
     check_volume(cost, sparse, tubes)
-    rows, cols, values = lidar_points(sparse)
+    points = lidar_points(sparse) if points is None else points
+    rows, cols, values = points
     if owners is None:
-        owners = homogeneous_owners(sparse, guide, window, sigma_xy, sigma_i, gamma, literal_eq3)
+        owners = homogeneous_owners(sparse, guide, window, sigma_xy, sigma_i, gamma, literal_eq3, points)
     owner, dissim = owners
     out = scaled_volume(cost, cost_scale, inplace)
     return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, cap, fbar, tubes)

@@ -4,6 +4,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...geometry.coverage import lidar_points
 from ..volume import CostVolume
 
 
@@ -17,7 +18,8 @@ class GuidanceInputs:
     (:func:`~riverbed_cli.matching.guidance.lidar_share`); ``fbar``: the wall scale ``F_bar`` in plain cost units;
     ``cap``: the largest guided cost the aggregation can take (stored units); ``first_pass``: what the guide's
     :meth:`Guide.prepare` returned; ``want_support``: also return the support (AD-Census's refinement keeps the
-    winners inside it).
+    winners inside it); ``points``: the LiDAR's ``(rows, cols, values)``
+    (:func:`~riverbed_cli.geometry.coverage.lidar_points` of ``sparse``), or None (:meth:`lidar` finds them).
     """
 
     sparse: np.ndarray
@@ -27,6 +29,14 @@ class GuidanceInputs:
     cap: int
     first_pass: object = None
     want_support: bool = False
+    points: tuple = None
+
+    def lidar(self):
+        """``(rows, cols, values)`` of the LiDAR pixels of ``sparse``, found once (``match_pair`` passes them; a
+        search of the image took 0.5-0.7 ms a time on 740 x 500 px)."""
+        if self.points is None:
+            self.points = lidar_points(self.sparse)
+        return self.points
 
 
 @dataclass

@@ -24,12 +24,13 @@ class Riverbed(Guide):
     def modulate(self, volume, inputs, config):
         g = config.guidance
         window = self.window(inputs.share, config)
+        points = inputs.lidar()
         owners = guidance.homogeneous_owners(inputs.sparse, inputs.image, window, g.sigma_xy, g.sigma_i, g.gamma,
-                                             g.literal_eq3)
+                                             g.literal_eq3, points)
         data = guidance.riverbed_modulate(volume.data, inputs.sparse, inputs.image, volume.d_min, window, g.k, g.c,
                                           g.sigma_xy, g.sigma_i, g.gamma, g.band, g.form, volume.scale, inputs.cap,
                                           owners=owners, inplace=True, literal_eq3=g.literal_eq3, fbar=inputs.fbar,
-                                          tubes=volume.tubes)
+                                          tubes=volume.tubes, points=points)
         support = None
         if inputs.want_support:  # riverbed+ and AD-Census's guided stages (their modules load here: start-up)
             from ..riverbed_plus import riverbed_support

@@ -20,7 +20,7 @@ class ADCensusMatcher(Matcher):
     tube_sized_tiles = False
 
     def match(self, left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages, tubes=None,
-              return_status=False):
+              return_status=False, points=None):
         from .. import adcensus  # its kernels' module loads with the runs that use it (start-up)
 
         ap = config.adcensus
@@ -37,7 +37,8 @@ class ADCensusMatcher(Matcher):
             # wall scale: half the largest AD-Census cost (1.0 of the paper's [0, 2]), as half the census bits
             g = config.guidance
             fbar = 1.0 if g.wall_scale == "auto" else float(g.wall_scale)
-            inputs = GuidanceInputs(sparse, guide_img, share, fbar, cap, first_pass, want_support=True)
+            inputs = GuidanceInputs(sparse, guide_img, share, fbar, cap, first_pass, want_support=True,
+                                    points=points)
 
             def modulate(data, max_cost, layout):
                 result = guide.modulate(CostVolume(data, d_min, ap.scale, max_cost, layout), inputs, config)

@@ -28,14 +28,15 @@ class Matcher:
     tube_sized_tiles = False
 
     def match(self, left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages, tubes=None,
-              return_status=False):
+              return_status=False, points=None):
         """Match a rectified pair (left image the reference) over ``[d_min, d_max]``.
 
         ``sparse`` is checked and inside the range (or None for ``guide`` ``none``), ``share`` its LiDAR share,
         ``first_pass`` what ``guide.prepare`` returned; ``stages`` is filled with seconds per stage; ``tubes``, for
         matchers with ``supports_tubes``, a :class:`~riverbed_cli.matching.volume.TubeLayout` (per-pixel ranges).
         With ``return_status`` the output's ``status`` holds the left-right check per pixel (the fusion's stereo
-        confidence). Returns a :class:`MatcherOutput`.
+        confidence). ``points``: ``lidar_points(sparse)`` if the caller has them (the guide then does not look for
+        them again). Returns a :class:`MatcherOutput`.
         """
         raise NotImplementedError
 

@@ -29,7 +29,7 @@ class SGMMatcher(Matcher):
     tube_sized_tiles = True
 
     def match(self, left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages, tubes=None,
-              return_status=False):
+              return_status=False, points=None):
         s = config.sgm
         t0 = time.perf_counter()
         win = census.parse_census_window(config.census)
@@ -57,7 +57,8 @@ class SGMMatcher(Matcher):
             if cap <= nbits * scale:
                 raise RiverbedError(f"P2 {s.p2} is too large for {s.paths} paths with guided uint16 costs")
             image = to_guide(left, bits) if guide.needs_image else None
-            result = guide.modulate(volume, GuidanceInputs(sparse, image, share, fbar, cap, first_pass), config)
+            inputs = GuidanceInputs(sparse, image, share, fbar, cap, first_pass, points=points)
+            result = guide.modulate(volume, inputs, config)
             volume, window = result.volume, result.window
         _lap(stages, "guidance", t0)
 
