@@ -55,7 +55,7 @@ def lidar_share(sparse):
 @njit(cache=True, parallel=True)
 def _row_extents(sparse):
     # The number of finite pixels, and per row holding any: the row, its first and last finite column (the points
-    # _row_ends keeps, without listing every point first: 0.1 against 0.7 ms on 740 x 500 px)
+    # _row_ends keeps, without listing every point first: 0.25 against 0.7 ms on 740 x 500 px)
     H, W = sparse.shape
     first = np.full(H, -1, np.int64)
     last = np.full(H, -1, np.int64)
