@@ -44,47 +44,8 @@ def pixels_where(mask):
 
 def lidar_share(sparse):
     """Share ``p`` of pixels carrying LiDAR inside the area the LiDAR covers (its convex hull), in [0, 1]."""
-    sparse = np.asarray(sparse)
-    n, rows, first, last = _row_extents(sparse)
-    if n < 3:
-        rows, cols, _ = lidar_points(sparse)
-        return lidar_share_of_points(rows, cols, sparse.shape)
-    return _hull_share(n, np.concatenate([rows, rows]), np.concatenate([first, last]), sparse.shape)
-
-
-@njit(cache=True, parallel=True)
-def _row_extents(sparse):
-    # The number of finite pixels, and per row holding any: the row, its first and last finite column (the points
-    # _row_ends keeps, without listing every point first: 0.25 against 0.7 ms on 740 x 500 px)
-    H, W = sparse.shape
-    first = np.full(H, -1, np.int64)
-    last = np.full(H, -1, np.int64)
-    count = np.zeros(H, np.int64)
-    for y in prange(H):
-        n = 0
-        for x in range(W):
-            if np.isfinite(sparse[y, x]):
-                if n == 0:
-                    first[y] = x
-                last[y] = x
-                n += 1
-        count[y] = n
-    held = 0
-    for y in range(H):
-        held += count[y] > 0
-    rows = np.empty(held, np.int64)
-    lo = np.empty(held, np.int64)
-    hi = np.empty(held, np.int64)
-    k = 0
-    total = 0
-    for y in range(H):
-        total += count[y]
-        if count[y] > 0:
-            rows[k] = y
-            lo[k] = first[y]
-            hi[k] = last[y]
-            k += 1
-    return total, rows, lo, hi
+    rows, cols, _ = lidar_points(sparse)
+    return lidar_share_of_points(rows, cols, sparse.shape)
 
 
 def lidar_share_of_points(rows, cols, shape):
@@ -92,22 +53,17 @@ def lidar_share_of_points(rows, cols, shape):
     n = len(rows)
     if n == 0:
         return 0.0
-    if n < 3:
-        return n / float(shape[0] * shape[1])
-    rows, cols = _row_ends(np.asarray(rows, np.int64), np.asarray(cols, np.int64))
-    return _hull_share(n, rows, cols, shape)
-
-
-def _hull_share(n, rows, cols, shape):
-    # n points over the pixels of the convex hull of (rows, cols), which hold the hull's corners
-    hull = cv2.convexHull(np.stack([cols, rows], axis=1).astype(np.int32))[:, 0, :]
-    # Pixels in the closed hull by Pick's theorem (A + B/2 + 1, B the lattice points on the boundary): exact, and no
-    # image-sized mask.
-    edges = np.abs(np.diff(np.vstack([hull, hull[:1]]), axis=0))
-    boundary = float(np.gcd(edges[:, 0], edges[:, 1]).sum())
-    x, y = hull[:, 0].astype(np.float64), hull[:, 1].astype(np.float64)
-    twice = abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
-    area = max(twice / 2.0 + boundary / 2.0 + 1.0, float(n))
+    area = float(shape[0] * shape[1])
+    if n >= 3:
+        rows, cols = _row_ends(np.asarray(rows, np.int64), np.asarray(cols, np.int64))
+        hull = cv2.convexHull(np.stack([cols, rows], axis=1).astype(np.int32))[:, 0, :]
+        # Pixels in the closed hull by Pick's theorem (A + B/2 + 1, B the lattice points on the boundary): exact,
+        # and no image-sized mask.
+        edges = np.abs(np.diff(np.vstack([hull, hull[:1]]), axis=0))
+        boundary = float(np.gcd(edges[:, 0], edges[:, 1]).sum())
+        x, y = hull[:, 0].astype(np.float64), hull[:, 1].astype(np.float64)
+        twice = abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+        area = max(twice / 2.0 + boundary / 2.0 + 1.0, float(n))
     return n / area
 
 

@@ -18,7 +18,7 @@ from numba import njit, prange
 from ..errors import RiverbedError
 from . import fusion, guides, matchers  # noqa: F401  (importing them fills the registries)
 from .config import MatchConfig
-from .guidance import lidar_points, lidar_share
+from .guidance import lidar_points, lidar_share, lidar_share_of_points
 from .registry import get_fusion, get_guide, get_matcher
 from .results import MatchInfo, MatchResult
 from .tubes import HOLE_FACTOR, hole_bounds, lidar_tubes, range_map_summary, tube_stats
@@ -108,39 +108,28 @@ def prepare_sparse(sparse, shape, d_min, d_max):
             f"sparse map is {sparse.shape[1] if sparse.ndim > 1 else '?'}x{sparse.shape[0]} (WxH) but the images are "
             f"{shape[1]}x{shape[0]}"
         )
-    n, n_in = (int(v) for v in _count_inside(sparse, float(d_min), float(d_max)))
+    n, n_in, cut = _cut_to_range(sparse, float(d_min), float(d_max))
     if n == 0:
         raise RiverbedError("sparse map has no valid disparities")
     check_inside(n_in, n, d_min, d_max, lambda: sparse[np.isfinite(sparse)])
-    if n_in < n:
-        sparse = _nan_outside(sparse, float(d_min), float(d_max))
-    return sparse
+    return cut if n_in < n else sparse
 
 
 @njit(cache=True, parallel=True)
-def _count_inside(sparse, d_min, d_max):
-    # finite values, and those in [d_min, d_max], in one pass (NumPy's masks and sums: 1 ms on 740 x 500 px)
+def _cut_to_range(sparse, d_min, d_max):
+    # In one pass: the finite values, those in [d_min, d_max], and a copy with NaN outside it (NumPy's masks, sums
+    # and np.where took 1 ms on 740 x 500 px; one kernel, as each cached kernel costs a fresh process 3-4 ms to load)
     H, W = sparse.shape
     counts = np.zeros((H, 2), np.int64)
-    for y in prange(H):
-        for x in range(W):
-            v = sparse[y, x]
-            if np.isfinite(v):
-                counts[y, 0] += 1
-                counts[y, 1] += np.float64(v) >= d_min and np.float64(v) <= d_max
-    return counts[:, 0].sum(), counts[:, 1].sum()
-
-
-@njit(cache=True, parallel=True)
-def _nan_outside(sparse, d_min, d_max):
-    # a copy with NaN where the value lies outside [d_min, d_max]
-    H, W = sparse.shape
     out = np.empty((H, W), np.float32)
     for y in prange(H):
         for x in range(W):
             v = sparse[y, x]
-            out[y, x] = v if np.float64(v) >= d_min and np.float64(v) <= d_max else np.float32(np.nan)
-    return out
+            inside = np.float64(v) >= d_min and np.float64(v) <= d_max  # False for NaN and +-inf
+            counts[y, 0] += np.isfinite(v)
+            counts[y, 1] += inside
+            out[y, x] = v if inside else np.float32(np.nan)
+    return counts[:, 0].sum(), counts[:, 1].sum(), out
 
 
 def check_inside(n_in, n, d_min, d_max, values):
@@ -316,8 +305,9 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
     if sparse is not None:
         lidar = np.asarray(sparse, dtype=np.float32)
         sparse = prepare_sparse(lidar, shape, d_min, d_max)
-    share = lidar_share(sparse) if sparse is not None else 0.0
-    points = lidar_points(sparse) if sparse is not None else None  # found once: for the guide and the fusion
+    # the LiDAR's pixels found once: for its share, the guide and the fusion's LiDAR side
+    points = lidar_points(sparse) if sparse is not None else None
+    share = lidar_share_of_points(points[0], points[1], shape) if sparse is not None else 0.0
     fuser = get_fusion(resolve_fusion(config, guide, sparse is not None))
     # The fusion's LiDAR side (its Delaunay triangulation is single-threaded OpenCV) needs no stereo: it runs beside
     # the matcher, on the core the matcher's serial parts leave idle; on large images (the tiles of a large pair)
@@ -391,7 +381,6 @@ def warm_up(matcher="sgm", guide_names=("none", "gauss", "riverbed"), config=Non
     right = np.roll(left, -2, axis=1)
     sparse = np.full((24, 32), np.nan, dtype=np.float32)
     sparse[::5, ::5] = 2.0
-    _nan_outside(sparse, 0.0, 1.0)  # what prepare_sparse runs when some LiDAR lies outside the range
     if config is not None:
         match_pair(left, right, sparse if get_guide(config.guide).needs_sparse or config.range != "full" else None,
                    0, 7, config)
