@@ -1,5 +1,6 @@
 import cv2
 import numpy as np
+import pytest
 
 from riverbed_cli.matching.disparity import median_filter, select_disparity
 
@@ -67,3 +68,21 @@ def test_median_ignores_nan_neighbours():
     assert np.isnan(out[2, 1])
     nb = [disp[y, x] for y in (1, 2, 3) for x in (1, 2, 3) if not np.isnan(disp[y, x])]
     assert out[2, 2] == np.float32(np.median(nb))
+
+
+@pytest.mark.parametrize("size", [3, 5])
+def test_median_with_nan_equals_the_nan_aware_kernel_everywhere(size):
+    # median_filter takes OpenCV's median where a window holds no NaN and the kernel's where one does: the same bits
+    # as the kernel over every pixel, NaN at the borders (replicated) and in blocks included
+    from riverbed_cli.matching.disparity import median_kernel
+
+    rng = np.random.default_rng(size)
+    for density in (0.002, 0.05, 0.3, 0.9):
+        disp = (rng.random((37, 53)) * 60).astype(np.float32)
+        disp[rng.random(disp.shape) < density] = np.nan
+        disp[0, 5] = disp[36, 52] = disp[10, 0] = np.nan
+        disp[20:24, 30:41] = np.nan
+        disp[5, 7:9] = 12.5  # ties
+        out = median_filter(disp, size)
+        np.testing.assert_array_equal(out, median_kernel(disp, size // 2))
+        assert np.array_equal(np.isnan(out), np.isnan(disp))
