@@ -243,7 +243,7 @@ def median_filter(disp, size=3):
     if nan.any():
         # OpenCV's median is exact in every window without a NaN (its sorting network is not NaN-aware); the windows
         # that hold one - the NaN mask dilated by the window, replicated borders included - get the NaN-aware median:
-        # after a left-right check, 3.5-4x faster than the kernel over every pixel
+        # after a left-right check (13-30 % NaN on the speed pair) 2.8-7x faster than the kernel over every pixel
         near = cv2.dilate(nan.view(np.uint8), np.ones((size, size), np.uint8))
         _median_where(disp, size // 2, near, out)
     return out
