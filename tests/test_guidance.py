@@ -138,7 +138,7 @@ def test_lidar_share_from_row_ends_equals_the_hull_of_every_point():
             shuffled = rng.permutation(rows.size)
             for r, c in ((rows, cols), (rows[shuffled], cols[shuffled]), (rows, cols[::-1].copy())):
                 assert lidar_share_of_points(r, c, (H, W)) == every_point(r, c, (H, W))
-            # and from the map itself (each row's first and last finite pixel, found in one pass; inf is no LiDAR)
+            # and from the map itself (its finite pixels: inf is no LiDAR)
             sparse = np.full((H, W), np.nan, np.float32)
             sparse[rows, cols] = 3.0
             sparse[rng.random((H, W)) < 0.01] = np.inf

@@ -343,7 +343,7 @@ class LinearFill:
     distance: np.ndarray
     ptr: np.ndarray
     nbr: np.ndarray
-    points: tuple = None
+    points: tuple
 
 
 def linear_fill(sparse, points=None):

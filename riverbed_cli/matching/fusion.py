@@ -38,7 +38,6 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
-from ..geometry.coverage import lidar_points
 from ..geometry.interpolation import delaunay_graph, linear_fill, nearest_points
 from ..records import RecordMapping
 from .registry import register_fusion
@@ -137,7 +136,7 @@ def lidar_sigma(sparse, neighbours=6, support=4, floor=0.25, fill=None):
     LiDAR disparities plus 1 px (the interpolation is taken to know little).
     """
     fill = linear_fill(sparse) if fill is None else fill
-    rows, cols, values = lidar_points(sparse) if fill.points is None else fill.points
+    rows, cols, values = fill.points
     if len(values) < int(neighbours) + 1:
         span = float(values.max() - values.min()) + 1.0 if len(values) else 1.0
         return np.full(sparse.shape, max(span, floor), np.float32), fill.distance
