@@ -9,9 +9,8 @@ from scipy.special import erf
 
 from riverbed_cli.errors import RiverbedError
 from riverbed_cli.matching import pipeline
-from riverbed_cli.matching.fusion import ConfidenceFusion, fuse_disparity, leave_one_out_residuals, lidar_sigma
+from riverbed_cli.matching.fusion import (ConfidenceFusion, fuse_disparity, leave_one_out_residuals, lidar_model)
 from riverbed_cli.matching.pipeline import match_pair
-from riverbed_cli.geometry.interpolation import interpolate_linear
 from riverbed_cli.products.evaluate import evaluate_disparity
 from riverbed_cli.products.simulate import simulate_lidar
 
@@ -41,7 +40,7 @@ def test_fusion_takes_the_better_source_in_each_half():
     # the stereo's error given (0.5 px, as constructed): estimated here it would absorb the LiDAR's own error on the
     # checker, which no LiDAR point resolves (docs/fusion.md, limits)
     out = fuse_disparity(stereo, status, sparse, stereo_sigma=0.5)
-    lin = interpolate_linear(sparse)
+    lin = lidar_model(sparse).values  # the fusion's LiDAR side: local planes
     err = np.abs(out.disparity - truth)
     err_stereo, err_lidar = np.abs(stereo - truth), np.abs(lin - truth)
     inner = np.zeros_like(textured)
@@ -54,8 +53,8 @@ def test_fusion_takes_the_better_source_in_each_half():
     assert err[tex].mean() <= 1.25 * err_stereo[tex].mean()
     assert err[tex].mean() < 0.25 * err_lidar[tex].mean()
     assert (err[tex] > 1).mean() <= 1.5 * (err_stereo[tex] > 1).mean() and (err_lidar[tex] > 1).mean() > 0.4
-    # blank half: the interpolation (exact on a plane), not the stereo's 7 px error
-    assert np.abs(out.disparity - lin)[blank].max() < 1e-3 and err[blank].max() < 0.25  # nearest beyond the hull
+    # blank half: the interpolation (exact on a plane, beyond the points' hull too), not the stereo's 7 px error
+    assert np.abs(out.disparity - lin)[blank].max() < 1e-3 and err[blank].max() < 1e-3
     assert np.isfinite(out.disparity).all()
     # confidence: high where the stereo is kept with its small error, and the textured half's steps the least sure
     assert out.confidence.dtype == np.float32 and 0 <= out.confidence.min() and out.confidence.max() <= 1
@@ -73,8 +72,9 @@ def test_agreeing_sources_average_by_inverse_variance():
     sparse[2::6, 2::6] = truth[2::6, 2::6]
     out = fuse_disparity(stereo, None, sparse, stereo_sigma=0.5, floor=0.25)
     # sigma_l is the floor (planar LiDAR) times the distance growth, 1 within the spacing: weights 1/0.25^2, 1/0.5^2
-    lin = interpolate_linear(sparse).astype(np.float64)
-    sig_l, dist = lidar_sigma(sparse, floor=0.25)
+    model = lidar_model(sparse, floor=0.25)  # local planes: exact on a plane, beyond the points' hull too
+    lin, sig_l = model.values.astype(np.float64), model.sigma
+    assert np.abs(lin - truth).max() < 1e-4 and (sig_l == np.float32(0.25)).all()
     ws, wl = 1 / 0.25, 1 / sig_l.astype(np.float64) ** 2
     expect = (stereo * ws + lin * wl) / (ws + wl)
     np.testing.assert_allclose(out.disparity, expect.astype(np.float32), atol=1e-4)

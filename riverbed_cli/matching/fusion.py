@@ -5,11 +5,15 @@ linear interpolation of dense airborne LiDAR is more precise than census stereo,
 structures the LiDAR missed the stereo is right and the interpolation wrong. The ``confidence`` fusion decides per
 pixel from an error estimate of each source:
 
-* **LiDAR**: ``l`` is the linear (Delaunay) interpolation of the sparse disparities
-  (:func:`~riverbed_cli.geometry.interpolation.interpolate_linear`). Its error ``sigma_l`` is measured on the LiDAR
-  itself: each point is predicted by a plane fitted to its ``neighbours`` nearest other points (leave-one-out); a
-  point's ``sigma`` is the RMS of that residual over itself and its ``support - 1`` nearest points, and every pixel
-  takes the ``sigma`` of its nearest LiDAR point (at least ``floor`` px), grown in proportion to its distance
+* **LiDAR**: ``l`` is an interpolation of the sparse disparities without the images, ``lidar``:
+  ``planes`` (the default) puts each pixel on the least-squares plane of its nearest LiDAR point and that point's
+  ``neighbours`` nearest natural neighbours (:func:`~riverbed_cli.geometry.planes.plane_fill`: no triangulation, a
+  third of the cost); ``linear`` interpolates linearly over the Delaunay triangulation
+  (:func:`~riverbed_cli.geometry.interpolation.linear_fill`, the fusion's LiDAR side until 2026-12-03). Its error
+  ``sigma_l`` is measured on the LiDAR itself: each point is predicted by a plane fitted to its ``neighbours``
+  nearest other points (leave-one-out; with ``planes`` the nearest of its natural neighbours); a point's ``sigma``
+  is the RMS of that residual over itself and its ``support - 1`` nearest points (natural neighbours), and every
+  pixel takes the ``sigma`` of its nearest LiDAR point (at least ``floor`` px), grown in proportion to its distance
   ``r`` to that point beyond four typical spacings ``t`` (the median distance between nearest LiDAR points):
   ``sigma_l = sigma_point * max(1, r / 4t)``. Planar roofs and roads give small ``sigma_l``; depth edges,
   vegetation, thin structures and pixels far from any LiDAR (outside its hull) give large ones.
@@ -38,7 +42,9 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
+from ..errors import RiverbedError
 from ..geometry.interpolation import delaunay_graph, linear_fill, nearest_points
+from ..geometry.planes import PlaneFill, plane_fill, plane_fit
 from ..records import RecordMapping
 from .registry import register_fusion
 
@@ -83,69 +89,58 @@ def leave_one_out_residuals(rows, cols, values, neighbours=6, graph=None):
     return _residuals(rows, cols, values, idx[:, 1:])
 
 
-def _residuals(rows, cols, values, nb):
-    # leave_one_out_residuals given each point's neighbours nb (indices, itself excluded)
-    return np.abs(_plane_intercepts(rows.astype(np.float64), cols.astype(np.float64), values.astype(np.float64),
-                                    np.ascontiguousarray(nb, dtype=np.int64)) - values)
+def _residuals(rows, cols, values, nb, count=None, k=None):
+    # leave_one_out_residuals given each point's neighbours nb (indices, itself excluded; the first count[i] of row i,
+    # at most k): |value - the intercept of the plane through them|
+    nb = np.ascontiguousarray(nb)
+    if count is None:
+        count = np.full(nb.shape[0], nb.shape[1], np.int32)
+    c, _, _ = plane_fit(rows.astype(np.float64), cols.astype(np.float64), values.astype(np.float64), nb, count,
+                        nb.shape[1] if k is None else int(k), 0.0, False)
+    return np.abs(c - values)
 
 
 @njit(cache=True, parallel=True)
-def _plane_intercepts(rows, cols, values, nb):
-    # Per point: the least-squares plane d = a dx + b dy + c through its neighbours nb (coordinates relative to the
-    # point, a 1e-3 ridge on the slopes), its intercept c by Cramer's rule (no LAPACK: thousands of 3 x 3 solves
-    # through BLAS threads fought Numba's for the cores, 10-30 s on a loaded machine).
-    n, k = nb.shape
-    out = np.zeros(n, np.float64)
+def _nearest_rms(res, nb, count, k):
+    # per point: the RMS of the residuals over itself and its first k - 1 neighbours (fewer if it has fewer)
+    n = res.shape[0]
+    out = np.empty(n, np.float64)
     for i in prange(n):
-        sxx = 1e-3
-        sxy = 0.0
-        sx = 0.0
-        syy = 1e-3
-        sy = 0.0
-        s1 = 0.0
-        bx = 0.0
-        by = 0.0
-        b1 = 0.0
-        for j in range(k):
-            q = nb[i, j]
-            dx = cols[q] - cols[i]
-            dy = rows[q] - rows[i]
-            v = values[q]
-            sxx += dx * dx
-            sxy += dx * dy
-            sx += dx
-            syy += dy * dy
-            sy += dy
-            s1 += 1.0
-            bx += dx * v
-            by += dy * v
-            b1 += v
-        det = sxx * (syy * s1 - sy * sy) - sxy * (sxy * s1 - sy * sx) + sx * (sxy * sy - syy * sx)
-        if det != 0.0:
-            dc = sxx * (syy * b1 - by * sy) - sxy * (sxy * b1 - by * sx) + bx * (sxy * sy - syy * sx)
-            out[i] = dc / det
+        m = min(k - 1, count[i])
+        s = res[i] * res[i]
+        for j in range(m):
+            s += res[nb[i, j]] ** 2
+        out[i] = math.sqrt(s / (m + 1))
     return out
 
 
 def lidar_sigma(sparse, neighbours=6, support=4, floor=0.25, fill=None):
-    """Per-pixel error estimate (px) of the linear interpolation of ``sparse`` (module docstring).
+    """Per-pixel error estimate (px) of the interpolation of ``sparse`` (module docstring).
 
     Returns ``(sigma, distance)``: (H, W) float32 sigma (px of disparity) and each pixel's distance (px) to its
-    nearest LiDAR point (from :func:`~riverbed_cli.geometry.interpolation.linear_fill`, or ``fill`` if already
-    made). With fewer than ``neighbours + 1`` LiDAR pixels nothing can be measured: every pixel gets the span of the
-    LiDAR disparities plus 1 px (the interpolation is taken to know little).
+    nearest LiDAR point. ``fill``: the interpolation, a :class:`~riverbed_cli.geometry.planes.PlaneFill` (the points'
+    neighbours are then their nearest natural neighbours) or a
+    :class:`~riverbed_cli.geometry.interpolation.LinearFill` (their nearest points); made by
+    :func:`~riverbed_cli.geometry.interpolation.linear_fill` if not given. With fewer than ``neighbours + 1`` LiDAR
+    pixels nothing can be measured: every pixel gets the span of the LiDAR disparities plus 1 px (the interpolation
+    is taken to know little).
     """
     fill = linear_fill(sparse) if fill is None else fill
     rows, cols, values = fill.points
     if len(values) < int(neighbours) + 1:
         span = float(values.max() - values.min()) + 1.0 if len(values) else 1.0
         return np.full(sparse.shape, max(span, floor), np.float32), fill.distance
-    # one search for the planes' neighbours and the support's nearest points
     kn, k = min(int(neighbours), len(values) - 1), min(int(support), len(values))
-    nn, idx = nearest_points(rows, cols, max(kn + 1, k, 2), fill.ptr, fill.nbr)
-    res = _residuals(rows, cols, values, idx[:, 1:kn + 1])
-    point_sigma = np.sqrt(np.mean(res[idx[:, :k]] ** 2, axis=1)) if k > 1 else res
-    typical = max(1.0, float(median_of(nn[:, 1])))
+    if isinstance(fill, PlaneFill):  # each point's natural neighbours, nearest first, are already known
+        res = _residuals(rows, cols, values, fill.neighbours, fill.count, kn)
+        point_sigma = _nearest_rms(res, fill.neighbours, fill.count, k)
+        nearest = fill.nearest
+    else:  # one search on the Delaunay graph for the planes' neighbours and the support's nearest points
+        nn, idx = nearest_points(rows, cols, max(kn + 1, k, 2), fill.ptr, fill.nbr)
+        res = _residuals(rows, cols, values, idx[:, 1:kn + 1])
+        point_sigma = np.sqrt(np.mean(res[idx[:, :k]] ** 2, axis=1)) if k > 1 else res
+        nearest = nn[:, 1]
+    typical = max(1.0, float(median_of(nearest)))
     return _pixel_sigma(fill.anchor, fill.distance, point_sigma, float(floor), GROWTH * typical), fill.distance
 
 
@@ -243,23 +238,30 @@ def _where_abs_diff(a, b, sigma, mask, limit):
 
 @dataclass
 class LidarModel:
-    """The LiDAR side of the fusion (:func:`lidar_model`): ``values`` (H, W) float32, the linear interpolation;
+    """The LiDAR side of the fusion (:func:`lidar_model`): ``values`` (H, W) float32, the LiDAR's interpolation;
     ``sigma`` (H, W) float32, its error estimate (px)."""
 
     values: np.ndarray
     sigma: np.ndarray
 
 
-def lidar_model(sparse, neighbours=6, support=4, floor=0.25, points=None):
+#: the fusion's interpolations of the LiDAR (``fusion_lidar``): local planes, the Delaunay triangulation
+LIDAR_KINDS = ("planes", "linear")
+
+
+def lidar_model(sparse, neighbours=6, support=4, floor=0.25, points=None, kind="planes"):
     """The interpolation of the ``sparse`` LiDAR and its per-pixel error (:class:`LidarModel`): all of the fusion
     that needs no stereo, so :func:`~riverbed_cli.matching.pipeline.match_pair` computes it beside the matcher.
-    ``points``: ``lidar_points(sparse)`` if already found."""
-    fill = linear_fill(sparse, points)  # the interpolation and each pixel's nearest point, for its sigma
+    ``kind``: ``planes`` or ``linear`` (module docstring); ``points``: ``lidar_points(sparse)`` if already found."""
+    if kind not in LIDAR_KINDS:
+        raise RiverbedError(f"unknown fusion LiDAR interpolation '{kind}' (use {' or '.join(LIDAR_KINDS)})")
+    # the interpolation and each pixel's nearest point, for its sigma
+    fill = plane_fill(sparse, points, neighbours) if kind == "planes" else linear_fill(sparse, points)
     return LidarModel(fill.values, lidar_sigma(sparse, neighbours, support, floor, fill)[0])
 
 
 def fuse_disparity(stereo, status, sparse, gate=4.0, neighbours=6, support=4, floor=0.25, stereo_sigma="auto",
-                   lidar=None):
+                   lidar=None, lidar_kind="planes"):
     """The ``confidence`` fusion of a matched disparity with the LiDAR (module docstring).
 
     Parameters
@@ -279,15 +281,17 @@ def fuse_disparity(stereo, status, sparse, gate=4.0, neighbours=6, support=4, fl
     stereo_sigma : float or "auto"
         The stereo's error (px), or estimated from the image (:func:`estimate_stereo_sigma`).
     lidar : LidarModel, optional
-        ``lidar_model(sparse, neighbours, support, floor)`` if already made (``neighbours``, ``support`` and
-        ``floor`` are then its).
+        ``lidar_model(sparse, neighbours, support, floor, kind=lidar_kind)`` if already made (``neighbours``,
+        ``support``, ``floor`` and ``lidar_kind`` are then its).
+    lidar_kind : str
+        The LiDAR's interpolation: ``planes`` or ``linear`` (module docstring).
 
     Returns
     -------
     FusionOutput
     """
     stereo = np.asarray(stereo, np.float32)
-    model = lidar_model(sparse, neighbours, support, floor) if lidar is None else lidar
+    model = lidar_model(sparse, neighbours, support, floor, kind=lidar_kind) if lidar is None else lidar
     lidar, sig_l = model.values, model.sigma
     fin = np.isfinite(stereo)
     consistent = fin if status is None else fin & (np.asarray(status) == 0)
@@ -395,9 +399,9 @@ class ConfidenceFusion(Fusion):
 
     def prepare(self, sparse, config, points=None):
         f = config.fuse
-        return lidar_model(sparse, f.neighbours, f.support, f.floor, points)
+        return lidar_model(sparse, f.neighbours, f.support, f.floor, points, f.lidar)
 
     def fuse(self, disparity, status, sparse, config, prepared=None):
         f = config.fuse
         return fuse_disparity(disparity, status, sparse, f.gate, f.neighbours, f.support, f.floor, f.stereo_sigma,
-                              prepared)
+                              prepared, f.lidar)

@@ -8,6 +8,8 @@ Methods:
 * ``nearest``: the disparity of the nearest LiDAR pixel (Euclidean, ``scipy.ndimage.distance_transform_edt``);
 * ``linear``: linear interpolation over the Delaunay triangulation of the LiDAR pixels, nearest outside their convex
   hull (:func:`~riverbed_cli.geometry.interpolation.interpolate_linear`);
+* ``planes``: each pixel on the least-squares plane of its nearest LiDAR pixel and that pixel's natural neighbours
+  (:func:`~riverbed_cli.geometry.planes.interpolate_planes`; the fusion's LiDAR side, docs/fusion.md);
 * ``guided``: an image-guided weighted average (the paper's §2.2 family, a joint-bilateral normalised convolution):
   ``d(p) = sum_q w(p, q) d_q / sum_q w(p, q)`` over the LiDAR pixels ``q`` within ``radius`` px (default: twice the
   mean LiDAR spacing), ``w = exp(-|p - q|^2 / 2 sigma_s^2 - |I(p) - I(q)|^2 / 2 sigma_i^2)`` with the left image
@@ -25,9 +27,10 @@ from scipy import ndimage
 from ..errors import RiverbedError
 from ..geometry.coverage import lidar_rows, lidar_share
 from ..geometry.interpolation import checked_points, interpolate_linear
+from ..geometry.planes import interpolate_planes
 from ..matching.diffusion import bilateral_weight
 
-METHODS = ("nearest", "linear", "guided")
+METHODS = ("nearest", "linear", "planes", "guided")
 
 
 def nearest_lidar(sparse):
@@ -108,8 +111,8 @@ def densify_guided(sparse, image, radius=None, sigma_s=None, sigma_i=8.0, min_we
 
 
 def densify(sparse, method="linear", image=None, **kwargs):
-    """A dense disparity map from sparse LiDAR alone: ``method`` is ``nearest``, ``linear`` or ``guided`` (which
-    needs the left ``image``). (H, W) float32, no NaN."""
+    """A dense disparity map from sparse LiDAR alone: ``method`` is ``nearest``, ``linear``, ``planes`` or ``guided``
+    (which needs the left ``image``). (H, W) float32, no NaN."""
     if method not in METHODS:
         raise RiverbedError(f"unknown densify method '{method}' (use one of {', '.join(METHODS)})")
     if method == "guided":
@@ -118,4 +121,6 @@ def densify(sparse, method="linear", image=None, **kwargs):
         return densify_guided(sparse, image, **kwargs)
     if kwargs:
         raise RiverbedError(f"densify method {method} takes no settings ({', '.join(kwargs)})")
+    if method == "planes":
+        return interpolate_planes(sparse)
     return interpolate_nearest(sparse) if method == "nearest" else interpolate_linear(sparse)
