@@ -105,22 +105,27 @@ def coverage(data_dir, shares):
 def accuracy(data_dir, shares):
     print("\n### Accuracy: riverbed-guided SGM, full range against tubes, beside the LiDAR alone (bad3 % / avg px)\n")
     print("LiDAR: a share of the image pixels sampled from the GT (seed 0); errors over the GT pixels not sampled. "
-          "The LiDAR-only baselines interpolate the same points without the right image (`riverbed densify`); "
-          "fused: the default confidence fusion; alone: `--fusion none` (the paper's method).\n")
-    print("| scene | LiDAR | LiDAR nearest | LiDAR linear | LiDAR guided | full range, fused | tubes, fused | "
-          "full range, alone | tubes, alone | tubes, 4 paths, fused | tube mean width / nominal |")
-    print("|---|---:|---|---|---|---|---|---|---|---|---|")
+          "The LiDAR-only baselines interpolate the same points without the right image (`riverbed densify`; "
+          "planes: the fusion's LiDAR side); fused: the default confidence fusion (its LiDAR side local planes; "
+          "linear LiDAR: `--fusion-lidar linear`, the Delaunay fill it used before); alone: `--fusion none` (the "
+          "paper's method).\n")
+    print("| scene | LiDAR | LiDAR nearest | LiDAR linear | LiDAR planes | LiDAR guided | full range, fused | "
+          "tubes, fused | tubes, fused, linear LiDAR | full range, alone | tubes, alone | tubes, 4 paths, fused | "
+          "tube mean width / nominal |")
+    print("|---|---:|---|---|---|---|---|---|---|---|---|---|---|")
     for name, left, right, gt in scenes(data_dir):
         d_max = int(math.ceil(np.nanmax(gt))) + 4
         for share in shares:
             sparse = simulate_lidar(gt, share, seed=0)
             cells, t = [], None
-            for method in ("nearest", "linear", "guided"):
+            for method in ("nearest", "linear", "planes", "guided"):
                 m = evaluate_disparity(densify(sparse, method, image=left), gt, exclude=sparse)
                 cells.append(f"{m['bad3']:.2f} / {m['avg']:.3f}")
-            for rng, fusion, paths in (("full", "auto", 8), ("tube", "auto", 8), ("full", "none", 8),
-                                       ("tube", "none", 8), ("tube", "auto", 4)):
-                res = match_pair(left, right, sparse, 0, d_max, range=rng, fusion=fusion, paths=paths)
+            for rng, fusion, paths, lidar in (("full", "auto", 8, "planes"), ("tube", "auto", 8, "planes"),
+                                              ("tube", "auto", 8, "linear"), ("full", "none", 8, "planes"),
+                                              ("tube", "none", 8, "planes"), ("tube", "auto", 4, "planes")):
+                res = match_pair(left, right, sparse, 0, d_max, range=rng, fusion=fusion, paths=paths,
+                                 fusion_lidar=lidar)
                 m = evaluate_disparity(res.disparity, gt, exclude=sparse)
                 cells.append(f"{m['bad3']:.2f} / {m['avg']:.3f}")
                 if rng == "tube":
@@ -179,6 +184,8 @@ OPENCV_MODES = ("HH", "SGBM_3WAY", "SGBM")
 VARIANTS = [
     ("range full", ["--range", "full"], {"range": "full"}),
     ("range tube (default)", ["--range", "tube"], {"range": "tube"}),
+    ("range tube, --fusion-lidar linear (the fusion's LiDAR side until 2026-12-03)",
+     ["--range", "tube", "--fusion-lidar", "linear"], {"range": "tube", "fusion_lidar": "linear"}),
     ("range tube, --fusion none", ["--range", "tube", "--fusion", "none"], {"range": "tube", "fusion": "none"}),
     ("range tube, --paths 4", ["--range", "tube", "--paths", "4"], {"range": "tube", "paths": 4}),
     ("range tube, --paths 4 --fusion none", ["--range", "tube", "--paths", "4", "--fusion", "none"],

@@ -22,18 +22,23 @@ CASES = (("none", "none"), ("gauss", "confidence"), ("gauss", "none"), ("riverbe
          ("riverbed", "none"))
 
 #: Measured with the current code (seed 0, 2 cores): bad1 %, bad3 %, avg px over the GT pixels not used as LiDAR.
+#: The confidence rows at 5 % and 1.23 % since the fusion's LiDAR side there became local planes (2026-12-03,
+#: ``fusion_lidar: auto``; docs/fusion.md): with the Delaunay fill (--fusion-lidar linear) riverbed gave
+#: 1.743 / 0.327 / 0.1552 and 4.220 / 0.754 / 0.2871, Gauss 3.118 / 0.699 / 0.2469 and 6.642 / 1.763 / 0.4100.
+#: At 0.16 % (25 px between points) auto keeps the Delaunay fill; planes there gave riverbed 9.228 / 2.060 / 0.5175
+#: and Gauss 11.443 / 3.152 / 0.6976.
 #: Over seeds 1 and 2 the figures move by up to 0.15 points of bad3 at 5 % and 0.55 at 0.16 % (riverbed): this test
 #: runs seed 0 only.
 EXPECTED = {
     (0.05, "none", "none"): {"bad1": 20.116, "bad3": 4.440, "avg": 1.0542},
-    (0.05, "gauss", "confidence"): {"bad1": 3.137, "bad3": 0.692, "avg": 0.2476},
+    (0.05, "gauss", "confidence"): {"bad1": 3.077, "bad3": 0.721, "avg": 0.2675},
     (0.05, "gauss", "none"): {"bad1": 7.860, "bad3": 0.812, "avg": 0.4504},
-    (0.05, "riverbed", "confidence"): {"bad1": 1.724, "bad3": 0.324, "avg": 0.1550},
+    (0.05, "riverbed", "confidence"): {"bad1": 1.567, "bad3": 0.223, "avg": 0.1558},
     (0.05, "riverbed", "none"): {"bad1": 2.209, "bad3": 0.227, "avg": 0.1762},
     (0.0123, "none", "none"): {"bad1": 20.140, "bad3": 4.471, "avg": 1.0559},
-    (0.0123, "gauss", "confidence"): {"bad1": 6.664, "bad3": 1.767, "avg": 0.4105},
+    (0.0123, "gauss", "confidence"): {"bad1": 6.597, "bad3": 1.747, "avg": 0.4357},
     (0.0123, "gauss", "none"): {"bad1": 14.143, "bad3": 2.252, "avg": 0.6937},
-    (0.0123, "riverbed", "confidence"): {"bad1": 4.224, "bad3": 0.750, "avg": 0.2869},
+    (0.0123, "riverbed", "confidence"): {"bad1": 4.017, "bad3": 0.657, "avg": 0.2918},
     (0.0123, "riverbed", "none"): {"bad1": 7.153, "bad3": 0.677, "avg": 0.3892},
     (0.0016, "none", "none"): {"bad1": 20.240, "bad3": 4.492, "avg": 1.0552},
     (0.0016, "gauss", "confidence"): {"bad1": 11.124, "bad3": 3.452, "avg": 0.6625},

@@ -9,7 +9,8 @@ from scipy.special import erf
 
 from riverbed_cli.errors import RiverbedError
 from riverbed_cli.matching import pipeline
-from riverbed_cli.matching.fusion import (ConfidenceFusion, fuse_disparity, leave_one_out_residuals, lidar_model)
+from riverbed_cli.matching.fusion import (ConfidenceFusion, fuse_disparity, leave_one_out_residuals, lidar_kind,
+                                         lidar_model)
 from riverbed_cli.matching.pipeline import match_pair
 from riverbed_cli.products.evaluate import evaluate_disparity
 from riverbed_cli.products.simulate import simulate_lidar
@@ -35,12 +36,15 @@ def half_textured_scene(seed=0):
     return truth, stereo, status, sparse, textured
 
 
-def test_fusion_takes_the_better_source_in_each_half():
+@pytest.mark.parametrize("kind", ["auto", "planes"])
+def test_fusion_takes_the_better_source_in_each_half(kind):
     truth, stereo, status, sparse, textured = half_textured_scene()
     # the stereo's error given (0.5 px, as constructed): estimated here it would absorb the LiDAR's own error on the
     # checker, which no LiDAR point resolves (docs/fusion.md, limits)
-    out = fuse_disparity(stereo, status, sparse, stereo_sigma=0.5)
-    lin = lidar_model(sparse).values  # the fusion's LiDAR side: local planes
+    out = fuse_disparity(stereo, status, sparse, stereo_sigma=0.5, lidar_kind=kind)
+    # the fusion's LiDAR side: LiDAR 13 px apart is sparser than auto's 12 px, so auto takes the Delaunay fill
+    assert lidar_kind(kind, int(np.isfinite(sparse).sum()), sparse.shape) == ("linear" if kind == "auto" else kind)
+    lin = lidar_model(sparse, kind=kind).values
     err = np.abs(out.disparity - truth)
     err_stereo, err_lidar = np.abs(stereo - truth), np.abs(lin - truth)
     inner = np.zeros_like(textured)
@@ -53,8 +57,10 @@ def test_fusion_takes_the_better_source_in_each_half():
     assert err[tex].mean() <= 1.25 * err_stereo[tex].mean()
     assert err[tex].mean() < 0.25 * err_lidar[tex].mean()
     assert (err[tex] > 1).mean() <= 1.5 * (err_stereo[tex] > 1).mean() and (err_lidar[tex] > 1).mean() > 0.4
-    # blank half: the interpolation (exact on a plane, beyond the points' hull too), not the stereo's 7 px error
-    assert np.abs(out.disparity - lin)[blank].max() < 1e-3 and err[blank].max() < 1e-3
+    # blank half: the interpolation (exact on a plane: local planes everywhere, the Delaunay fill inside the points'
+    # hull, its nearest value beyond), not the stereo's 7 px error
+    assert np.abs(out.disparity - lin)[blank].max() < 1e-3
+    assert err[blank].max() < (0.25 if kind == "auto" else 1e-3)
     assert np.isfinite(out.disparity).all()
     # confidence: high where the stereo is kept with its small error, and the textured half's steps the least sure
     assert out.confidence.dtype == np.float32 and 0 <= out.confidence.min() and out.confidence.max() <= 1

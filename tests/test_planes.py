@@ -126,3 +126,16 @@ def test_planes_on_cones_alone_and_in_the_fusion(cones):
     assert fused["planes"]["avg"] == pytest.approx(fused["linear"]["avg"], rel=0.02)
     assert fused["planes"]["bad3"] == pytest.approx(fused["linear"]["bad3"], abs=0.05)
     assert fused["planes"]["avg"] < min(m[k]["avg"] for k in m)
+
+
+def test_auto_takes_planes_for_lidar_denser_than_one_point_per_12_px_square():
+    from riverbed_cli.errors import RiverbedError
+    from riverbed_cli.matching.fusion import lidar_kind
+
+    assert lidar_kind("auto", 100, (120, 120)) == "planes"  # 12 px apart on average: still planes
+    assert lidar_kind("auto", 99, (120, 120)) == "linear"
+    assert lidar_kind("auto", 0, (120, 120)) == "linear"
+    assert lidar_kind("linear", 10 ** 6, (120, 120)) == "linear" and lidar_kind("planes", 1, (120, 120)) == "planes"
+    message = r"^unknown fusion LiDAR interpolation 'cubic' \(use auto, planes, linear\)$"
+    with pytest.raises(RiverbedError, match=message):
+        lidar_kind("cubic", 100, (120, 120))

@@ -150,7 +150,7 @@ class FuseConfig:
     support: int = 4  # LiDAR points whose residual RMS is a point's sigma
     floor: float = 0.25  # smallest LiDAR sigma (px)
     stereo_sigma: object = "auto"  # the stereo's error (px), or auto: estimated on the image
-    lidar: str = "planes"  # the LiDAR's interpolation: planes (local least-squares planes) or linear (Delaunay)
+    lidar: str = "auto"  # the LiDAR's interpolation: auto, planes (local least-squares planes), linear (Delaunay)
 
 
 _GROUPS = {"sgm": SGMConfig, "guidance": GuidanceConfig, "diffusion": DiffusionConfig, "plus": PlusConfig,
@@ -316,10 +316,11 @@ _FUSE_HELP = {"gate": "Fusion: stereo and LiDAR agree within this many standard 
               "floor": "Fusion: smallest LiDAR error (px).",
               "stereo_sigma": "Fusion: the stereo's error (px), or auto: estimated where the LiDAR is planar.",
               "lidar": "Fusion: the LiDAR's interpolation: planes (each pixel on the least-squares plane of its "
-                       "nearest LiDAR point and that point's natural neighbours; no triangulation) or linear "
-                       "(Delaunay; the default until 2026-12-03, about three times the cost)."}
+                       "nearest LiDAR point and that point's natural neighbours; no triangulation), linear "
+                       "(Delaunay; the only one until 2026-12-03, about three times the cost of planes on dense "
+                       "LiDAR), or auto: planes for LiDAR denser than one point per 12 x 12 px, else linear."}
 _FUSE_CHECKS = {"gate": _POS, "neighbours": integer(3, 64), "support": integer(1, 64), "floor": _POS,
-                "stereo_sigma": auto_or(_POS, "a positive number"), "lidar": choice(("planes", "linear"))}
+                "stereo_sigma": auto_or(_POS, "a positive number"), "lidar": choice(("auto", "planes", "linear"))}
 
 _ADC_HELP = {
     "lambda_ad": "AD cost scale lambda_AD.", "lambda_census": "Census cost scale lambda_census.",

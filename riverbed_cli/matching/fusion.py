@@ -6,10 +6,11 @@ structures the LiDAR missed the stereo is right and the interpolation wrong. The
 pixel from an error estimate of each source:
 
 * **LiDAR**: ``l`` is an interpolation of the sparse disparities without the images, ``lidar``:
-  ``planes`` (the default) puts each pixel on the least-squares plane of its nearest LiDAR point and that point's
-  ``neighbours`` nearest natural neighbours (:func:`~riverbed_cli.geometry.planes.plane_fill`: no triangulation, a
-  third of the cost); ``linear`` interpolates linearly over the Delaunay triangulation
-  (:func:`~riverbed_cli.geometry.interpolation.linear_fill`, the fusion's LiDAR side until 2026-12-03). Its error
+  ``planes`` puts each pixel on the least-squares plane of its nearest LiDAR point and that point's ``neighbours``
+  nearest natural neighbours (:func:`~riverbed_cli.geometry.planes.plane_fill`: no triangulation, a third of the
+  cost); ``linear`` interpolates linearly over the Delaunay triangulation
+  (:func:`~riverbed_cli.geometry.interpolation.linear_fill`, the fusion's LiDAR side until 2026-12-03); ``auto``
+  (the default) takes planes for LiDAR denser than one point per 12 x 12 px (:func:`lidar_kind`), linear else. Its error
   ``sigma_l`` is measured on the LiDAR itself: each point is predicted by a plane fitted to its ``neighbours``
   nearest other points (leave-one-out; with ``planes`` the nearest of its natural neighbours); a point's ``sigma``
   is the RMS of that residual over itself and its ``support - 1`` nearest points (natural neighbours), and every
@@ -245,23 +246,42 @@ class LidarModel:
     sigma: np.ndarray
 
 
-#: the fusion's interpolations of the LiDAR (``fusion_lidar``): local planes, the Delaunay triangulation
-LIDAR_KINDS = ("planes", "linear")
+#: the fusion's interpolations of the LiDAR (``fusion_lidar``): auto, local planes, the Delaunay triangulation
+LIDAR_KINDS = ("auto", "planes", "linear")
+#: ``auto`` takes local planes where the LiDAR's mean spacing (px, over the whole image) is at most this, else the
+#: Delaunay fill: dense LiDAR makes the triangulation costly and planes as accurate; sparse LiDAR makes it cheap,
+#: and planes carried far from their points err (docs/fusion.md, "The LiDAR side")
+PLANES_MAX_SPACING = 12.0
 
 
-def lidar_model(sparse, neighbours=6, support=4, floor=0.25, points=None, kind="planes"):
+def lidar_kind(kind, n_points, shape):
+    """The interpolation ``kind`` a fusion uses (``planes`` or ``linear``) for ``n_points`` LiDAR pixels in an image
+    of ``shape``: ``auto`` is planes where their mean spacing ``sqrt(H W / n)`` is at most
+    :data:`PLANES_MAX_SPACING` px."""
+    if kind not in LIDAR_KINDS:
+        raise RiverbedError(f"unknown fusion LiDAR interpolation '{kind}' (use {', '.join(LIDAR_KINDS)})")
+    if kind != "auto":
+        return kind
+    return "planes" if n_points and shape[0] * shape[1] <= PLANES_MAX_SPACING ** 2 * n_points else "linear"
+
+
+def lidar_model(sparse, neighbours=6, support=4, floor=0.25, points=None, kind="auto"):
     """The interpolation of the ``sparse`` LiDAR and its per-pixel error (:class:`LidarModel`): all of the fusion
     that needs no stereo, so :func:`~riverbed_cli.matching.pipeline.match_pair` computes it beside the matcher.
-    ``kind``: ``planes`` or ``linear`` (module docstring); ``points``: ``lidar_points(sparse)`` if already found."""
-    if kind not in LIDAR_KINDS:
-        raise RiverbedError(f"unknown fusion LiDAR interpolation '{kind}' (use {' or '.join(LIDAR_KINDS)})")
+    ``kind``: ``auto``, ``planes`` or ``linear`` (:func:`lidar_kind`, module docstring); ``points``:
+    ``lidar_points(sparse)`` if already found."""
+    sparse = np.asarray(sparse)
+    n = len(points[0]) if points is not None else int(np.isfinite(sparse).sum())
     # the interpolation and each pixel's nearest point, for its sigma
-    fill = plane_fill(sparse, points, neighbours) if kind == "planes" else linear_fill(sparse, points)
+    if lidar_kind(kind, n, sparse.shape) == "planes":
+        fill = plane_fill(sparse, points, neighbours)
+    else:
+        fill = linear_fill(sparse, points)
     return LidarModel(fill.values, lidar_sigma(sparse, neighbours, support, floor, fill)[0])
 
 
 def fuse_disparity(stereo, status, sparse, gate=4.0, neighbours=6, support=4, floor=0.25, stereo_sigma="auto",
-                   lidar=None, lidar_kind="planes"):
+                   lidar=None, lidar_kind="auto"):
     """The ``confidence`` fusion of a matched disparity with the LiDAR (module docstring).
 
     Parameters
@@ -284,7 +304,7 @@ def fuse_disparity(stereo, status, sparse, gate=4.0, neighbours=6, support=4, fl
         ``lidar_model(sparse, neighbours, support, floor, kind=lidar_kind)`` if already made (``neighbours``,
         ``support``, ``floor`` and ``lidar_kind`` are then its).
     lidar_kind : str
-        The LiDAR's interpolation: ``planes`` or ``linear`` (module docstring).
+        The LiDAR's interpolation: ``auto``, ``planes`` or ``linear`` (:func:`lidar_kind`, module docstring).
 
     Returns
     -------
