@@ -50,13 +50,14 @@ def nearest_labels(rows, cols, shape):
 @njit(cache=True)
 def _touching_cells(anchor, n, cap):
     # Pairs of 4-adjacent pixels with different anchors: their points are natural neighbours. Scanned in order, each
-    # pair offered once per run of equal pairs; a point's list is short, so it is searched for duplicates.
+    # pair offered once per run of equal pairs (a cell boundary along the row repeats its vertical pair); a point's
+    # list is short, so it is searched for duplicates.
     H, W = anchor.shape
     nb = np.full((n, cap), -1, np.int32)
     cnt = np.zeros(n, np.int32)
     for y in range(H):
-        last_a = -1
-        last_b = -1
+        last_a = np.full(2, -1, np.int64)  # the last pair offered, horizontal and vertical
+        last_b = np.full(2, -1, np.int64)
         for x in range(W):
             a = anchor[y, x]
             for k in range(2):
@@ -68,10 +69,10 @@ def _touching_cells(anchor, n, cap):
                     if y + 1 >= H:
                         continue
                     b = anchor[y + 1, x]
-                if a == b or (a == last_a and b == last_b):
+                if a == b or (a == last_a[k] and b == last_b[k]):
                     continue
-                last_a = a
-                last_b = b
+                last_a[k] = a
+                last_b[k] = b
                 for side in range(2):
                     p, q = (a, b) if side == 0 else (b, a)
                     seen = False
