@@ -47,7 +47,7 @@ def nearest_labels(rows, cols, shape):
     return index[labels], dist
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _touching_cells(anchor, n, cap):
     # Pairs of 4-adjacent pixels with different anchors: their points are natural neighbours. Scanned in order, each
     # pair offered once per run of equal pairs (a cell boundary along the row repeats its vertical pair); a point's
@@ -86,7 +86,7 @@ def _touching_cells(anchor, n, cap):
     return nb, cnt
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _second_ring(rows, cols, nb, cnt, fewest):
     # a point with fewer than `fewest` neighbours (its cell cut by an image corner) also takes the nearest of its
     # neighbours' neighbours, up to `fewest`: a plane needs three
@@ -119,6 +119,15 @@ def _second_ring(rows, cols, nb, cnt, fewest):
 
 
 @njit(cache=True, parallel=True)
+def _natural_neighbours(anchor, rows, cols, cap, fewest):
+    # natural_neighbours in one kernel (a fresh process loads each cached kernel for 3-4 ms): the cells' scan and the
+    # corners' second ring in order, then each point's list sorted in parallel
+    nb, cnt = _touching_cells(anchor, rows.shape[0], cap)
+    _second_ring(rows, cols, nb, cnt, fewest)
+    return nb, cnt, _sort_by_distance(rows, cols, nb, cnt)
+
+
+@njit(cache=True, parallel=True, inline="always")
 def _sort_by_distance(rows, cols, nb, cnt):
     # each point's neighbours nearest first (ties: the lower index), in place; and the nearest one's distance (px)
     n = nb.shape[0]
@@ -152,10 +161,7 @@ def natural_neighbours(anchor, rows, cols, cap=NEIGHBOUR_CAP):
     three (an image corner cuts its cell) also takes the nearest of its neighbours' neighbours, up to three."""
     rows = np.asarray(rows, np.int64)
     cols = np.asarray(cols, np.int64)
-    nb, cnt = _touching_cells(np.ascontiguousarray(anchor, np.int32), rows.size, int(cap))
-    _second_ring(rows, cols, nb, cnt, 3)
-    nearest = _sort_by_distance(rows, cols, nb, cnt)
-    return nb, cnt, nearest
+    return _natural_neighbours(np.ascontiguousarray(anchor, np.int32), rows, cols, int(cap), 3)
 
 
 @njit(cache=True, parallel=True)

@@ -101,18 +101,14 @@ def _residuals(rows, cols, values, nb, count=None, k=None):
     return np.abs(c - values)
 
 
-@njit(cache=True, parallel=True)
 def _nearest_rms(res, nb, count, k):
-    # per point: the RMS of the residuals over itself and its first k - 1 neighbours (fewer if it has fewer)
-    n = res.shape[0]
-    out = np.empty(n, np.float64)
-    for i in prange(n):
-        m = min(k - 1, count[i])
-        s = res[i] * res[i]
-        for j in range(m):
-            s += res[nb[i, j]] ** 2
-        out[i] = math.sqrt(s / (m + 1))
-    return out
+    # per point: the RMS of the residuals over itself and its first k - 1 neighbours (fewer if it has fewer); NumPy
+    # over a few thousand points, where a kernel would cost a fresh process more to load than it saves
+    m = np.minimum(count, max(k - 1, 0))
+    s = res * res
+    for j in range(max(k - 1, 0)):  # in order, as a loop per point would add them
+        s = s + np.where(j < m, res[np.where(j < m, nb[:, j], 0)] ** 2, 0.0)
+    return np.sqrt(s / (m + 1))
 
 
 def lidar_sigma(sparse, neighbours=6, support=4, floor=0.25, fill=None):
