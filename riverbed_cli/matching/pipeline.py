@@ -370,9 +370,11 @@ def _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, match
     return out, mode, stats
 
 
-def warm_up(matcher="sgm", guide_names=("none", "gauss", "riverbed"), config=None):
+def warm_up(matcher="sgm", guide_names=("none", "gauss", "riverbed"), config=None, fusion_lidar=None):
     """Compile (or load from Numba's cache) the kernels ``match_pair`` uses with ``matcher`` and ``guide_names``, on a
-    tiny pair; with ``config`` only those of that one configuration (what a ``riverbed match`` run needs).
+    tiny pair; with ``config`` only those of that one configuration (what a ``riverbed match`` run needs), and with
+    ``fusion_lidar`` the fusion's LiDAR side the run will take (``planes`` or ``linear``: ``auto`` decides by the
+    LiDAR's density, which the tiny pair's is not).
 
     Loading compiled code is start-up cost; calling this first keeps it out of ``info["seconds"]``.
     """
@@ -382,6 +384,8 @@ def warm_up(matcher="sgm", guide_names=("none", "gauss", "riverbed"), config=Non
     sparse = np.full((24, 32), np.nan, dtype=np.float32)
     sparse[::5, ::5] = 2.0
     if config is not None:
+        if fusion_lidar is not None:
+            config = config.replace(fusion_lidar=fusion_lidar)
         match_pair(left, right, sparse if get_guide(config.guide).needs_sparse or config.range != "full" else None,
                    0, 7, config)
         if config.tube.holes == "coarse" and config.range != "full":  # the coarse match of the tube rule's holes

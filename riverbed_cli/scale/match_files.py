@@ -15,6 +15,7 @@ from ..io.atomic import atomic_output, check_output
 from ..io.disparity import disparity_format, read_disparity, write_disparity
 from ..io.images import check_pair, read_image
 from ..io.windowed import TiffSink, WindowedRaster, is_tiff, open_range_map, sparse_points_any
+from ..matching.fusion import lidar_kind
 from ..matching.pipeline import disparity_range_from_sparse, match_pair, resolve_fusion, warm_up
 from ..matching.registry import get_guide
 from ..products.visualize import disparity_picture, write_picture
@@ -158,8 +159,10 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
                               range_map=scan)
     # load the kernels this run uses now (start-up, not matching time), while a thread faults in the heap the match
     # will take (scale/heap.py)
+    # the fusion's LiDAR side by the density of the whole map (tiles of the same density decide alike)
+    kind = lidar_kind(config.fuse.lidar, len(points[0]), (H, W)) if points is not None else None
     with prefault_heap(_heap_estimate(H, W, rng, widths, plan, overlap)):
-        warm_up(config=config)
+        warm_up(config=config, fusion_lidar=kind)
     if plan is not None and plan.tiled:
         return _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, plan.size, overlap,
                             lidar_range, output, color_png, overwrite, progress, rmap, confidence, scan)
