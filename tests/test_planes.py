@@ -139,3 +139,17 @@ def test_auto_takes_planes_for_lidar_denser_than_one_point_per_12_px_square():
     message = r"^unknown fusion LiDAR interpolation 'cubic' \(use auto, planes, linear\)$"
     with pytest.raises(RiverbedError, match=message):
         lidar_kind("cubic", 100, (120, 120))
+
+
+@pytest.mark.parametrize("points", [[(5, 7)], [(5, 7), (20, 30)], [(3, 3), (10, 10), (17, 17)]])
+def test_planes_with_one_two_or_collinear_points(points):
+    sparse = np.full((30, 40), np.nan, np.float32)
+    for k, (r, c) in enumerate(points):
+        sparse[r, c] = 10.0 + k
+    fill = plane_fill(sparse)
+    at = tuple(np.array(points).T)
+    assert np.isfinite(fill.values).all() and (fill.values[at] == sparse[at]).all()
+    if len(points) == 1:  # flat at its value
+        assert (fill.values == 10.0).all()
+    model = lidar_model(sparse, kind="planes")
+    assert np.isfinite(model.values).all() and np.isfinite(model.sigma).all() and (model.sigma > 0).all()
