@@ -6,12 +6,12 @@ averages the LiDAR's noise over about seven points. A LiDAR pixel keeps its own 
 
 Everything comes from one labelled distance transform (OpenCV's ``distanceTransformWithLabels``, 5 x 5 mask): each
 pixel's nearest point (its Voronoi cell) and the distance to it, and, from the cells that touch, each point's natural
-neighbours - the neighbours of the Delaunay triangulation, found without one. It is about three times cheaper than
-the Delaunay route of :func:`~riverbed_cli.geometry.interpolation.linear_fill` (OpenCV's single-threaded incremental
-triangulation alone took 11-17 ms for the 18 500 points of the 740 x 500 speed pair), which the fusion
-(:mod:`riverbed_cli.matching.fusion`) runs beside the matcher on every match. The transform's distances are those of
-its 5 x 5 mask (within 2 % of the Euclidean distance), so where two points are almost equally near a pixel, the one it
-names may be the farther by a fraction of a pixel.
+neighbours - the neighbours of the Delaunay triangulation, found without one. With the fusion's sigma it costs a
+third to a half of the CPU time of the Delaunay route of :func:`~riverbed_cli.geometry.interpolation.linear_fill`
+(17.5 against 47 ms on the 18 500 points of the 740 x 500 speed pair; OpenCV's single-threaded incremental
+triangulation alone took 11-17 ms), which the fusion (:mod:`riverbed_cli.matching.fusion`) runs beside the matcher on
+every match (docs/fusion.md). The transform's distances are those of its 5 x 5 mask (within 2 % of the Euclidean
+distance), so where two points are almost equally near a pixel, the one it names may be the farther by up to 3 %.
 
 Conventions: the left image is the reference, ``d = x_left - x_right`` (px); NaN marks no LiDAR.
 """
