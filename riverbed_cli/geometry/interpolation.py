@@ -14,7 +14,7 @@ import numpy as np
 from numba import get_num_threads, njit, prange
 
 from ..errors import RiverbedError
-from .coverage import pixels_where
+from .coverage import lidar_points
 
 
 def checked_points(sparse):
@@ -358,13 +358,9 @@ def linear_fill(sparse, points=None):
     parallel over rows: 4x faster than scipy's single-threaded transform on a 1 MP tile, which took longer than the
     rest of the fusion. A LiDAR pixel keeps its own value.
     """
-    sparse, valid = checked_points(sparse)
+    sparse, _ = checked_points(sparse)
     H, W = sparse.shape
-    if points is None:
-        rows, cols = pixels_where(valid)
-        values = sparse[rows, cols].astype(np.float64)
-    else:
-        rows, cols, values = points
+    rows, cols, values = lidar_points(sparse) if points is None else points
     out = np.full((H, W), np.nan, np.float32)
     anchor = np.empty((H, W), np.int32)
     dist = np.empty((H, W), np.float32)

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from numba import njit, prange
 
-from .coverage import pixels_where
+from .coverage import lidar_points
 from .interpolation import checked_points
 
 #: most natural neighbours kept per point (a point has about 6; more only where many points ring one at one distance)
@@ -249,12 +249,8 @@ def plane_fill(sparse, points=None, neighbours=6):
     (:class:`PlaneFill`). A pixel takes the plane fitted to its nearest point (weight 1) and that point's
     ``neighbours`` nearest natural neighbours, each weighing ``r_nearest^2 / r^2``; ``points``: the LiDAR's
     ``(rows, cols, values)`` (:func:`~riverbed_cli.geometry.coverage.lidar_points`) if already found."""
-    sparse, valid = checked_points(sparse)
-    if points is None:
-        rows, cols = pixels_where(valid)
-        values = sparse[rows, cols].astype(np.float64)
-    else:
-        rows, cols, values = points
+    sparse, _ = checked_points(sparse)
+    rows, cols, values = lidar_points(sparse) if points is None else points
     anchor, dist = nearest_labels(rows, cols, sparse.shape)
     nb, cnt, nearest = natural_neighbours(anchor, rows, cols)
     r, c = np.asarray(rows, np.float64), np.asarray(cols, np.float64)

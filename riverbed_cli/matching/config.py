@@ -40,6 +40,8 @@ GUIDE_STAGES = ("aggregated", "initial")
 RANGES = ("auto", "tube", "tile", "full")
 #: what pixels with no LiDAR within a tube's reach search: the nominal range, or a coarse stereo match's range
 TUBE_HOLES = ("full", "coarse")
+#: the fusion's interpolations of the LiDAR (``fusion_lidar``): auto, local planes, the Delaunay triangulation
+LIDAR_KINDS = ("auto", "planes", "linear")
 #: fusions of the matched disparity with the LiDAR (``matching/fusion.py``); ``auto`` is not one of them: it picks
 FUSION_NAMES = ("none", "confidence")
 FUSION_CHOICES = ("auto",) + FUSION_NAMES
@@ -320,7 +322,7 @@ _FUSE_HELP = {"gate": "Fusion: stereo and LiDAR agree within this many standard 
                        "(Delaunay; the only one until 2026-12-03, about three times the cost of planes on dense "
                        "LiDAR), or auto: planes for LiDAR denser than one point per 12 x 12 px, else linear."}
 _FUSE_CHECKS = {"gate": _POS, "neighbours": integer(3, 64), "support": integer(1, 64), "floor": _POS,
-                "stereo_sigma": auto_or(_POS, "a positive number"), "lidar": choice(("auto", "planes", "linear"))}
+                "stereo_sigma": auto_or(_POS, "a positive number"), "lidar": choice(LIDAR_KINDS)}
 
 _ADC_HELP = {
     "lambda_ad": "AD cost scale lambda_AD.", "lambda_census": "Census cost scale lambda_census.",

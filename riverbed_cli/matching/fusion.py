@@ -44,9 +44,11 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
+from ..geometry.coverage import lidar_points
 from ..geometry.interpolation import delaunay_graph, linear_fill, nearest_points
 from ..geometry.planes import PlaneFill, plane_fill, plane_fit
 from ..records import RecordMapping
+from .config import LIDAR_KINDS
 from .registry import register_fusion
 
 #: pixels farther than this many typical LiDAR spacings from their nearest point have a proportionally larger sigma
@@ -242,8 +244,6 @@ class LidarModel:
     sigma: np.ndarray
 
 
-#: the fusion's interpolations of the LiDAR (``fusion_lidar``): auto, local planes, the Delaunay triangulation
-LIDAR_KINDS = ("auto", "planes", "linear")
 #: ``auto`` takes local planes where the LiDAR's mean spacing (px, over the whole image) is at most this, else the
 #: Delaunay fill: dense LiDAR makes the triangulation costly and planes as accurate; sparse LiDAR makes it cheap,
 #: and planes carried far from their points err (docs/fusion.md, "The LiDAR side")
@@ -267,9 +267,9 @@ def lidar_model(sparse, neighbours=6, support=4, floor=0.25, points=None, kind="
     ``kind``: ``auto``, ``planes`` or ``linear`` (:func:`lidar_kind`, module docstring); ``points``:
     ``lidar_points(sparse)`` if already found."""
     sparse = np.asarray(sparse)
-    n = len(points[0]) if points is not None else int(np.isfinite(sparse).sum())
+    points = lidar_points(sparse) if points is None else points
     # the interpolation and each pixel's nearest point, for its sigma
-    if lidar_kind(kind, n, sparse.shape) == "planes":
+    if lidar_kind(kind, len(points[0]), sparse.shape) == "planes":
         fill = plane_fill(sparse, points, neighbours)
     else:
         fill = linear_fill(sparse, points)
