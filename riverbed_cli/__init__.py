@@ -15,6 +15,8 @@ import lazy_loader
 # fusion's LiDAR side runs in a thread beside the matcher (matching/pipeline.py), and spinning workers took its core
 # (the default fused match 16 % slower than sleeping ones, docs/tubes.md). Read when the OpenMP library loads, at
 # the first parallel kernel, so it is set here, before any.
+#: the user chose how OpenMP workers wait (then riverbed leaves it alone: scale/workers.py)
+OMP_WAIT_FROM_USER = any(k in os.environ for k in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT"))
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 __getattr__, __dir__, __all__ = lazy_loader.attach(

@@ -22,6 +22,7 @@ from ..products.visualize import disparity_picture, write_picture
 from ..matching.guidance import lidar_share_of_points
 from .heap import match_heap_bytes, prefault_heap
 from .tiles import match_tiled, plan_tiles, scan_range_map, tube_widths
+from .workers import spin_between_regions
 
 log = logging.getLogger(__name__)
 
@@ -122,9 +123,12 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     guide = get_guide(config.guide)
     if guide.needs_sparse and not sparse:
         raise RiverbedError(f"--guide {config.guide} needs --sparse")
-    if confidence and resolve_fusion(config, guide, bool(sparse)) == "none":  # before any work
+    fusion = resolve_fusion(config, guide, bool(sparse))
+    if confidence and fusion == "none":  # before any work
         raise RiverbedError("no confidence with --fusion none (it comes from --fusion confidence, the default with "
                             "--sparse)", confidence)
+    if fusion == "none":  # no LiDAR side beside the matcher: its idle workers may spin (scale/workers.py)
+        spin_between_regions()
     if (min_disp is None or max_disp is None) and not sparse and not range_map:
         if max_disp is None:
             raise RiverbedError("give --max-disp (and --min-disp) or --sparse to derive the disparity range from")

@@ -1,0 +1,66 @@
+"""How Numba's OpenMP workers wait between parallel regions, chosen per run (riverbed_cli/scale/workers.py)."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+DATA = Path(__file__).parent / "data" / "cones"
+
+# A fresh process running `riverbed match` as the command does, reporting the exit code, the spin count libgomp
+# will read and whether the OpenMP library had loaded before (it reads the variable when it loads)
+PROBE = """
+import json, os, sys
+from click.testing import CliRunner
+from riverbed_cli.cli.main import cli
+r = CliRunner().invoke(cli, sys.argv[1:])
+print(json.dumps({"exit": r.exit_code, "spins": os.environ.get("GOMP_SPINCOUNT"),
+                  "policy": os.environ.get("OMP_WAIT_POLICY"), "output": r.output[-300:]}))
+"""
+
+
+def _match(tmp_path, *args, **env):
+    e = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")}
+    cmd = [sys.executable, "-c", PROBE, "match", str(DATA / "im2.png"), str(DATA / "im6.png"), "--max-disp", "63",
+           "-o", str(tmp_path / "d.tif"), "--overwrite", *args]
+    out = subprocess.run(cmd, env={**e, **env}, capture_output=True, text=True, check=True)
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    assert res["exit"] == 0, res["output"]
+    return res
+
+
+def test_workers_spin_only_where_nothing_runs_beside_the_matcher(tmp_path):
+    from riverbed_cli.io.disparity import read_disparity, write_disparity
+
+    gt = read_disparity(DATA / "disp2.png", scale=4)
+    from riverbed_cli.products.simulate import simulate_lidar
+
+    write_disparity(tmp_path / "s.tif", simulate_lidar(gt, 0.05, seed=0))
+    sparse = ["--sparse", str(tmp_path / "s.tif")]
+    # no fusion, so no LiDAR side in a thread beside the matcher: idle workers spin a while before they sleep
+    assert _match(tmp_path, *sparse, "--fusion", "none")["spins"] == "30000"
+    assert _match(tmp_path)["spins"] == "30000"  # no LiDAR at all
+    # the fused default: they sleep at once, leaving the core to the LiDAR side
+    fused = _match(tmp_path, *sparse)
+    assert fused["spins"] is None and fused["policy"] == "PASSIVE"
+    # the user's own choice wins
+    assert _match(tmp_path, *sparse, "--fusion", "none", OMP_WAIT_POLICY="ACTIVE")["spins"] is None
+    assert _match(tmp_path, *sparse, "--fusion", "none", GOMP_SPINCOUNT="7")["spins"] == "7"
+
+
+def test_too_late_once_a_parallel_kernel_has_run():
+    code = """
+import os
+from riverbed_cli.scale.workers import spin_between_regions
+from riverbed_cli.matching.census import census_transform
+import numpy as np
+census_transform(np.zeros((20, 20), np.float32))  # a parallel kernel: libgomp has loaded and read its settings
+print(spin_between_regions(), os.environ.get("GOMP_SPINCOUNT"))
+"""
+    e = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")}
+    out = subprocess.run([sys.executable, "-c", code], env=e, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "None"]
+    code2 = code.replace('census_transform(np.zeros((20, 20), np.float32))  #', '#')
+    out = subprocess.run([sys.executable, "-c", code2], env=e, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["True", "30000"]
