@@ -85,6 +85,18 @@ def _step_scalar(L, acc, cur, cost, b, w, span, prev, wq, s, P1, jump, mp, first
     return m
 
 
+@njit(cache=True, inline="always")
+def _chunks_reach(s, span, wq, spanq):
+    # whether each LANES-chunk of a tube (span wide, shifted by s against its neighbour's tube of wq disparities,
+    # spanq in whole chunks) reads either within the neighbour's entry (its guard and sentinel chunk included) or
+    # wholly outside its tube
+    for i in range(0, span, LANES):
+        j = i + s
+        if not (j + LANES < 0 or j - 1 >= wq or 1 - _GUARD <= j <= spanq - 1):
+            return False
+    return True
+
+
 @njit(cache=True, boundscheck=False)
 def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, flip):
     # Half of the paths over a dense volume (D > 0: pixel (y, x) holds D disparities at (y * W + x) * D) or a tube
@@ -103,7 +115,10 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
     R = _GUARD + (C + 1) * LANES
     RA = C * LANES
     # ring buffer of the last three rows of path costs (16-path directions reach two rows back), flat
-    L = np.full(nd * 3 * W * R, sent, dtype=np.int16)
+    # ... and a block of sentinels never written after them: the neighbour's path costs for a chunk that lies wholly
+    # outside the neighbour's tube (every disparity it reads is unreachable there)
+    outside = nd * 3 * W * R
+    L = np.full(outside + 3 * LANES, sent, dtype=np.int16)
     Lmin = np.zeros(nd * 3 * W, dtype=np.int16)
     acc = np.zeros(W * RA + LANES, dtype=np.int16)  # the row's half-sums, RA per pixel (sweep order)
     mv = np.empty(LANES, np.int16)  # a wide tube's running minimum over its chunks
@@ -156,7 +171,8 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
                     mp = Lmin[q]
                     jump = np.int16(mp + P2)
                     prev = q * R + _GUARD
-                    if safe and 1 - _GUARD <= s <= (wq + LANES - 1) // LANES * LANES + LANES - 1 - span:
+                    spanq = (wq + LANES - 1) // LANES * LANES
+                    if safe and 1 - _GUARD <= s <= spanq + LANES - 1 - span:
                         if span == LANES:
                             m = lanes_step(L, acc, cur, flat, b, ai, w, prev + s - 1, P1, jump, mp, keep)
                         else:  # one horizontal minimum for the pixel, not one per chunk
@@ -164,6 +180,15 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
                                 lanes_step_min(L, acc, cur + i, flat, b + i, ai + i, w - i, prev + s - 1 + i, P1,
                                                jump, mp, keep, mv, i == 0)
                             m = lanes_reduce(mv)
+                    elif safe and _chunks_reach(s, span, wq, spanq):
+                        # tubes far apart (a pixel searching the whole range beside a narrow tube): chunk by chunk,
+                        # those wholly outside the neighbour's tube from the block of sentinels
+                        for i in range(0, span, LANES):
+                            j = i + s
+                            pi = outside if j + LANES < 0 or j - 1 >= wq else prev + j - 1
+                            lanes_step_min(L, acc, cur + i, flat, b + i, ai + i, w - i, pi, P1, jump, mp, keep, mv,
+                                           i == 0)
+                        m = lanes_reduce(mv)
                     else:
                         m = _step_scalar(L, acc[ai:], cur, flat, b, w, span, prev, wq, s, P1, jump, mp, False, keep)
                 lanes_fill(L, cur + span, sent)
