@@ -64,26 +64,34 @@ def test_tube_sgm_equals_the_brute_force_reference(paths, seed, D, most):
     np.testing.assert_array_equal(bwd, gather(ref_b, layout).astype(np.uint16))
 
 
-def test_tube_selection_equals_the_brute_force_reference():
+# (12, 5, 500): narrow tubes, few ties. (40, 30, 6): tubes of up to 30 disparities (two vector chunks of the votes)
+# and costs of 6 values, ties everywhere (the right image's lowest disparity wins them); d_min 2 and -5 (right pixels
+# on both sides of the image)
+@pytest.mark.parametrize("D, most, levels", [(12, 5, 500), (40, 30, 6)])
+@pytest.mark.parametrize("d_min", [2, -5])
+def test_tube_selection_equals_the_brute_force_reference(D, most, levels, d_min):
     rng = np.random.default_rng(3)
-    H, W, D = 6, 30, 12
-    agg = rng.integers(0, 500, (H, W, D)).astype(np.uint16)
-    lo, hi = random_tubes(rng, H, W, D)
-    layout = TubeLayout.from_bounds(lo + 2, hi + 2, 2)
-    d = disparity.select_disparity(gather(agg, layout), 2, False, True, 1, gather(np.zeros_like(agg), layout),
+    H, W = 6, 45
+    agg = rng.integers(0, levels, (H, W, D)).astype(np.uint16)
+    lo, hi = random_tubes(rng, H, W, D, most=most)
+    layout = TubeLayout.from_bounds(lo + d_min, hi + d_min, d_min)
+    d = disparity.select_disparity(gather(agg, layout), d_min, False, True, 1, gather(np.zeros_like(agg), layout),
                                    tubes=layout)
+    d2, status = disparity.select_disparity(gather(agg, layout), d_min, False, False, 1,
+                                            gather(np.zeros_like(agg), layout), tubes=layout, return_status=True)
     for y in range(H):
         best = {x: lo[y, x] + int(np.argmin(agg[y, x, lo[y, x]:hi[y, x] + 1])) for x in range(W)}
         right = {}
         for x in range(W):  # the right image's winner over the left pixels whose tube holds the disparity
             for k in range(lo[y, x], hi[y, x] + 1):
-                xr = x - (2 + k)
+                xr = x - (d_min + k)
                 if 0 <= xr < W and (xr not in right or agg[y, x, k] < right[xr][0]):
                     right[xr] = (agg[y, x, k], k)
         for x in range(W):
-            xr = x - (2 + best[x])
+            xr = x - (d_min + best[x])
             ok = 0 <= xr < W and xr in right and abs(best[x] - right[xr][1]) <= 1
-            assert (d[y, x] == 2 + best[x]) if ok else np.isnan(d[y, x])
+            assert (d[y, x] == d_min + best[x]) if ok else np.isnan(d[y, x])
+            assert d2[y, x] == d_min + best[x] and status[y, x] == (0 if ok else 1)
 
 
 def test_full_width_tubes_equal_the_dense_stages_bit_for_bit():

@@ -9,7 +9,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
-from .lanes import LANES, lanes_find, lanes_sum
+from .lanes import LANES, lanes_find, lanes_sum, lanes_vote
 
 
 @njit(cache=True, inline="always")
@@ -82,45 +82,102 @@ def _select_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold, keep):
     return disp, status
 
 
+@njit(cache=True, inline="always")
+def _tube_winner(fwd, bwd, n, b, D, o, d_min, subpixel, s, si):
+    # the summed costs of a pixel's tube (D disparities from d_min + o at b) into s[si:] and its winner: (index,
+    # disparity). The sums and the winner come a chunk of LANES disparities at a time (the sums fit uint16:
+    # sgm.check_sgm_bounds).
+    span = (D + LANES - 1) // LANES * LANES
+    if b + span <= n:  # every lane inside the volume
+        bv = np.uint16(65535)
+        for i in range(0, span, LANES):
+            bv = min(bv, lanes_sum(fwd, bwd, b + i, s, si + i, D - i))
+        bi = 0
+        f = lanes_find(s, si, bv)
+        while f == LANES:  # the first chunk holding the minimum
+            bi += LANES
+            f = lanes_find(s, si + bi, bv)
+        bi += f
+        return bi, _refine_at(s, si, D, bi, d_min + o, subpixel)
+    for i in range(D):
+        s[si + i] = fwd[b + i] + bwd[b + i]
+    bi = 0
+    for i in range(1, D):
+        if s[si + i] < s[si + bi]:
+            bi = i
+    return bi, _refine_at(s, si, D, bi, d_min + o, subpixel)
+
+
+@njit(cache=True, inline="always")
+def _refine_at(s, si, D, bi, d0, subpixel):
+    # _refine of the D costs at s[si:] (no array view per pixel)
+    val = np.float32(d0 + bi)
+    if subpixel and bi > 0 and bi < D - 1:
+        a = np.int64(s[si + bi - 1])
+        bv = np.int64(s[si + bi])
+        c = np.int64(s[si + bi + 1])
+        den = a - 2 * bv + c
+        if den > 0:
+            val += np.float32(0.5 * (a - c) / den)
+    return val
+
+
 @njit(cache=True, parallel=True)
-def _select_tube_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold, keep, start, width, offset, wmax):
-    # _select_kernel on a tube volume: pixel (y, x) holds width[y, x] (<= wmax) disparities from d_min + offset[y, x].
-    # The sums and the winner come a chunk of LANES disparities at a time (the sums fit uint16: sgm.check_sgm_bounds).
+def _select_tube_kernel(fwd, bwd, d_min, subpixel, start, width, offset, wmax):
+    # _select_kernel on a tube volume, without the left-right check: pixel (y, x) holds width[y, x] (<= wmax)
+    # disparities from d_min + offset[y, x]
+    H, W = start.shape
+    n = fwd.shape[0]
+    disp = np.empty((H, W), dtype=np.float32)
+    for y in prange(H):
+        s = np.empty((wmax + LANES - 1) // LANES * LANES, dtype=np.uint16)
+        for x in range(W):
+            disp[y, x] = _tube_winner(fwd, bwd, n, start[y, x], np.int64(width[y, x]), np.int64(offset[y, x]), d_min,
+                                      subpixel, s, 0)[1]
+    return disp
+
+
+@njit(cache=True, parallel=True)
+def _select_tube_lr_kernel(fwd, bwd, d_min, subpixel, lr_threshold, keep, start, width, offset, wmax):
+    # _select_tube_kernel with the left-right check. A row's sums are kept for the right image's votes, which go
+    # LANES disparities at a time (lanes.lanes_vote), the pixels taken 0, 16, 32, ..., then 1, 17, ...: a pixel's
+    # votes read and write the right pixels beside its row neighbour's, and read right after that neighbour's store
+    # they waited for it (no store-to-load forwarding); LANES pixels apart they do not overlap. The lowest disparity
+    # wins a tie, as in the scalar scan in row order: the same bits as _vote_right.
     H, W = start.shape
     n = fwd.shape[0]
     span_max = (wmax + LANES - 1) // LANES * LANES
     disp = np.empty((H, W), dtype=np.float32)
     status = np.zeros((H, W if keep else 1), dtype=np.int8)  # keep: 1 where the check fails
     for y in prange(H):
-        s = np.empty(span_max, dtype=np.uint16)
+        rs = np.empty(W * span_max + LANES, dtype=np.uint16)  # the row's sums, pixel x at x * span_max
         best_left = np.empty(W, dtype=np.int64)  # winner as d - d_min
-        right_cost = np.full(W, 2147483647, dtype=np.int64)
-        right_best = np.zeros(W, dtype=np.int64)
+        reach = 0  # the row's largest disparity, as d - d_min + 1
         for x in range(W):
-            b = start[y, x]
             D = np.int64(width[y, x])
             o = np.int64(offset[y, x])
-            span = (D + LANES - 1) // LANES * LANES
-            if b + span <= n:  # every lane inside the volume
-                bv = np.uint16(65535)
-                for i in range(0, span, LANES):
-                    bv = min(bv, lanes_sum(fwd, bwd, b + i, s, i, D - i))
-                bi = 0
-                f = lanes_find(s, 0, bv)
-                while f == LANES:  # the first chunk holding the minimum
-                    bi += LANES
-                    f = lanes_find(s, bi, bv)
-                bi += f
-                disp[y, x] = _refine(s, D, bi, d_min + o, subpixel)
-            else:
-                for i in range(D):
-                    s[i] = fwd[b + i] + bwd[b + i]
-                bi, disp[y, x] = _pick(s, D, o, d_min, subpixel)
+            bi, disp[y, x] = _tube_winner(fwd, bwd, n, start[y, x], D, o, d_min, subpixel, rs, x * span_max)
             best_left[x] = o + bi
-            if lr_check:
-                _vote_right(s, D, x, o, d_min, W, right_cost, right_best)
-        if lr_check:
-            _lr_reject(disp[y], best_left, right_best, d_min, W, lr_threshold, keep, status[y])
+            reach = max(reach, o + D)
+        # right pixels xr = x - d lie in [-(d_min + reach - 1), W - 1 - d_min]: padded so that every chunk's whole
+        # vector lies inside
+        pad = max(0, d_min + reach - 1) + LANES
+        right_cost = np.full(pad + W + max(0, -d_min) + LANES, 2147483647, dtype=np.int32)
+        right_best = np.zeros(right_cost.shape[0], dtype=np.int32)
+        for x0 in range(LANES):
+            for x in range(x0, W, LANES):
+                D = np.int64(width[y, x])
+                o = np.int64(offset[y, x])
+                for i in range(0, D, LANES):
+                    xr0 = x - (d_min + o + i)
+                    lanes_vote(rs, x * span_max + i, D - i, right_cost, right_best, pad + xr0, xr0, W, o + i)
+        for x in range(W):
+            xr = x - (d_min + best_left[x])
+            if xr < 0 or xr >= W or abs(best_left[x] - right_best[pad + xr]) > lr_threshold:
+                if keep:
+                    status[y, x] = 1
+                else:
+                    disp[y, x] = np.nan
     return disp, status
 
 
@@ -161,9 +218,13 @@ def select_disparity(aggregated, d_min, subpixel=True, lr_check=False, lr_thresh
     if tubes is not None:
         if aggregated.size != tubes.size:
             raise RiverbedError(f"tube volume of {aggregated.size} costs does not match its layout ({tubes.size})")
-        disp, status = _select_tube_kernel(aggregated, aggregated2, int(d_min), bool(subpixel),
-                                           bool(lr_check or return_status), int(lr_threshold), bool(return_status),
-                                           tubes.start, tubes.width, tubes.offset, int(tubes.max_width))
+        if lr_check or return_status:
+            disp, status = _select_tube_lr_kernel(aggregated, aggregated2, int(d_min), bool(subpixel),
+                                                  int(lr_threshold), bool(return_status), tubes.start, tubes.width,
+                                                  tubes.offset, int(tubes.max_width))
+        else:
+            disp, status = _select_tube_kernel(aggregated, aggregated2, int(d_min), bool(subpixel), tubes.start,
+                                               tubes.width, tubes.offset, int(tubes.max_width)), None
     else:
         disp, status = _select_kernel(aggregated, aggregated2, int(d_min), bool(subpixel),
                                       bool(lr_check or return_status), int(lr_threshold), bool(return_status))

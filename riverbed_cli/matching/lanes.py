@@ -252,6 +252,50 @@ def lanes_sum(typingctx, a, b, ai, out, oi, lanes):
 
 
 @intrinsic
+def lanes_vote(typingctx, sums, si, lanes, cost, best, top, xr0, W, d0):
+    """The right image's votes of ``LANES`` disparities of one left pixel (:func:`.disparity._select_tube_lr_kernel`).
+
+    Lane ``l``: the aggregated cost ``sums[si + l]`` (uint16) of disparity index ``d0 + l`` is a candidate for the
+    right pixel ``xr0 - l``, whose best cost ``cost[top - l]`` and index ``best[top - l]`` (int32) it replaces where
+    lower, or equal with a lower index (what the scalar scan in row order kept: the lowest disparity wins a tie), for
+    ``l < lanes`` and ``0 <= xr0 - l < W``. ``cost`` and ``best`` are read and written whole at ``top - LANES + 1 ..
+    top`` (the other lanes written back unchanged), so the caller pads them.
+    """
+    sig = types.void(sums, si, lanes, cost, best, top, xr0, W, d0)
+
+    def codegen(context, builder, signature, args):
+        sums_, si_, lanes_, cost_, best_, top_, xr0_, W_, d0_ = args
+        st, _, _, ct, bt = signature.args[:5]
+        lane = ir.Constant(_VI32, list(range(LANES)))
+
+        def i32(v):
+            return builder.trunc(v, _I32) if v.type.width > 32 else builder.sext(v, _I32)
+
+        few = builder.icmp_signed("<", lanes_, ir.Constant(lanes_.type, LANES))
+        lanes_c = builder.select(few, lanes_, ir.Constant(lanes_.type, LANES))
+        s = builder.zext(_load(context, builder, st, sums_, si_), _VI32)
+        low = builder.sub(top_, ir.Constant(_I64, LANES - 1))
+        cptr = _vector_ptr(context, builder, ct, cost_, low, _I32)
+        bptr = _vector_ptr(context, builder, bt, best_, low, _I32)
+        undef = ir.Constant(_VI32, ir.Undefined)
+        rc = builder.shuffle_vector(builder.load(cptr, align=4), undef, _REVERSE)
+        rb = builder.shuffle_vector(builder.load(bptr, align=4), undef, _REVERSE)
+        xr = builder.sub(_splat(builder, i32(xr0_), _VI32), lane)
+        inside = builder.and_(builder.icmp_signed(">=", xr, ir.Constant(_VI32, [0] * LANES)),
+                              builder.icmp_signed("<", xr, _splat(builder, i32(W_), _VI32)))
+        valid = builder.and_(builder.icmp_signed("<", lane, _splat(builder, i32(lanes_c), _VI32)), inside)
+        dv = builder.add(_splat(builder, i32(d0_), _VI32), lane)
+        better = builder.or_(builder.icmp_signed("<", s, rc),
+                             builder.and_(builder.icmp_signed("==", s, rc), builder.icmp_signed("<", dv, rb)))
+        take = builder.and_(valid, better)
+        builder.store(builder.shuffle_vector(builder.select(take, s, rc), undef, _REVERSE), cptr, align=4)
+        builder.store(builder.shuffle_vector(builder.select(take, dv, rb), undef, _REVERSE), bptr, align=4)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
 def lanes_find(typingctx, arr, index, value):
     """The first lane ``d`` with ``arr[index + d] == value`` (a 16-bit array), ``LANES`` if none (int64)."""
     sig = types.int64(arr, index, value)
