@@ -11,6 +11,8 @@ faster in fresh ``riverbed match`` processes (19.3 -> 17.9 ms); with the fusion 
 
 import os
 
+from numba.np.ufunc import parallel
+
 import riverbed_cli
 
 #: spins of an idle worker before it sleeps (libgomp's ``GOMP_SPINCOUNT``; roughly 100 000 a millisecond)
@@ -23,8 +25,6 @@ def spin_between_regions(spins=SPINS):
     Read by libgomp when it loads, at the first parallel kernel: nothing is changed once a parallel kernel has run
     in this process, nor when the user set ``OMP_WAIT_POLICY`` or ``GOMP_SPINCOUNT``. Returns True when set.
     """
-    from numba.np.ufunc import parallel
-
     if riverbed_cli.OMP_WAIT_FROM_USER or getattr(parallel, "_is_initialized", True):
         return False
     os.environ["GOMP_SPINCOUNT"] = str(int(spins))
