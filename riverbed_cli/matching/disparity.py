@@ -13,25 +13,26 @@ from .lanes import LANES, lanes_find, lanes_sum, lanes_vote
 
 
 @njit(cache=True, inline="always")
-def _pick(s, D, o, d_min, subpixel):
-    # winner index of the D costs s and its disparity d_min + o + index, parabola-refined inside the range
+def _pick(s, si, D, o, d_min, subpixel):
+    # winner index of the D costs at s[si:] and its disparity d_min + o + index, parabola-refined inside the range
     bi = 0
-    bv = s[0]
+    bv = s[si]
     for i in range(1, D):
-        if s[i] < bv:
-            bv = s[i]
+        if s[si + i] < bv:
+            bv = s[si + i]
             bi = i
-    return bi, _refine(s, D, bi, d_min + o, subpixel)
+    return bi, _refine(s, si, D, bi, d_min + o, subpixel)
 
 
 @njit(cache=True, inline="always")
-def _refine(s, D, bi, d0, subpixel):
-    # the disparity d0 + bi of winner bi (the first minimum of the D costs s), parabola-refined inside the range
+def _refine(s, si, D, bi, d0, subpixel):
+    # the disparity d0 + bi of winner bi (the first minimum of the D costs at s[si:], indexed from there: no array
+    # view per pixel), parabola-refined inside the range
     val = np.float32(d0 + bi)
     if subpixel and bi > 0 and bi < D - 1:
-        a = np.int64(s[bi - 1])
-        bv = np.int64(s[bi])
-        c = np.int64(s[bi + 1])
+        a = np.int64(s[si + bi - 1])
+        bv = np.int64(s[si + bi])
+        c = np.int64(s[si + bi + 1])
         den = a - 2 * bv + c
         if den > 0:
             val += np.float32(0.5 * (a - c) / den)
@@ -73,7 +74,7 @@ def _select_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold, keep):
         for x in range(W):
             for i in range(D):
                 s[i] = np.int32(fwd[y, x, i]) + np.int32(bwd[y, x, i])
-            bi, disp[y, x] = _pick(s, D, 0, d_min, subpixel)
+            bi, disp[y, x] = _pick(s, 0, D, 0, d_min, subpixel)
             best_left[x] = bi
             if lr_check:
                 _vote_right(s, D, x, 0, d_min, W, right_cost, right_best)
@@ -98,28 +99,10 @@ def _tube_winner(fwd, bwd, n, b, D, o, d_min, subpixel, s, si):
             bi += LANES
             f = lanes_find(s, si + bi, bv)
         bi += f
-        return bi, _refine_at(s, si, D, bi, d_min + o, subpixel)
+        return bi, _refine(s, si, D, bi, d_min + o, subpixel)
     for i in range(D):
         s[si + i] = fwd[b + i] + bwd[b + i]
-    bi = 0
-    for i in range(1, D):
-        if s[si + i] < s[si + bi]:
-            bi = i
-    return bi, _refine_at(s, si, D, bi, d_min + o, subpixel)
-
-
-@njit(cache=True, inline="always")
-def _refine_at(s, si, D, bi, d0, subpixel):
-    # _refine of the D costs at s[si:] (no array view per pixel)
-    val = np.float32(d0 + bi)
-    if subpixel and bi > 0 and bi < D - 1:
-        a = np.int64(s[si + bi - 1])
-        bv = np.int64(s[si + bi])
-        c = np.int64(s[si + bi + 1])
-        den = a - 2 * bv + c
-        if den > 0:
-            val += np.float32(0.5 * (a - c) / den)
-    return val
+    return _pick(s, si, D, o, d_min, subpixel)
 
 
 @njit(cache=True, parallel=True)
@@ -171,13 +154,7 @@ def _select_tube_lr_kernel(fwd, bwd, d_min, subpixel, lr_threshold, keep, start,
                 for i in range(0, D, LANES):
                     xr0 = x - (d_min + o + i)
                     lanes_vote(rs, x * span_max + i, D - i, right_cost, right_best, pad + xr0, xr0, W, o + i)
-        for x in range(W):
-            xr = x - (d_min + best_left[x])
-            if xr < 0 or xr >= W or abs(best_left[x] - right_best[pad + xr]) > lr_threshold:
-                if keep:
-                    status[y, x] = 1
-                else:
-                    disp[y, x] = np.nan
+        _lr_reject(disp[y], best_left, right_best[pad:], d_min, W, lr_threshold, keep, status[y])
     return disp, status
 
 

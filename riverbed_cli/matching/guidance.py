@@ -32,7 +32,7 @@ from ..geometry.coverage import lidar_points, lidar_share, lidar_share_of_points
 from ..geometry.interpolation import first_at_least
 from .lanes import LANES
 from .lanes_guidance import (lanes_claim, lanes_claim_rgb, lanes_claim_rgb_whole, lanes_claim_whole, lanes_colour,
-                    lanes_colour_whole, lanes_flat, lanes_flat_whole, lanes_walls, lanes_walls_whole)
+                             lanes_colour_whole, lanes_flat, lanes_flat_whole, lanes_walls, lanes_walls_whole)
 
 FORMS = {"additive": 0, "product": 1}
 

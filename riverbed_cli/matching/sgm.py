@@ -86,13 +86,20 @@ def _step_scalar(L, acc, cur, cost, b, w, span, prev, wq, s, P1, jump, mp, first
 
 
 @njit(cache=True, inline="always")
+def _wholly_outside(j, wq):
+    # whether a chunk whose first disparity is index j of the neighbour's tube (wq wide) reads only outside it: its
+    # LANES disparities and their neighbours, indices j - 1 .. j + LANES
+    return j + LANES < 0 or j - 1 >= wq
+
+
+@njit(cache=True, inline="always")
 def _chunks_reach(s, span, wq, spanq):
     # whether each LANES-chunk of a tube (span wide, shifted by s against its neighbour's tube of wq disparities,
     # spanq in whole chunks) reads either within the neighbour's entry (its guard and sentinel chunk included) or
     # wholly outside its tube
     for i in range(0, span, LANES):
         j = i + s
-        if not (j + LANES < 0 or j - 1 >= wq or 1 - _GUARD <= j <= spanq - 1):
+        if not (_wholly_outside(j, wq) or 1 - _GUARD <= j <= spanq - 1):
             return False
     return True
 
@@ -185,7 +192,7 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
                         # those wholly outside the neighbour's tube from the block of sentinels
                         for i in range(0, span, LANES):
                             j = i + s
-                            pi = outside if j + LANES < 0 or j - 1 >= wq else prev + j - 1
+                            pi = outside if _wholly_outside(j, wq) else prev + j - 1
                             lanes_step_min(L, acc, cur + i, flat, b + i, ai + i, w - i, pi, P1, jump, mp, keep, mv,
                                            i == 0)
                         m = lanes_reduce(mv)
