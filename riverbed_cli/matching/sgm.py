@@ -159,10 +159,22 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
             for xx in range(W):
                 b = rb[xx]
                 w = rw[slot, xx]
+                px = xx - dx
+                if w <= LANES and b + LANES <= n and 0 <= px < W and py >= 0:
+                    # the common step first: one chunk, its neighbour's entry within reach
+                    s = ro[slot, xx] - ro[pslot, px]
+                    if 1 - _GUARD <= s <= (rw[pslot, px] + LANES - 1) // LANES * LANES - 1:
+                        q = pbase + px
+                        mp = Lmin[q]
+                        cur = (cbase + xx) * R + _GUARD
+                        m = lanes_step(L, acc, cur, flat, b, xx * RA, w, q * R + _GUARD + s - 1, P1,
+                                       np.int16(mp + P2), mp, keep)
+                        lanes_fill(L, cur + LANES, sent)
+                        Lmin[cbase + xx] = m
+                        continue
                 span = (w + LANES - 1) // LANES * LANES
                 safe = b + span <= n  # every lane's cost and result lie inside the volume
                 ai = xx * RA
-                px = xx - dx
                 cur = (cbase + xx) * R + _GUARD
                 if px < 0 or px >= W or py < 0:
                     if safe:
