@@ -32,7 +32,8 @@ from ..geometry.coverage import lidar_points, lidar_share, lidar_share_of_points
 from ..geometry.interpolation import first_at_least
 from .lanes import LANES
 from .lanes_guidance import (lanes_claim, lanes_claim_rgb, lanes_claim_rgb_whole, lanes_claim_whole, lanes_colour,
-                             lanes_colour_whole, lanes_flat, lanes_flat_whole, lanes_walls, lanes_walls_whole)
+                             lanes_colour_whole, lanes_flat, lanes_flat_whole, lanes_walls, lanes_walls_half_whole,
+                             lanes_walls_whole)
 
 FORMS = {"additive": 0, "product": 1}
 
@@ -224,6 +225,10 @@ def _modulate_kernel(flat, W, D0, grows, gcols, owner, dissim, values, d_min0, k
             hi = max(lo, min(D, int(math.ceil(dm + half + tfar)) - d_min + 1))
             a1 = np.float32(alpha + beta)
             g1 = np.float32(gamma + 0.5)  # + 0.5: truncating a positive value then rounds
+            if D <= LANES // 2 and base + LANES // 2 <= limit:  # most tubes: half the lanes, walls or flat alike
+                lanes_walls_half_whole(flat, base, 0, d_min, dm + half, dm - half, lo, hi, alpha, beta, gamma, a1, g1,
+                                       inv2c2, fcap64, fcap, D)
+                continue
             # LANES disparities at a time, the wall's Gaussian by a polynomial (lanes.lanes_walls): the scalar loops
             # with a multiplicative recurrence for the Gaussians took 2-2.3x as long for the same bits on the dev pairs
             for i0 in range(0, D, LANES):

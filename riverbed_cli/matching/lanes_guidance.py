@@ -21,7 +21,7 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-from .vector_ir import (F32, F64, I32, I64, LANES, LANE_INDEX, MASK, V16, VF32, VF64, VI32, VI64, declared, splat,
+from .vector_ir import (F32, F64, I16, I32, I64, LANES, LANE_INDEX, MASK, V16, VF32, VF64, VI32, VI64, declared, splat,
                         valid, vector_ptr)
 
 
@@ -60,9 +60,10 @@ def _elem_bytes(vty):
 
 def _flat_wall(builder, q16, a1, g1, fcap):
     # min(a1 * q + g1, fcap) in float32, truncated to uint16: where the walls are flat (g = 1)
-    flat = builder.fmul(splat(builder, a1, VF32), builder.uitofp(q16, VF32))
-    flat = builder.fadd(flat, splat(builder, g1, VF32))
-    return builder.fptoui(_fmin(builder, flat, splat(builder, fcap, VF32)), V16)
+    vf32 = ir.VectorType(F32, q16.type.count)
+    flat = builder.fmul(splat(builder, a1, vf32), builder.uitofp(q16, vf32))
+    flat = builder.fadd(flat, splat(builder, g1, vf32))
+    return builder.fptoui(_fmin(builder, flat, splat(builder, fcap, vf32)), q16.type)
 
 
 #: exp(-x) by the 32nd power of a degree-9 Taylor polynomial of exp(-x / 32): relative error under 4e-7 for
@@ -72,10 +73,11 @@ _NEG_EXP_MAX = 40.0  # x is clipped here: lanes farther out are flat and take th
 
 
 def _neg_exp(builder, x):
-    y = builder.fmul(x, ir.Constant(VF64, [-1.0 / 32.0] * LANES))
-    p = ir.Constant(VF64, [_TAYLOR[0]] * LANES)
+    n = x.type.count
+    y = builder.fmul(x, ir.Constant(x.type, [-1.0 / 32.0] * n))
+    p = ir.Constant(x.type, [_TAYLOR[0]] * n)
     for c in _TAYLOR[1:]:
-        p = builder.fadd(builder.fmul(p, y), ir.Constant(VF64, [c] * LANES))
+        p = builder.fadd(builder.fmul(p, y), ir.Constant(x.type, [c] * n))
     for _ in range(5):
         p = builder.fmul(p, p)
     return p
@@ -94,7 +96,11 @@ def _store_lanes(builder, value, old, ptr, mask, masked):
         builder.store(builder.select(mask, value, old), ptr, align=_elem_bytes(value.type))
 
 
-def _walls_intrinsic(masked):
+def _walls_intrinsic(masked, n=LANES):
+    # n lanes (LANES, or LANES // 2 for tubes that narrow: half the polynomial's work, lane by lane the same)
+    v16, vi64, vf64 = ir.VectorType(I16, n), ir.VectorType(I64, n), ir.VectorType(F64, n)
+    lane_index = ir.Constant(vi64, list(range(n)))
+
     def lanes_walls(typingctx, arr, ai, i0, dmin, right, left, lo, hi, alpha, beta, gamma, a1, g1, inv2c2, cap, fcap,
                     lanes):
         sig = types.void(arr, ai, i0, dmin, right, left, lo, hi, alpha, beta, gamma, a1, g1, inv2c2, cap, fcap, lanes)
@@ -102,26 +108,26 @@ def _walls_intrinsic(masked):
         def codegen(context, builder, signature, args):
             arr_, ai_, i0_, dmin_, right_, left_, lo_, hi_, alpha_, beta_, gamma_, a1_, g1_, k_, cap_, fcap_, lanes_ = (
                 args)
-            mask = valid(builder, lanes_)
-            ptr = vector_ptr(context, builder, signature.args[0], arr_, ai_)
-            q16 = _load_lanes(builder, ptr, mask, V16, masked)
-            idx = builder.add(splat(builder, i0_, VI64), LANE_INDEX)
-            d = builder.sitofp(builder.add(idx, splat(builder, dmin_, VI64)), VF64)
-            tr = builder.fsub(d, splat(builder, right_, VF64))
-            tl = builder.fsub(splat(builder, left_, VF64), d)
+            mask = builder.icmp_signed("<", lane_index, splat(builder, lanes_, vi64))
+            ptr = builder.bitcast(vector_ptr(context, builder, signature.args[0], arr_, ai_), v16.as_pointer())
+            q16 = _load_lanes(builder, ptr, mask, v16, masked)
+            idx = builder.add(splat(builder, i0_, vi64), lane_index)
+            d = builder.sitofp(builder.add(idx, splat(builder, dmin_, vi64)), vf64)
+            tr = builder.fsub(d, splat(builder, right_, vf64))
+            tl = builder.fsub(splat(builder, left_, vf64), d)
             t = builder.select(builder.fcmp_ordered(">", tl, tr), tl, tr)
-            zero = ir.Constant(VF64, [0.0] * LANES)
+            zero = ir.Constant(vf64, [0.0] * n)
             t = builder.select(builder.fcmp_ordered(">", t, zero), t, zero)
-            x = _fmin(builder, builder.fmul(builder.fmul(t, t), splat(builder, k_, VF64)),
-                      ir.Constant(VF64, [_NEG_EXP_MAX] * LANES))
-            g = builder.fsub(ir.Constant(VF64, [1.0] * LANES), _neg_exp(builder, x))
-            q = builder.uitofp(q16, VF64)
-            height = builder.fadd(splat(builder, alpha_, VF64), builder.fmul(splat(builder, beta_, VF64), g))
-            wall = builder.fadd(builder.fadd(builder.fmul(height, q), builder.fmul(splat(builder, gamma_, VF64), g)),
-                                ir.Constant(VF64, [0.5] * LANES))
-            wall = builder.fptoui(_fmin(builder, wall, splat(builder, cap_, VF64)), V16)
-            flat = builder.or_(builder.icmp_signed("<", idx, splat(builder, lo_, VI64)),
-                               builder.icmp_signed(">=", idx, splat(builder, hi_, VI64)))
+            x = _fmin(builder, builder.fmul(builder.fmul(t, t), splat(builder, k_, vf64)),
+                      ir.Constant(vf64, [_NEG_EXP_MAX] * n))
+            g = builder.fsub(ir.Constant(vf64, [1.0] * n), _neg_exp(builder, x))
+            q = builder.uitofp(q16, vf64)
+            height = builder.fadd(splat(builder, alpha_, vf64), builder.fmul(splat(builder, beta_, vf64), g))
+            wall = builder.fadd(builder.fadd(builder.fmul(height, q), builder.fmul(splat(builder, gamma_, vf64), g)),
+                                ir.Constant(vf64, [0.5] * n))
+            wall = builder.fptoui(_fmin(builder, wall, splat(builder, cap_, vf64)), v16)
+            flat = builder.or_(builder.icmp_signed("<", idx, splat(builder, lo_, vi64)),
+                               builder.icmp_signed(">=", idx, splat(builder, hi_, vi64)))
             out = builder.select(flat, _flat_wall(builder, q16, a1_, g1_, fcap_), wall)
             _store_lanes(builder, out, q16, ptr, mask, masked)
             return context.get_dummy_value()
@@ -167,6 +173,9 @@ lanes_walls = intrinsic(_walls_intrinsic(True))
 lanes_walls.__doc__ = _WALLS_DOC.format(reads=_MASKED)
 lanes_walls_whole = intrinsic(_walls_intrinsic(False))
 lanes_walls_whole.__doc__ = _WALLS_DOC.format(reads=_WHOLE)
+lanes_walls_half_whole = intrinsic(_walls_intrinsic(False, LANES // 2))
+lanes_walls_half_whole.__doc__ = (":func:`lanes_walls_whole` on ``LANES // 2`` lanes, for tubes that end within them "
+                                  "(most are under 8 wide): half the polynomial's work, lane by lane the same bits.")
 lanes_flat = intrinsic(_flat_intrinsic(True))
 lanes_flat.__doc__ = _FLAT_DOC.format(reads=_MASKED)
 lanes_flat_whole = intrinsic(_flat_intrinsic(False))

@@ -43,7 +43,7 @@ def splat(builder, value, vty=V16):
             builder.sext(value, vty.element)
     undef = ir.Constant(vty, ir.Undefined)
     one = builder.insert_element(undef, value, ir.Constant(ir.IntType(32), 0))
-    return builder.shuffle_vector(one, undef, ir.Constant(ir.VectorType(ir.IntType(32), LANES), [0] * LANES))
+    return builder.shuffle_vector(one, undef, ir.Constant(ir.VectorType(ir.IntType(32), vty.count), [0] * vty.count))
 
 
 def smin(builder, a, b):
