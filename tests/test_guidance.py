@@ -8,6 +8,7 @@ from riverbed_cli.matching.guidance import (
     gauss_modulate,
     homogeneous_owners,
     lidar_share,
+    ownership_weights,
     riverbed_modulate,
 )
 
@@ -195,6 +196,17 @@ def test_ownership_matches_brute_force(window, channels):
     ref_owner, ref_dis = owners_reference(sparse, guide, window)
     np.testing.assert_array_equal(owner, ref_owner)
     np.testing.assert_allclose(dis, ref_dis, rtol=1e-5)
+
+
+def test_ownership_weights_are_libm_bits():
+    # the polynomial with its rounding check gives float32(-expm1(-e)) to the bit; libm where it cannot be sure
+    rng = np.random.default_rng(3)
+    e = np.concatenate([rng.uniform(0, 1.3, 200_000), rng.uniform(0, 1e-3, 50_000), np.geomspace(1e-12, 40, 1000),
+                        [0.0, 1.25, -math.log(0.3), 2.0, 30.0, np.inf]])
+    w = ownership_weights(e)
+    expect = np.array([np.float32(np.inf) if math.isinf(v) else np.float32(-math.expm1(-v)) for v in e], np.float32)
+    np.testing.assert_array_equal(w, expect)
+    assert w[-6] == 0.0 and not np.signbit(w[-6])  # a LiDAR pixel's W is +0
 
 
 def walls_reference(F, dm, w, lidar_pixel, k, c, band, form, scale, fbar, cap, d_min=0):

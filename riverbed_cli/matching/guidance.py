@@ -129,13 +129,65 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
             dd = np.empty(LANES, np.float64)
             for j in range(first_at_least(rows, edges[k]), first_at_least(rows, edges[k + 1])):
                 _claim(j, rows, cols, pflat, H, W, C, half, a, b, e_lo, e_hi, oflat, dflat, dd)
-    # exponent -> W (0 stays 0 at LiDAR pixels, inf stays inf where there is no owner)
+    # exponent -> W (0 stays 0 at LiDAR pixels, inf stays inf where there is no owner): by a polynomial where it
+    # gives libm's bits for sure (it vectorises), else by libm (a rare tie, the literal reading's far e)
     w = np.empty((H, W), np.float32)
     for y in prange(H):
-        for x in range(W):
-            e = dissim[y, x]
-            w[y, x] = np.float32(np.inf) if math.isinf(e) else np.float32(-math.expm1(-e))
+        _weights_row(dissim[y], w[y])
     return owner, w
+
+
+@njit(cache=True, inline="always")
+def _weights_row(e, w):
+    for x in range(e.shape[0]):
+        w[x] = _weight_sure(e[x])
+    for x in range(e.shape[0]):
+        if w[x] != w[x]:
+            w[x] = np.float32(-math.expm1(-e[x]))
+
+
+@njit(cache=True)
+def ownership_weights(e):
+    """``W = 1 - exp(-e)`` of paper eq. 2 as float32 from the exponents ``e >= 0`` (1-D float64; ``inf`` gives
+    ``inf``, no owner), as :func:`homogeneous_owners` computes it: ``float32(-expm1(-e))`` to the bit."""
+    w = np.empty(e.shape[0], np.float32)
+    _weights_row(e, w)
+    return w
+
+
+#: -expm1(-e) = sum over k >= 1 of (-1)^(k+1) e^k / k! to k = 18 (below, by Horner): under 1e-14 relative for
+#: 0 <= e <= _E_SURE
+_E_SURE = 1.25  # covers the default reading's exponents (e <= -ln(gamma), 1.2 at gamma 0.3)
+
+
+@njit(cache=True, inline="always")
+def _weight_sure(e):
+    # float32(-expm1(-e)) where the polynomial's float64 value (1e-14 off) and anything within 1e-12 of it round
+    # to the same float32 (then libm's, also within, does too: the same bits); inf for inf (no owner); NaN where not
+    # sure
+    x = min(e, _E_SURE)
+    p = -1.5619206968586225e-16
+    p = p * x + 2.8114572543455206e-15
+    p = p * x + -4.779477332387385e-14
+    p = p * x + 7.647163731819816e-13
+    p = p * x + -1.1470745597729725e-11
+    p = p * x + 1.6059043836821613e-10
+    p = p * x + -2.08767569878681e-09
+    p = p * x + 2.505210838544172e-08
+    p = p * x + -2.755731922398589e-07
+    p = p * x + 2.7557319223985893e-06
+    p = p * x + -2.48015873015873e-05
+    p = p * x + 0.0001984126984126984
+    p = p * x + -0.001388888888888889
+    p = p * x + 0.008333333333333333
+    p = p * x + -0.041666666666666664
+    p = p * x + 0.16666666666666666
+    p = p * x + -0.5
+    p = p * x + 1.0
+    p = p * x
+    f = np.float32(p)
+    sure = e <= _E_SURE and np.float32(p * (1.0 - 1e-12)) == np.float32(p * (1.0 + 1e-12))
+    return f if sure else (np.float32(np.inf) if e == np.inf else np.float32(np.nan))
 
 
 def guide_image(guide, shape):

@@ -366,5 +366,9 @@ def tube_stats(layout, d_min, d_max):
     """:class:`TubeStats` of a :class:`~riverbed_cli.matching.volume.TubeLayout` over the nominal range."""
     D = int(d_max) - int(d_min) + 1
     w = layout.width
-    return TubeStats(round(float(w.mean()), 3) if w.size else float(D), int(layout.max_width), D,
-                     round(float((w >= D).mean()), 5) if w.size else 1.0)
+    if not w.size:
+        return TubeStats(float(D), int(layout.max_width), D, 1.0)
+    # the mean width from the volume's size (the exact sum of the widths), the full share by a count: a fifth of
+    # NumPy's means' time
+    return TubeStats(round(layout.size / w.size, 3), int(layout.max_width), D,
+                     round(np.count_nonzero(w >= D) / w.size, 5))
