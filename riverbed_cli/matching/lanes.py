@@ -322,14 +322,22 @@ def lanes_census_bits(typingctx, pad, ci, offsets, out, oi):
         centre = builder.load(vector_ptr(context, builder, padty, pad_, ci_, F32), align=4)
         offs = context.make_array(offty)(context, builder, offsets_)
         n = builder.extract_value(offs.shape, 0)
-        acc = cgutils.alloca_once_value(builder, ir.Constant(VI64, [0] * LANES))
-        with cgutils.for_range(builder, n) as loop:
-            k = builder.load(builder.gep(offs.data, [loop.index]))
-            nb = builder.load(vector_ptr(context, builder, padty, pad_, builder.add(ci_, k), F32), align=4)
-            bit = builder.zext(builder.fcmp_ordered("<", nb, centre), VI64)
-            shifted = builder.shl(builder.load(acc), ir.Constant(VI64, [1] * LANES))
-            builder.store(builder.or_(shifted, bit), acc)
-        builder.store(builder.load(acc), vector_ptr(context, builder, outty, out_, oi_, I64), align=8)
+        # the word's high bits (all but the last 32 neighbours) and its low 32 bits in two 32-bit accumulators: half
+        # the vector work of shifting 64-bit lanes, the same word
+        split = builder.select(builder.icmp_signed(">", n, ir.Constant(I64, 32)), builder.sub(n, ir.Constant(I64, 32)),
+                               ir.Constant(I64, 0))
+        halves = []
+        for lo, hi in ((ir.Constant(I64, 0), split), (split, n)):
+            acc = cgutils.alloca_once_value(builder, ir.Constant(VI32, [0] * LANES))
+            with cgutils.for_range_slice(builder, lo, hi, ir.Constant(I64, 1)) as (index, _):
+                k = builder.load(builder.gep(offs.data, [index]))
+                nb = builder.load(vector_ptr(context, builder, padty, pad_, builder.add(ci_, k), F32), align=4)
+                bit = builder.zext(builder.fcmp_ordered("<", nb, centre), VI32)
+                shifted = builder.shl(builder.load(acc), ir.Constant(VI32, [1] * LANES))
+                builder.store(builder.or_(shifted, bit), acc)
+            halves.append(builder.zext(builder.load(acc), VI64))
+        word = builder.or_(builder.shl(halves[0], ir.Constant(VI64, [32] * LANES)), halves[1])
+        builder.store(word, vector_ptr(context, builder, outty, out_, oi_, I64), align=8)
         return context.get_dummy_value()
 
     return sig, codegen
