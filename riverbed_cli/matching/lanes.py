@@ -129,6 +129,29 @@ def lanes_step_min(typingctx, L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, 
 
 
 @intrinsic
+def lanes_step_wide(typingctx, L, acc, cur, cost, ci, ai, lanes, span, prev, p1, jump, mp, keep):
+    """:func:`lanes_step` over a whole tube, ``span`` disparities (a multiple of ``LANES``) a chunk at a time, the
+    chunk ``i`` at ``cur + i``, ``ci + i``, ``ai + i``, ``prev + i`` with ``lanes - i`` valid lanes; returns the
+    minimum over all (int16). The running minimum stays in a register: kept in an array between one call per chunk,
+    each chunk's load waited for the last one's store."""
+    sig = types.int16(L, acc, cur, cost, ci, ai, lanes, span, prev, p1, jump, mp, keep)
+
+    def codegen(context, builder, signature, args):
+        L_, acc_, cur_, cost_, ci_, ai_, lanes_, span_, prev_, p1_, jump_, mp_, keep_ = args
+        mv = cgutils.alloca_once_value(builder, ir.Constant(V16, [SENTINEL] * LANES))
+        step = ir.Constant(I64, LANES)
+        with cgutils.for_range_slice(builder, ir.Constant(I64, 0), span_, step) as (i, _):
+            v = _step_value(context, builder, signature.args, L_, cost_, builder.add(ci_, i), builder.add(prev_, i),
+                            p1_, jump_, mp_)
+            v = _store_path_costs(context, builder, signature.args, v, valid(builder, builder.sub(lanes_, i)), L_,
+                                  builder.add(cur_, i), acc_, builder.add(ai_, i), keep_)
+            builder.store(smin(builder, builder.load(mv), v), mv)
+        return reduce_min(builder, builder.load(mv))
+
+    return sig, codegen
+
+
+@intrinsic
 def lanes_reduce(typingctx, mv):
     """The minimum of ``mv[0:LANES]`` (int16)."""
     sig = types.int16(mv)

@@ -17,7 +17,8 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
-from .lanes import LANES, SENTINEL, lanes_copy, lanes_fill, lanes_first, lanes_reduce, lanes_step, lanes_step_min
+from .lanes import (LANES, SENTINEL, lanes_copy, lanes_fill, lanes_first, lanes_reduce, lanes_step, lanes_step_min,
+                    lanes_step_wide)
 from .volume import volume_layout
 
 # Directions (dx, dy) swept in the forward raster pass; the reverse pass sweeps their opposites.
@@ -195,10 +196,7 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
                         if span == LANES:
                             m = lanes_step(L, acc, cur, flat, b, ai, w, prev + s - 1, P1, jump, mp, keep)
                         else:  # one horizontal minimum for the pixel, not one per chunk
-                            for i in range(0, span, LANES):
-                                lanes_step_min(L, acc, cur + i, flat, b + i, ai + i, w - i, prev + s - 1 + i, P1,
-                                               jump, mp, keep, mv, i == 0)
-                            m = lanes_reduce(mv)
+                            m = lanes_step_wide(L, acc, cur, flat, b, ai, w, span, prev + s - 1, P1, jump, mp, keep)
                     elif safe and _chunks_reach(s, span, wq, spanq):
                         # tubes far apart (a pixel searching the whole range beside a narrow tube): chunk by chunk,
                         # those wholly outside the neighbour's tube from the block of sentinels
