@@ -9,7 +9,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
-from .lanes import LANES, lanes_find, lanes_reduce_unsigned, lanes_sum, lanes_sum_min, lanes_vote
+from .lanes import LANES, lanes_find, lanes_sum, lanes_sum_wide, lanes_vote
 
 
 @njit(cache=True, inline="always")
@@ -84,7 +84,7 @@ def _select_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold, keep):
 
 
 @njit(cache=True, inline="always")
-def _tube_winner(fwd, bwd, n, b, D, o, d_min, subpixel, s, si, mv):
+def _tube_winner(fwd, bwd, n, b, D, o, d_min, subpixel, s, si):
     # the summed costs of a pixel's tube (D disparities from d_min + o at b) into s[si:] and its winner: (index,
     # disparity). The sums and the winner come a chunk of LANES disparities at a time (the sums fit uint16:
     # sgm.check_sgm_bounds).
@@ -93,9 +93,7 @@ def _tube_winner(fwd, bwd, n, b, D, o, d_min, subpixel, s, si, mv):
         if span == LANES:
             bv = lanes_sum(fwd, bwd, b, s, si, D)
         else:  # one horizontal minimum for the pixel, not one per chunk
-            for i in range(0, span, LANES):
-                lanes_sum_min(fwd, bwd, b + i, s, si + i, D - i, mv, i == 0)
-            bv = lanes_reduce_unsigned(mv)
+            bv = lanes_sum_wide(fwd, bwd, b, s, si, D, span)
         bi = 0
         f = lanes_find(s, si, bv)
         while f == LANES:  # the first chunk holding the minimum
@@ -117,10 +115,9 @@ def _select_tube_kernel(fwd, bwd, d_min, subpixel, start, width, offset, wmax):
     disp = np.empty((H, W), dtype=np.float32)
     for y in prange(H):
         s = np.empty((wmax + LANES - 1) // LANES * LANES, dtype=np.uint16)
-        mv = np.empty(LANES, dtype=np.uint16)
         for x in range(W):
             disp[y, x] = _tube_winner(fwd, bwd, n, start[y, x], np.int64(width[y, x]), np.int64(offset[y, x]), d_min,
-                                      subpixel, s, 0, mv)[1]
+                                      subpixel, s, 0)[1]
     return disp
 
 
@@ -140,11 +137,10 @@ def _select_tube_lr_kernel(fwd, bwd, d_min, subpixel, lr_threshold, keep, start,
         rs = np.empty(W * span_max + LANES, dtype=np.uint16)  # the row's sums, pixel x at x * span_max
         best_left = np.empty(W, dtype=np.int64)  # winner as d - d_min
         reach = 0  # the row's largest disparity, as d - d_min + 1
-        mv = np.empty(LANES, dtype=np.uint16)
         for x in range(W):
             D = np.int64(width[y, x])
             o = np.int64(offset[y, x])
-            bi, disp[y, x] = _tube_winner(fwd, bwd, n, start[y, x], D, o, d_min, subpixel, rs, x * span_max, mv)
+            bi, disp[y, x] = _tube_winner(fwd, bwd, n, start[y, x], D, o, d_min, subpixel, rs, x * span_max)
             best_left[x] = o + bi
             reach = max(reach, o + D)
         # right pixels xr = x - d lie in [-(d_min + reach - 1), W - 1 - d_min]: padded so that every chunk's whole

@@ -210,36 +210,24 @@ def lanes_sum(typingctx, a, b, ai, out, oi, lanes):
 
 
 @intrinsic
-def lanes_sum_min(typingctx, a, b, ai, out, oi, lanes, mv, first):
-    """:func:`lanes_sum` for one chunk of a tube wider than ``LANES``: its lanes join a running minimum
-    ``mv[0:LANES]`` (uint16; ``first``: start it) instead of being reduced, once for the pixel by
-    :func:`lanes_reduce_unsigned`."""
-    sig = types.void(a, b, ai, out, oi, lanes, mv, first)
+def lanes_sum_wide(typingctx, a, b, ai, out, oi, lanes, span):
+    """:func:`lanes_sum` over a whole tube, ``span`` disparities (a multiple of ``LANES``) a chunk at a time (chunk
+    ``i`` at ``ai + i``, ``oi + i``, ``lanes - i`` valid lanes); returns the minimum over all (uint16), its running
+    minimum in a register."""
+    sig = types.uint16(a, b, ai, out, oi, lanes, span)
 
     def codegen(context, builder, signature, args):
-        a_, b_, ai_, out_, oi_, lanes_, mv_, first_ = args
+        a_, b_, ai_, out_, oi_, lanes_, span_ = args
         at, bt, _, ot = signature.args[:4]
-        v = builder.add(load_i16(context, builder, at, a_, ai_), load_i16(context, builder, bt, b_, ai_))
-        v = builder.select(valid(builder, lanes_), v, ir.Constant(V16, [65535] * LANES))
-        store_vector(context, builder, ot, out_, oi_, v)
-        zero = ir.Constant(I64, 0)
-        old = load_i16(context, builder, signature.args[6], mv_, zero)
-        low = builder.select(builder.icmp_unsigned("<", old, v), old, v)
-        first_ = builder.icmp_signed("!=", first_, ir.Constant(first_.type, 0))
-        store_vector(context, builder, signature.args[6], mv_, zero, builder.select(first_, v, low))
-        return context.get_dummy_value()
-
-    return sig, codegen
-
-
-@intrinsic
-def lanes_reduce_unsigned(typingctx, mv):
-    """The minimum of ``mv[0:LANES]`` (uint16)."""
-    sig = types.uint16(mv)
-
-    def codegen(context, builder, signature, args):
-        v = load_i16(context, builder, signature.args[0], args[0], ir.Constant(I64, 0))
-        return reduce_min(builder, v, signed=False)
+        mv = cgutils.alloca_once_value(builder, ir.Constant(V16, [65535] * LANES))
+        with cgutils.for_range_slice(builder, ir.Constant(I64, 0), span_, ir.Constant(I64, LANES)) as (i, _):
+            ci = builder.add(ai_, i)
+            v = builder.add(load_i16(context, builder, at, a_, ci), load_i16(context, builder, bt, b_, ci))
+            v = builder.select(valid(builder, builder.sub(lanes_, i)), v, ir.Constant(V16, [65535] * LANES))
+            store_vector(context, builder, ot, out_, builder.add(oi_, i), v)
+            old = builder.load(mv)
+            builder.store(builder.select(builder.icmp_unsigned("<", old, v), old, v), mv)
+        return reduce_min(builder, builder.load(mv), signed=False)
 
     return sig, codegen
 
