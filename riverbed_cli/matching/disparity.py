@@ -9,7 +9,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
-from .lanes import LANES, lanes_find, lanes_sum, lanes_sum_wide, lanes_vote
+from .lanes import LANES, lanes_find, lanes_sum, lanes_sum_wide, lanes_vote, lanes_vote_half
 
 
 @njit(cache=True, inline="always")
@@ -152,6 +152,10 @@ def _select_tube_lr_kernel(fwd, bwd, d_min, subpixel, lr_threshold, keep, start,
             for x in range(x0, W, LANES):
                 D = np.int64(width[y, x])
                 o = np.int64(offset[y, x])
+                if D <= LANES // 2:  # most tubes: half the lanes
+                    xr0 = x - (d_min + o)
+                    lanes_vote_half(rs, x * span_max, D, right_cost, right_best, pad + xr0, xr0, W, o)
+                    continue
                 for i in range(0, D, LANES):
                     xr0 = x - (d_min + o + i)
                     lanes_vote(rs, x * span_max + i, D - i, right_cost, right_best, pad + xr0, xr0, W, o + i)

@@ -35,8 +35,8 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from .vector_ir import (F32, I32, I64, LANES, REVERSE, V16, VI32, VI64, declared, load_i16, reduce_min, smin, splat,
-                        store_vector, valid, vector_ptr)
+from .vector_ir import (F32, I16, I32, I64, LANES, REVERSE, V16, VI32, VI64, declared, load_i16, reduce_min, smin,
+                        splat, store_vector, valid, vector_ptr)
 
 SENTINEL = 16384  # above any path cost (sgm.check_sgm_bounds); SENTINEL + P1 still fits int16
 
@@ -232,9 +232,53 @@ def lanes_sum_wide(typingctx, a, b, ai, out, oi, lanes, span):
     return sig, codegen
 
 
-@intrinsic
-def lanes_vote(typingctx, sums, si, lanes, cost, best, top, xr0, W, d0):
-    """The right image's votes of ``LANES`` disparities of one left pixel (:func:`.disparity._select_tube_lr_kernel`).
+def _vote_intrinsic(n):
+    # lanes_vote on n lanes (LANES, or LANES // 2 for tubes that end within them: half the vector work, lane by lane
+    # the same)
+    vi32 = ir.VectorType(I32, n)
+    reverse = ir.Constant(vi32, list(range(n - 1, -1, -1)))
+    lane = ir.Constant(vi32, list(range(n)))
+
+    def lanes_vote(typingctx, sums, si, lanes, cost, best, top, xr0, W, d0):
+        sig = types.void(sums, si, lanes, cost, best, top, xr0, W, d0)
+
+        def codegen(context, builder, signature, args):
+            sums_, si_, lanes_, cost_, best_, top_, xr0_, W_, d0_ = args
+            st, _, _, ct, bt = signature.args[:5]
+
+            def i32(v):
+                return builder.trunc(v, I32) if v.type.width > 32 else builder.sext(v, I32)
+
+            few = builder.icmp_signed("<", lanes_, ir.Constant(lanes_.type, n))
+            lanes_c = builder.select(few, lanes_, ir.Constant(lanes_.type, n))
+            sptr = builder.bitcast(vector_ptr(context, builder, st, sums_, si_), ir.VectorType(I16, n).as_pointer())
+            s = builder.zext(builder.load(sptr, align=2), vi32)
+            low = builder.sub(top_, ir.Constant(I64, n - 1))
+            cptr = builder.bitcast(vector_ptr(context, builder, ct, cost_, low, I32), vi32.as_pointer())
+            bptr = builder.bitcast(vector_ptr(context, builder, bt, best_, low, I32), vi32.as_pointer())
+            undef = ir.Constant(vi32, ir.Undefined)
+            rc = builder.shuffle_vector(builder.load(cptr, align=4), undef, reverse)
+            rb = builder.shuffle_vector(builder.load(bptr, align=4), undef, reverse)
+            xr = builder.sub(splat(builder, i32(xr0_), vi32), lane)
+            inside = builder.and_(builder.icmp_signed(">=", xr, ir.Constant(vi32, [0] * n)),
+                                  builder.icmp_signed("<", xr, splat(builder, i32(W_), vi32)))
+            valid = builder.and_(builder.icmp_signed("<", lane, splat(builder, i32(lanes_c), vi32)), inside)
+            dv = builder.add(splat(builder, i32(d0_), vi32), lane)
+            better = builder.or_(builder.icmp_signed("<", s, rc),
+                                 builder.and_(builder.icmp_signed("==", s, rc), builder.icmp_signed("<", dv, rb)))
+            take = builder.and_(valid, better)
+            builder.store(builder.shuffle_vector(builder.select(take, s, rc), undef, reverse), cptr, align=4)
+            builder.store(builder.shuffle_vector(builder.select(take, dv, rb), undef, reverse), bptr, align=4)
+            return context.get_dummy_value()
+
+        return sig, codegen
+
+    return lanes_vote
+
+
+lanes_vote = intrinsic(_vote_intrinsic(LANES))
+lanes_vote.__doc__ = """The right image's votes of ``LANES`` disparities of one left pixel
+    (:func:`.disparity._select_tube_lr_kernel`).
 
     Lane ``l``: the aggregated cost ``sums[si + l]`` (uint16) of disparity index ``d0 + l`` is a candidate for the
     right pixel ``xr0 - l``, whose best cost ``cost[top - l]`` and index ``best[top - l]`` (int32) it replaces where
@@ -242,38 +286,9 @@ def lanes_vote(typingctx, sums, si, lanes, cost, best, top, xr0, W, d0):
     ``l < lanes`` and ``0 <= xr0 - l < W``. ``cost`` and ``best`` are read and written whole at ``top - LANES + 1 ..
     top`` (the other lanes written back unchanged), so the caller pads them.
     """
-    sig = types.void(sums, si, lanes, cost, best, top, xr0, W, d0)
-
-    def codegen(context, builder, signature, args):
-        sums_, si_, lanes_, cost_, best_, top_, xr0_, W_, d0_ = args
-        st, _, _, ct, bt = signature.args[:5]
-        lane = ir.Constant(VI32, list(range(LANES)))
-
-        def i32(v):
-            return builder.trunc(v, I32) if v.type.width > 32 else builder.sext(v, I32)
-
-        few = builder.icmp_signed("<", lanes_, ir.Constant(lanes_.type, LANES))
-        lanes_c = builder.select(few, lanes_, ir.Constant(lanes_.type, LANES))
-        s = builder.zext(load_i16(context, builder, st, sums_, si_), VI32)
-        low = builder.sub(top_, ir.Constant(I64, LANES - 1))
-        cptr = vector_ptr(context, builder, ct, cost_, low, I32)
-        bptr = vector_ptr(context, builder, bt, best_, low, I32)
-        undef = ir.Constant(VI32, ir.Undefined)
-        rc = builder.shuffle_vector(builder.load(cptr, align=4), undef, REVERSE)
-        rb = builder.shuffle_vector(builder.load(bptr, align=4), undef, REVERSE)
-        xr = builder.sub(splat(builder, i32(xr0_), VI32), lane)
-        inside = builder.and_(builder.icmp_signed(">=", xr, ir.Constant(VI32, [0] * LANES)),
-                              builder.icmp_signed("<", xr, splat(builder, i32(W_), VI32)))
-        valid = builder.and_(builder.icmp_signed("<", lane, splat(builder, i32(lanes_c), VI32)), inside)
-        dv = builder.add(splat(builder, i32(d0_), VI32), lane)
-        better = builder.or_(builder.icmp_signed("<", s, rc),
-                             builder.and_(builder.icmp_signed("==", s, rc), builder.icmp_signed("<", dv, rb)))
-        take = builder.and_(valid, better)
-        builder.store(builder.shuffle_vector(builder.select(take, s, rc), undef, REVERSE), cptr, align=4)
-        builder.store(builder.shuffle_vector(builder.select(take, dv, rb), undef, REVERSE), bptr, align=4)
-        return context.get_dummy_value()
-
-    return sig, codegen
+lanes_vote_half = intrinsic(_vote_intrinsic(LANES // 2))
+lanes_vote_half.__doc__ = (":func:`lanes_vote` on ``LANES // 2`` lanes (reads ``sums[si:si + LANES // 2]``, ``cost`` "
+                           "and ``best`` at ``top - LANES // 2 + 1 .. top``), for a tube that ends within them.")
 
 
 @intrinsic
