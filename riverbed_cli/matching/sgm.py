@@ -157,26 +157,29 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
             cbase = (k * 3 + slot) * W
             pslot = py % 3
             pbase = (k * 3 + pslot) * W
+            rws, ros, rwp, rop = rw[slot], ro[slot], rw[pslot], ro[pslot]  # this row's layout and the neighbours'
+            # running indices (this pixel's ring entry, its neighbour's, its half-sums): no multiply per pixel
+            cur = cbase * R + _GUARD - R
+            prev = (pbase - dx) * R + _GUARD - R
+            ai = -RA
             for xx in range(W):
+                cur += R
+                prev += R
+                ai += RA
                 b = rb[xx]
-                w = rw[slot, xx]
+                w = rws[xx]
                 px = xx - dx
                 if w <= LANES and b + LANES <= n and 0 <= px < W and py >= 0:
                     # the common step first: one chunk, its neighbour's entry within reach
-                    s = ro[slot, xx] - ro[pslot, px]
-                    if 1 - _GUARD <= s <= (rw[pslot, px] + LANES - 1) // LANES * LANES - 1:
-                        q = pbase + px
-                        mp = Lmin[q]
-                        cur = (cbase + xx) * R + _GUARD
-                        m = lanes_step(L, acc, cur, flat, b, xx * RA, w, q * R + _GUARD + s - 1, P1,
-                                       np.int16(mp + P2), mp, keep)
+                    s = ros[xx] - rop[px]
+                    if 1 - _GUARD <= s <= (rwp[px] + LANES - 1) // LANES * LANES - 1:
+                        mp = Lmin[pbase + px]
+                        m = lanes_step(L, acc, cur, flat, b, ai, w, prev + s - 1, P1, np.int16(mp + P2), mp, keep)
                         lanes_fill(L, cur + LANES, sent)
                         Lmin[cbase + xx] = m
                         continue
                 span = (w + LANES - 1) // LANES * LANES
                 safe = b + span <= n  # every lane's cost and result lie inside the volume
-                ai = xx * RA
-                cur = (cbase + xx) * R + _GUARD
                 if px < 0 or px >= W or py < 0:
                     if safe:
                         m = sent
@@ -186,11 +189,10 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
                         m = _step_scalar(L, acc[ai:], cur, flat, b, w, span, cur, w, 0, P1, sent, zero, True, keep)
                 else:
                     q = pbase + px
-                    wq = rw[pslot, px]
-                    s = ro[slot, xx] - ro[pslot, px]
+                    wq = rwp[px]
+                    s = ros[xx] - rop[px]
                     mp = Lmin[q]
                     jump = np.int16(mp + P2)
-                    prev = q * R + _GUARD
                     spanq = (wq + LANES - 1) // LANES * LANES
                     if safe and 1 - _GUARD <= s <= spanq + LANES - 1 - span:
                         if span == LANES:
