@@ -7,7 +7,7 @@ import pytest
 from riverbed_cli.matching import census, diffusion, disparity, guidance, riverbed_plus, sgm
 from riverbed_cli.matching.guidance import lidar_share
 from riverbed_cli.matching.pipeline import match_pair
-from riverbed_cli.matching.tubes import lidar_tubes
+from riverbed_cli.matching.tubes import lidar_tube_layout, lidar_tubes
 from riverbed_cli.matching.volume import TubeLayout
 from tube_volumes import gather
 
@@ -141,6 +141,21 @@ def test_tube_guidance_equals_dense_guidance_inside_the_tubes():
         dense = run(cost.copy(), None)
         tube = run(gather(cost, layout), layout)
         np.testing.assert_array_equal(tube, gather(dense, layout))
+
+
+@pytest.mark.parametrize("share,outside,shape", [(0.05, 0.0, (61, 47)), (0.02, 0.3, (40, 93)), (0.0003, 0.0, (64, 64)),
+                                                 (0.0, 0.0, (23, 31))])
+def test_tube_layout_from_cells_equals_the_layout_of_the_tubes(share, outside, shape):
+    # lidar_tube_layout (the pipeline's) builds the layout from the rule's cells; from_bounds from the pixels' tubes
+    rng = np.random.default_rng(len(shape) + int(share * 1e4))
+    sparse = np.where(rng.random(shape) < share, rng.uniform(0, 40, shape), np.nan).astype(np.float32)
+    sparse[(rng.random(shape) < outside) & np.isfinite(sparse)] += 30.0  # some beyond the range's end
+    got = lidar_tube_layout(sparse, 0, 39, cell=3)
+    want = TubeLayout.from_bounds(*lidar_tubes(sparse, 0, 39, cell=3), 0)
+    for name in ("offset", "width", "start"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+        assert getattr(got, name).dtype == getattr(want, name).dtype
+    assert (got.size, got.max_width) == (want.size, want.max_width)
 
 
 def test_tube_rule_hand_made_cases():

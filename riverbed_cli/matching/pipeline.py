@@ -21,7 +21,7 @@ from .config import MatchConfig
 from .guidance import lidar_points, lidar_share, lidar_share_of_points
 from .registry import get_fusion, get_guide, get_matcher
 from .results import MatchInfo, MatchResult
-from .tubes import HOLE_FACTOR, hole_bounds, lidar_tubes, range_map_summary, tube_stats
+from .tubes import HOLE_FACTOR, hole_bounds, lidar_tube_layout, lidar_tubes, range_map_summary, tube_stats
 from .volume import TubeLayout
 
 log = logging.getLogger(__name__)
@@ -344,19 +344,17 @@ def _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, match
     tubes, stats = None, None
     if mode == "tube":
         t0 = time.perf_counter()
+        # The LiDAR outside the nominal range bounds the pixels it alone reaches at the range's end (lidar_tubes):
+        # their disparity lies beyond the range, where no search finds it. Only the points inside guide the cost.
+        # The spacing counts every point, as match_tiled's tubes do.
+        tube_share = lidar_share(lidar) if range_map is None and sparse is not lidar else share
         if range_map is not None:
-            lo, hi = check_range_map(range_map, shape, d_min, d_max)
-        else:
-            coarse = config.tube.holes == "coarse"
-            # The LiDAR outside the nominal range bounds the pixels it alone reaches at the range's end (lidar_tubes):
-            # their disparity lies beyond the range, where no search finds it. Only the points inside guide the
-            # cost. The spacing counts every point, as match_tiled's tubes do.
-            outside = sparse is not lidar
-            lo, hi, *hole = lidar_tubes(lidar, d_min, d_max, share=lidar_share(lidar) if outside else share,
-                                        return_holes=coarse, **asdict(config.tube))
-            if coarse:
-                lo, hi = fill_tube_holes(left, right, lo, hi, hole[0], d_min, d_max, config)
-        layout = TubeLayout.from_bounds(lo, hi, d_min)
+            layout = TubeLayout.from_bounds(*check_range_map(range_map, shape, d_min, d_max), d_min)
+        elif config.tube.holes == "coarse":
+            lo, hi, hole = lidar_tubes(lidar, d_min, d_max, share=tube_share, return_holes=True, **asdict(config.tube))
+            layout = TubeLayout.from_bounds(*fill_tube_holes(left, right, lo, hi, hole, d_min, d_max, config), d_min)
+        else:  # the layout straight from the rule's cells
+            layout = lidar_tube_layout(lidar, d_min, d_max, share=tube_share, **asdict(config.tube))
         stats = tube_stats(layout, d_min, d_max)
         if stats.full_share < 1.0:  # tubes as wide as the range everywhere: the full-range volume, exactly
             tubes = layout
