@@ -51,35 +51,43 @@ def nearest_labels(rows, cols, shape):
 def _touching_cells(anchor, n, cap):
     # Pairs of 4-adjacent pixels with different anchors: their points are natural neighbours. Scanned in order, each
     # pair offered once per run of equal pairs (a cell boundary along the row repeats its vertical pair); a point's
-    # list is short, so it is searched for duplicates.
+    # list is short, so it is searched for duplicates. A row first marks, without branches, where it meets another
+    # cell (to the right, below) and lists those pixels; the scan then visits only them, in the same order (a branch
+    # on every pixel pair missed at each cell boundary).
     H, W = anchor.shape
     nb = np.full((n, cap), -1, np.int32)
     cnt = np.zeros(n, np.int32)
+    flags = np.zeros(W, np.int64)
+    at = np.zeros(W, np.int64)
     for y in range(H):
-        last_a = np.full(2, -1, np.int64)  # the last pair offered, horizontal and vertical
-        last_b = np.full(2, -1, np.int64)
+        m = 0
         for x in range(W):
             a = anchor[y, x]
+            right = x + 1 < W and anchor[y, min(x + 1, W - 1)] != a
+            down = y + 1 < H and anchor[min(y + 1, H - 1), x] != a
+            f = np.int64(right) | (np.int64(down) << 1)
+            flags[x] = f
+            at[m] = x
+            m += f != 0
+        last_a = np.full(2, -1, np.int64)  # the last pair offered, horizontal and vertical
+        last_b = np.full(2, -1, np.int64)
+        for t in range(m):
+            x = at[t]
+            a = anchor[y, x]
             for k in range(2):
-                if k == 0:
-                    if x + 1 >= W:
-                        continue
-                    b = anchor[y, x + 1]
-                else:
-                    if y + 1 >= H:
-                        continue
-                    b = anchor[y + 1, x]
-                if a == b or (a == last_a[k] and b == last_b[k]):
+                if not flags[x] & (1 << k):
+                    continue
+                b = anchor[y, x + 1] if k == 0 else anchor[y + 1, x]
+                if a == last_a[k] and b == last_b[k]:
                     continue
                 last_a[k] = a
                 last_b[k] = b
                 for side in range(2):
                     p, q = (a, b) if side == 0 else (b, a)
+                    # the whole list compared at once (its empty slots hold -1, never a point), no branch per entry
                     seen = False
-                    for j in range(cnt[p]):
-                        if nb[p, j] == q:
-                            seen = True
-                            break
+                    for j in range(cap):
+                        seen |= nb[p, j] == q
                     if not seen and cnt[p] < cap:
                         nb[p, cnt[p]] = q
                         cnt[p] += 1
