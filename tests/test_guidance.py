@@ -115,6 +115,26 @@ def test_lidar_share_uses_covered_area():
     assert lidar_share(sparse2) == pytest.approx(100 / 8281)
 
 
+@pytest.mark.parametrize("share,seed", [(0.05, 0), (0.002, 1), (0.0004, 2), (0.3, 3)])
+def test_prepare_lidar_gives_the_points_and_shares_of_the_separate_passes(share, seed):
+    # match_pair's one pass over the map: the cut map, its points and both shares as lidar_points and lidar_share
+    # give them (bit for bit), with points outside the range, +-inf and rows without any
+    from riverbed_cli.geometry.coverage import lidar_points
+    from riverbed_cli.matching.pipeline import prepare_lidar, prepare_sparse
+
+    rng = np.random.default_rng(seed)
+    shape = (47, 61)
+    sparse = np.where(rng.random(shape) < share, rng.uniform(-10, 50, shape), np.nan).astype(np.float32)
+    sparse[3, 3], sparse[4, 7], sparse[40, 50] = np.inf, -np.inf, 20.0
+    cut, points, inside_share, all_share = prepare_lidar(sparse, shape, 0, 39)
+    np.testing.assert_array_equal(cut, prepare_sparse(sparse, shape, 0, 39))
+    for got, want in zip(points, lidar_points(cut)):
+        np.testing.assert_array_equal(got, want)
+        assert got.dtype == want.dtype
+    assert inside_share == lidar_share(cut)
+    assert all_share == lidar_share(sparse)
+
+
 def test_lidar_share_from_row_ends_equals_the_hull_of_every_point():
     # lidar_share_of_points takes the hull of each row's two end points when the points come sorted by row: the
     # same share as OpenCV's hull of all of them, sorted, shuffled, or with columns out of order within the rows

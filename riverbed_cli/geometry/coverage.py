@@ -51,11 +51,27 @@ def lidar_share(sparse):
 def lidar_share_of_points(rows, cols, shape):
     """:func:`lidar_share` from the pixel coordinates of the LiDAR points of an image of ``shape``."""
     n = len(rows)
+    if n < 3:
+        return _hull_share(n, None, None, shape)
+    return _hull_share(n, *_row_ends(np.asarray(rows, np.int64), np.asarray(cols, np.int64)), shape)
+
+
+def lidar_share_of_row_ends(n, first, last, shape):
+    """:func:`lidar_share` of ``n`` points from each row's first and last point's column (``first``, ``last``: (H,)
+    int, -1 for a row without any): the same hull as from every point."""
+    if n < 3:
+        return _hull_share(n, None, None, shape)
+    first = np.asarray(first, np.int64)
+    r = np.flatnonzero(first >= 0)
+    return _hull_share(n, np.concatenate([r, r]), np.concatenate([first[r], np.asarray(last, np.int64)[r]]), shape)
+
+
+def _hull_share(n, rows, cols, shape):
+    # n points over the pixels of the convex hull of (rows, cols) (the whole image for fewer than three points)
     if n == 0:
         return 0.0
     area = float(shape[0] * shape[1])
     if n >= 3:
-        rows, cols = _row_ends(np.asarray(rows, np.int64), np.asarray(cols, np.int64))
         hull = cv2.convexHull(np.stack([cols, rows], axis=1).astype(np.int32))[:, 0, :]
         # Pixels in the closed hull by Pick's theorem (A + B/2 + 1, B the lattice points on the boundary): exact,
         # and no image-sized mask.

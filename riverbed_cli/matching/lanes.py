@@ -21,9 +21,13 @@ The census cost (:func:`lanes_census`) writes ``LANES`` costs of a tube whole, i
 next pixels to overwrite: 0.53-0.6x of the scalar loop's time on the aerial pair. A step that reads lanes its
 neighbour has just stored whole at a shifted address waits for that store (no store-to-load forwarding).
 The census transform (:func:`lanes_census_bits`) keeps 16 pixels' words in registers across the window's
-neighbours: 0.62-0.70x of the loop that wrote each word back once per neighbour.
-An SGM step of a tube wider than ``LANES`` (:func:`lanes_step_min`) folds its chunk into a running minimum, reduced
-once per pixel (:func:`lanes_reduce`) instead of once per chunk: the passes 0.92-0.97x on the dev pairs.
+neighbours, in two 32-bit halves: 0.62-0.70x of the loop that wrote each word back once per neighbour, then 0.8x
+of one 64-bit accumulator.
+An SGM step of a tube wider than ``LANES`` (:func:`lanes_step_wide`) and the selection's sums of one
+(:func:`lanes_sum_wide`) loop over its chunks inside one step, the running minimum in a register and reduced once
+per pixel: kept in an array between one call per chunk (:func:`lanes_step_min`, still used where chunks read from
+different places), each chunk's load waited for the last one's store. Votes of a tube of at most ``LANES // 2``
+disparities take half the lanes (:func:`lanes_vote_half`, 32-bit lanes).
 
 Numba's cache keys a kernel on its own source file only: after editing this module, delete the cached kernels of the
 modules that use it (``riverbed_cli/matching/__pycache__/{sgm,disparity,guidance,census}.*.nb[ic]``), or they keep

@@ -17,8 +17,8 @@ from numba import njit, prange
 
 from ..errors import RiverbedError
 from . import fusion, guides, matchers  # noqa: F401  (importing them fills the registries)
+from ..geometry.coverage import lidar_share_of_row_ends
 from .config import MatchConfig
-from .guidance import lidar_points, lidar_share, lidar_share_of_points
 from .registry import get_fusion, get_guide, get_matcher
 from .results import MatchInfo, MatchResult
 from .tubes import HOLE_FACTOR, hole_bounds, lidar_tube_layout, lidar_tubes, range_map_summary, tube_stats
@@ -102,34 +102,81 @@ def resolve_disparity_range(d_min, d_max, sparse_values):
 def prepare_sparse(sparse, shape, d_min, d_max):
     """The sparse map as float32, checked against the image ``shape``; disparities outside ``[d_min, d_max]``
     become NaN (with a warning)."""
+    return prepare_lidar(sparse, shape, d_min, d_max)[0]
+
+
+def prepare_lidar(sparse, shape, d_min, d_max):
+    """:func:`prepare_sparse` and what a match needs of its LiDAR, from one pass over the map: ``(sparse, points,
+    share, share_all)`` with ``points`` the :func:`~riverbed_cli.geometry.coverage.lidar_points` of the prepared
+    map (the points inside the range), ``share`` their :func:`lidar_share` and ``share_all`` that of every finite
+    point (the tube rule's spacing counts them all)."""
     sparse = np.asarray(sparse, dtype=np.float32)
     if sparse.shape != shape:
         raise RiverbedError(
             f"sparse map is {sparse.shape[1] if sparse.ndim > 1 else '?'}x{sparse.shape[0]} (WxH) but the images are "
             f"{shape[1]}x{shape[0]}"
         )
-    n, n_in, cut = _cut_to_range(sparse, float(d_min), float(d_max))
+    per_row, cut = _cut_to_range(sparse, float(d_min), float(d_max))
+    n, n_in = int(per_row[:, 0].sum()), int(per_row[:, 1].sum())
     if n == 0:
         raise RiverbedError("sparse map has no valid disparities")
     check_inside(n_in, n, d_min, d_max, lambda: sparse[np.isfinite(sparse)])
-    return cut if n_in < n else sparse
+    out = cut if n_in < n else sparse
+    points = _points_of_rows(out, per_row)
+    share = lidar_share_of_row_ends(n_in, per_row[:, 4], per_row[:, 5], shape)
+    share_all = share if n_in == n else lidar_share_of_row_ends(n, per_row[:, 2], per_row[:, 3], shape)
+    return out, points, share, share_all
 
 
 @njit(cache=True, parallel=True)
 def _cut_to_range(sparse, d_min, d_max):
-    # In one pass: the finite values, those in [d_min, d_max], and a copy with NaN outside it (NumPy's masks, sums
-    # and np.where took 1 ms on 740 x 500 px; one kernel, as each cached kernel costs a fresh process 3-4 ms to load)
+    # In one pass: a copy with NaN outside [d_min, d_max] and per row the finite values and those inside, with the
+    # first and last column of each (-1: none). NumPy's masks, sums and np.where took 1 ms on 740 x 500 px, and the
+    # points and the shares another pass each; one kernel, as each cached kernel costs a fresh process 3-4 ms to load.
     H, W = sparse.shape
-    counts = np.zeros((H, 2), np.int64)
+    per_row = np.empty((H, 6), np.int64)
     out = np.empty((H, W), np.float32)
     for y in prange(H):
+        finite = inside_n = 0
+        f0 = f1 = i0 = i1 = -1
         for x in range(W):
             v = sparse[y, x]
             inside = np.float64(v) >= d_min and np.float64(v) <= d_max  # False for NaN and +-inf
-            counts[y, 0] += np.isfinite(v)
-            counts[y, 1] += inside
             out[y, x] = v if inside else np.float32(np.nan)
-    return counts[:, 0].sum(), counts[:, 1].sum(), out
+            if np.isfinite(v):
+                finite += 1
+                f0 = x if f0 < 0 else f0
+                f1 = x
+                if inside:
+                    inside_n += 1
+                    i0 = x if i0 < 0 else i0
+                    i1 = x
+        per_row[y, 0], per_row[y, 1], per_row[y, 2], per_row[y, 3], per_row[y, 4], per_row[y, 5] = (
+            finite, inside_n, f0, f1, i0, i1)
+    return per_row, out
+
+
+@njit(cache=True, parallel=True)
+def _points_of_rows(sparse, per_row):
+    # lidar_points of a map whose finite values are those counted inside by _cut_to_range: rows, columns (int64)
+    # and values (float64) in row-major order, each row filled from its running total
+    H = sparse.shape[0]
+    at = np.zeros(H + 1, np.int64)
+    for y in range(H):
+        at[y + 1] = at[y] + per_row[y, 1]
+    rows = np.empty(at[H], np.int64)
+    cols = np.empty(at[H], np.int64)
+    values = np.empty(at[H], np.float64)
+    for y in prange(H):
+        k = at[y]
+        for x in range(max(per_row[y, 4], 0), per_row[y, 5] + 1):
+            v = sparse[y, x]
+            if np.isfinite(v):
+                rows[k] = y
+                cols[k] = x
+                values[k] = np.float64(v)
+                k += 1
+    return rows, cols, values
 
 
 def check_inside(n_in, n, d_min, d_max, values):
@@ -302,12 +349,11 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
     stages = {}
     shape = left.shape[:2]
     lidar = None
+    points, share, share_all = None, 0.0, 0.0
     if sparse is not None:
         lidar = np.asarray(sparse, dtype=np.float32)
-        sparse = prepare_sparse(lidar, shape, d_min, d_max)
-    # the LiDAR's pixels found once: for its share, the guide and the fusion's LiDAR side
-    points = lidar_points(sparse) if sparse is not None else None
-    share = lidar_share_of_points(points[0], points[1], shape) if sparse is not None else 0.0
+        # the LiDAR's pixels found once: for its share, the guide and the fusion's LiDAR side
+        sparse, points, share, share_all = prepare_lidar(lidar, shape, d_min, d_max)
     fuser = get_fusion(resolve_fusion(config, guide, sparse is not None))
     # The fusion's LiDAR side (its Delaunay triangulation is single-threaded OpenCV) needs no stereo: it runs beside
     # the matcher, on the core the matcher's serial parts leave idle; on large images (the tiles of a large pair)
@@ -319,7 +365,7 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
         lidar_side = (_Beside if beside else _After)(fuser.prepare, sparse, config, points)
     try:
         out, mode, stats = _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, matcher, share,
-                                         range_map, stages, fuser.needs_status, points)
+                                         range_map, stages, fuser.needs_status, points, share_all)
         t0 = time.perf_counter()  # the fusion's stage is the time it adds after the matcher
         fused = fuser.fuse(out.disparity, out.status, sparse, config,
                            lidar_side.result() if lidar_side is not None else None)
@@ -329,7 +375,7 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
     if fuser.name != "none":
         stages["fusion"] = round(time.perf_counter() - t0, 4)
     info = MatchInfo(round(time.perf_counter() - t_all, 4), stages, config.guide, config.matcher, share,
-                     int(np.isfinite(sparse).sum()) if sparse is not None else 0, out.window, d_min, d_max,
+                     len(points[0]) if points is not None else 0, out.window, d_min, d_max,
                      [int(shape[1]), int(shape[0])], out.refinement, mode,
                      stats.to_dict() if stats is not None else None, fuser.name,
                      fused.stats.to_dict() if fused.stats is not None else None)
@@ -337,7 +383,7 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
 
 
 def _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, matcher, share, range_map, stages,
-                  return_status, points=None):
+                  return_status, points=None, share_all=0.0):
     # match_pair's range (tubes), guide preparation and matcher: the matcher's output, the range mode, tube stats
     shape = left.shape[:2]
     mode = resolve_range(config, guide, matcher, sparse is not None, range_map is not None)
@@ -346,8 +392,8 @@ def _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, match
         t0 = time.perf_counter()
         # The LiDAR outside the nominal range bounds the pixels it alone reaches at the range's end (lidar_tubes):
         # their disparity lies beyond the range, where no search finds it. Only the points inside guide the cost.
-        # The spacing counts every point, as match_tiled's tubes do.
-        tube_share = lidar_share(lidar) if range_map is None and sparse is not lidar else share
+        # The spacing counts every point (share_all), as match_tiled's tubes do.
+        tube_share = share if range_map is not None else share_all
         if range_map is not None:
             layout = TubeLayout.from_bounds(*check_range_map(range_map, shape, d_min, d_max), d_min)
         elif config.tube.holes == "coarse":
