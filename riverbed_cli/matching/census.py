@@ -9,7 +9,7 @@ from numba import njit, prange
 
 from ..errors import RiverbedError
 from ..settings import parse_census_window
-from .lanes import LANES, lanes_census, lanes_census_bits
+from .lanes import LANES, lanes_census, lanes_census_bits, lanes_census_half
 
 # SWAR popcount constants. They must be np.uint64: mixing uint64 with int64 silently gives float64 in Numba.
 _M1 = np.uint64(0x5555555555555555)
@@ -139,6 +139,10 @@ def _census_tube_kernel(cl, cr, d_min, flat, start, width, offset, outside, scal
             w = np.int64(width[y, x])
             top = x - d_min - np.int64(offset[y, x])
             a = cl[y, x]
+            half = LANES // 2
+            if w <= half and top - half + 1 >= 0 and top < W and b + half <= end:  # most tubes: half the lanes
+                lanes_census_half(flat, b, a, row, top, scale)
+                continue
             i = 0
             while i < w and top - i - LANES + 1 >= 0 and top - i < W and b + i + LANES <= end:
                 lanes_census(flat, b + i, a, row, top - i, scale)

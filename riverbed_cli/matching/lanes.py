@@ -39,8 +39,8 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from .vector_ir import (F32, I16, I32, I64, LANES, REVERSE, V16, VI32, VI64, declared, load_i16, reduce_min, smin,
-                        splat, store_vector, valid, vector_ptr)
+from .vector_ir import (F32, I16, I32, I64, LANES, V16, VI32, VI64, declared, load_i16, reduce_min, smin, splat,
+                        store_vector, valid, vector_ptr)
 
 SENTINEL = 16384  # above any path cost (sgm.check_sgm_bounds); SENTINEL + P1 still fits int16
 
@@ -311,28 +311,41 @@ def lanes_find(typingctx, arr, index, value):
     return sig, codegen
 
 
-@intrinsic
-def lanes_census(typingctx, flat, fi, a, row, top, scale):
-    """``LANES`` census costs of one left pixel: lane ``i`` is ``popcount(a ^ row[top - i]) * scale`` (``row`` uint64,
-    the right image's census row; ``flat`` uint16), written to ``flat[fi + i]``, every lane. Reads
+def _census_intrinsic(n):
+    # lanes_census on n lanes (LANES, or LANES // 2 for tubes that end within them: half the 64-bit work)
+    vi64, v16 = ir.VectorType(I64, n), ir.VectorType(I16, n)
+    reverse = ir.Constant(ir.VectorType(I32, n), list(range(n - 1, -1, -1)))
+
+    def lanes_census(typingctx, flat, fi, a, row, top, scale):
+        sig = types.void(flat, fi, a, row, top, scale)
+
+        def codegen(context, builder, signature, args):
+            flat_, fi_, a_, row_, top_, scale_ = args
+            low = builder.sub(top_, ir.Constant(I64, n - 1))
+            rptr = builder.bitcast(vector_ptr(context, builder, signature.args[3], row_, low, I64), vi64.as_pointer())
+            r = builder.shuffle_vector(builder.load(rptr, align=8), ir.Constant(vi64, ir.Undefined), reverse)
+            x = builder.xor(r, splat(builder, a_, vi64))
+            ctpop = declared(builder, f"llvm.ctpop.v{n}i64", vi64, [vi64])
+            c = builder.mul(builder.trunc(builder.call(ctpop, [x]), v16), splat(builder, scale_, v16))
+            fptr = builder.bitcast(vector_ptr(context, builder, signature.args[0], flat_, fi_), v16.as_pointer())
+            builder.store(c, fptr, align=2)
+            return context.get_dummy_value()
+
+        return sig, codegen
+
+    return lanes_census
+
+
+lanes_census = intrinsic(_census_intrinsic(LANES))
+lanes_census.__doc__ = """``LANES`` census costs of one left pixel: lane ``i`` is ``popcount(a ^ row[top - i]) * scale``
+    (``row`` uint64, the right image's census row; ``flat`` uint16), written to ``flat[fi + i]``, every lane. Reads
     ``row[top - LANES + 1 .. top]``. The lanes past the pixel's tube are the next pixels' in the volume: the caller
     writes those after (and keeps both ranges inside the arrays). Nothing is read from ``flat``: a load of lanes a
     neighbour's store had just written whole, shifted, waited for that store (no store-to-load forwarding), and took
     longer than the scalar loop."""
-    sig = types.void(flat, fi, a, row, top, scale)
-
-    def codegen(context, builder, signature, args):
-        flat_, fi_, a_, row_, top_, scale_ = args
-        low = builder.sub(top_, ir.Constant(I64, LANES - 1))
-        r = builder.load(vector_ptr(context, builder, signature.args[3], row_, low, I64), align=8)
-        r = builder.shuffle_vector(r, ir.Constant(VI64, ir.Undefined), REVERSE)
-        x = builder.xor(r, splat(builder, a_, VI64))
-        ctpop = declared(builder, f"llvm.ctpop.v{LANES}i64", VI64, [VI64])
-        c = builder.mul(builder.trunc(builder.call(ctpop, [x]), V16), splat(builder, scale_))
-        builder.store(c, vector_ptr(context, builder, signature.args[0], flat_, fi_), align=2)
-        return context.get_dummy_value()
-
-    return sig, codegen
+lanes_census_half = intrinsic(_census_intrinsic(LANES // 2))
+lanes_census_half.__doc__ = (":func:`lanes_census` on ``LANES // 2`` lanes (reads ``row[top - LANES // 2 + 1 .. "
+                             "top]``, writes ``flat[fi:fi + LANES // 2]``), for a tube that ends within them.")
 
 
 @intrinsic
