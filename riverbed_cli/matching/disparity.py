@@ -91,15 +91,9 @@ def _tube_winner(fwd, bwd, n, b, D, o, d_min, subpixel, s, si):
     span = (D + LANES - 1) // LANES * LANES
     if b + span <= n:  # every lane inside the volume
         if span == LANES:
-            bv = lanes_sum(fwd, bwd, b, s, si, D)
-        else:  # one horizontal minimum for the pixel, not one per chunk
-            bv = lanes_sum_wide(fwd, bwd, b, s, si, D, span)
-        bi = 0
-        f = lanes_find(s, si, bv)
-        while f == LANES:  # the first chunk holding the minimum
-            bi += LANES
-            f = lanes_find(s, si + bi, bv)
-        bi += f
+            bi = lanes_find(s, si, lanes_sum(fwd, bwd, b, s, si, D))
+        else:  # the winner found in registers as the sums go
+            bi = lanes_sum_wide(fwd, bwd, b, s, si, D, span) & 0xFFFFFFFF
         return bi, _refine(s, si, D, bi, d_min + o, subpixel)
     for i in range(D):
         s[si + i] = fwd[b + i] + bwd[b + i]

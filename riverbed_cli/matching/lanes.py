@@ -216,22 +216,31 @@ def lanes_sum(typingctx, a, b, ai, out, oi, lanes):
 @intrinsic
 def lanes_sum_wide(typingctx, a, b, ai, out, oi, lanes, span):
     """:func:`lanes_sum` over a whole tube, ``span`` disparities (a multiple of ``LANES``) a chunk at a time (chunk
-    ``i`` at ``ai + i``, ``oi + i``, ``lanes - i`` valid lanes); returns the minimum over all (uint16), its running
-    minimum in a register."""
-    sig = types.uint16(a, b, ai, out, oi, lanes, span)
+    ``i`` at ``ai + i``, ``oi + i``, ``lanes - i`` valid lanes); returns its winner as ``minimum << 32 | index`` (the
+    minimum's first index; int64), each lane's running minimum and the chunk that first held it in registers (a
+    search of the stored sums for the minimum, chunk by chunk, took as long as the sums)."""
+    sig = types.int64(a, b, ai, out, oi, lanes, span)
 
     def codegen(context, builder, signature, args):
         a_, b_, ai_, out_, oi_, lanes_, span_ = args
         at, bt, _, ot = signature.args[:4]
         mv = cgutils.alloca_once_value(builder, ir.Constant(V16, [65535] * LANES))
+        mi = cgutils.alloca_once_value(builder, ir.Constant(VI32, [0] * LANES))
         with cgutils.for_range_slice(builder, ir.Constant(I64, 0), span_, ir.Constant(I64, LANES)) as (i, _):
             ci = builder.add(ai_, i)
             v = builder.add(load_i16(context, builder, at, a_, ci), load_i16(context, builder, bt, b_, ci))
             v = builder.select(valid(builder, builder.sub(lanes_, i)), v, ir.Constant(V16, [65535] * LANES))
             store_vector(context, builder, ot, out_, builder.add(oi_, i), v)
             old = builder.load(mv)
-            builder.store(builder.select(builder.icmp_unsigned("<", old, v), old, v), mv)
-        return reduce_min(builder, builder.load(mv), signed=False)
+            lower = builder.icmp_unsigned("<", v, old)  # strictly: a lane keeps the first chunk of its minimum
+            builder.store(builder.select(lower, v, old), mv)
+            builder.store(builder.select(lower, splat(builder, builder.trunc(i, I32), VI32), builder.load(mi)), mi)
+        m = reduce_min(builder, builder.load(mv), signed=False)
+        lane = ir.Constant(VI32, list(range(LANES)))
+        at_min = builder.icmp_unsigned("==", builder.load(mv), splat(builder, m))
+        index = builder.select(at_min, builder.add(builder.load(mi), lane), ir.Constant(VI32, [2 ** 31 - 1] * LANES))
+        first = reduce_min(builder, index)
+        return builder.or_(builder.shl(builder.zext(m, I64), ir.Constant(I64, 32)), builder.zext(first, I64))
 
     return sig, codegen
 
