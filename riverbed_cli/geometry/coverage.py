@@ -14,13 +14,9 @@ def lidar_points(sparse):
 
 
 @njit(cache=True, parallel=True)
-def pixels_where(mask):
-    """``np.nonzero`` of a 2-D boolean ``mask`` as int64 rows and columns (row-major order).
-
-    Two passes (count, then fill): a third of NumPy's time with its int64 copies (a run asks for the LiDAR points
-    four times and for the guided pixels once; 0.9-1.7 ms each by NumPy on 740 x 500 px). Both over the rows in
-    parallel, each row filled from its running total: the aerial pair's guided pixels (70 % of 1024 x 1024) 3.5 ->
-    2.2 ms; a sparse mask of 740 x 500 px 0.29 -> 0.34 ms."""
+def row_offsets(mask):
+    """Where each row's True pixels of a 2-D boolean ``mask`` start in its row-major list: (H + 1,) int64, the last
+    the total; the rows counted in parallel."""
     H, W = mask.shape
     ends = np.zeros(H + 1, np.int64)
     for y in prange(H):
@@ -30,6 +26,19 @@ def pixels_where(mask):
         ends[y + 1] = n
     for y in range(H):
         ends[y + 1] += ends[y]
+    return ends
+
+
+@njit(cache=True, parallel=True)
+def pixels_where(mask):
+    """``np.nonzero`` of a 2-D boolean ``mask`` as int64 rows and columns (row-major order).
+
+    Two passes (count, then fill): a third of NumPy's time with its int64 copies (a run asks for the LiDAR points
+    four times and for the guided pixels once; 0.9-1.7 ms each by NumPy on 740 x 500 px). Both over the rows in
+    parallel, each row filled from its running total: the aerial pair's guided pixels (70 % of 1024 x 1024) 3.5 ->
+    2.2 ms; a sparse mask of 740 x 500 px 0.29 -> 0.34 ms."""
+    H, W = mask.shape
+    ends = row_offsets(mask)
     rows = np.empty(ends[H], np.int64)
     cols = np.empty(ends[H], np.int64)
     for y in prange(H):

@@ -44,7 +44,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
-from ..geometry.coverage import lidar_points
+from ..geometry.coverage import lidar_points, row_offsets
 from ..geometry.interpolation import delaunay_graph, linear_fill, nearest_points
 from ..geometry.planes import PlaneFill, plane_fill, plane_fit
 from ..records import RecordMapping
@@ -187,24 +187,9 @@ def median_of(values):
 
 
 @njit(cache=True, parallel=True)
-def _row_counts(mask):
-    # the row offsets of mask's True pixels in row-major order (H + 1)
-    H, W = mask.shape
-    counts = np.zeros(H + 1, np.int64)
-    for y in prange(H):
-        n = 0
-        for x in range(W):
-            n += mask[y, x]
-        counts[y + 1] = n
-    for y in range(H):
-        counts[y + 1] += counts[y]
-    return counts
-
-
-@njit(cache=True, parallel=True)
 def _where_values(x, mask):
     # x[mask] as float64, row-major
-    at = _row_counts(mask)
+    at = row_offsets(mask)
     out = np.empty(at[-1], np.float64)
     H, W = mask.shape
     for y in prange(H):
@@ -224,7 +209,7 @@ def _where_abs_diff(a, b, sigma, mask, limit):
     for y in prange(H):
         for x in range(W):
             keep[y, x] = mask[y, x] and np.float64(sigma[y, x]) <= limit
-    at = _row_counts(keep)
+    at = row_offsets(keep)
     out = np.empty(at[-1], np.float32)
     for y in prange(H):
         k = at[y]

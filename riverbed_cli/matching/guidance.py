@@ -29,6 +29,7 @@ from numba import njit, prange
 from ..errors import RiverbedError
 from .volume import volume_layout
 from ..geometry.coverage import lidar_points, lidar_share, lidar_share_of_points, pixels_where  # noqa: F401  (re-exported)
+from ..geometry.coverage import row_offsets
 from ..geometry.interpolation import first_at_least
 from .lanes import LANES
 from .lanes_guidance import (lanes_claim, lanes_claim_rgb, lanes_claim_rgb_whole, lanes_claim_whole, lanes_colour,
@@ -235,21 +236,6 @@ def homogeneous_owners(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0
 
 
 @njit(cache=True, inline="always")
-def _owned_row_ends(owner):
-    # the running count of owned pixels before each row (H + 1), the rows counted in parallel
-    H, W = owner.shape
-    ends = np.zeros(H + 1, np.int64)
-    for y in prange(H):
-        c = 0
-        for x in range(W):
-            c += owner[y, x] >= 0
-        ends[y + 1] = c
-    for y in range(H):
-        ends[y + 1] += ends[y]
-    return ends
-
-
-@njit(cache=True, inline="always")
 def _modulate_pixel(flat, base, D, d_min, dm, w, limit, k, band, form, scale, fbar, inv2c2, tfar, fcap, fcap64):
     # one guided pixel's D costs from flat[base] (disparity d_min first): its LiDAR point's disparity dm, its weight w
     # (0 at a LiDAR pixel); chunks ending before limit are read and written whole
@@ -286,11 +272,12 @@ def _modulate_pixel(flat, base, D, d_min, dm, w, limit, k, band, form, scale, fb
 
 
 @njit(cache=True, parallel=True)
-def _modulate_kernel(flat, W, D0, owner, dissim, values, d_min0, k, c, band, form, scale, fbar, cap, tstart, twidth,
-                     toffset):
-    # In place, only at the guided pixels (owner >= 0). flat holds q = scale * F (a dense H x W x D0 volume
-    # flattened, or with tstart/twidth/toffset, 0 x 0 for none, per-pixel tubes); every form is
-    # out = (alpha + beta * g) * q + gamma * g with the wall height g in [0, 1] (module docstring).
+def _modulate_kernel(flat, W, D0, owner, ends, dissim, values, d_min0, k, c, band, form, scale, fbar, cap, tstart,
+                     twidth, toffset):
+    # In place, only at the guided pixels (owner >= 0; ends: their row offsets, coverage.row_offsets). flat holds
+    # q = scale * F (a dense H x W x D0 volume flattened, or with tstart/twidth/toffset, 0 x 0 for none, per-pixel
+    # tubes); every form is out = (alpha + beta * g) * q + gamma * g with the wall height g in [0, 1] (module
+    # docstring).
     inv2c2 = 1.0 / (2.0 * c * c)
     tfar = 6.5 * c  # past this, 1 - exp(-t^2 / 2c^2) == 1 to 1e-9: the wall is flat and needs no exp
     fcap = np.float32(cap)
@@ -302,7 +289,6 @@ def _modulate_kernel(flat, W, D0, owner, dissim, values, d_min0, k, c, band, for
     # disparities may reach past its pixel's tube into the next pixels' (or the volume's end): inside the block
     # (before its limit, the start of the next block's first row) those are this thread's, to come, or nobody's,
     # and whole vectors are read and written back; past the limit the chunk is masked.
-    ends = _owned_row_ends(owner)
     n = ends[H]
     nb = max(1, min(n, 64))
     edges = np.empty(nb + 1, np.int64)
@@ -363,7 +349,7 @@ def _apply(cost, owner, dissim, values, rows, cols, d_min, k, c, band, form, cos
             raise RiverbedError("give the wall scale fbar for a tube volume")
         fbar = wall_scale(cost, rows, cols, cost_scale)
     flat, W, D, ts, tw, to = volume_layout(cost, owner.shape, tubes)
-    _modulate_kernel(flat, W, D, owner, dissim, values, int(d_min),
+    _modulate_kernel(flat, W, D, owner, row_offsets(owner >= 0), dissim, values, int(d_min),
                      float(k), float(c), float(band), FORMS[form], float(cost_scale), fbar, int(cap), ts, tw, to)
     return cost
 

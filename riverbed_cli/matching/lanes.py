@@ -196,6 +196,15 @@ def lanes_copy(typingctx, src, si, dst, di, lanes):
     return sig, codegen
 
 
+def _chunk_sums(context, builder, sig_args, a, b, ai, out, oi, lanes):
+    # a[ai + d] + b[ai + d] for d < lanes, 65535 past them, stored to out[oi:]; returns them
+    at, bt, _, ot = sig_args[:4]
+    v = builder.add(load_i16(context, builder, at, a, ai), load_i16(context, builder, bt, b, ai))
+    v = builder.select(valid(builder, lanes), v, ir.Constant(V16, [65535] * LANES))
+    store_vector(context, builder, ot, out, oi, v)
+    return v
+
+
 @intrinsic
 def lanes_sum(typingctx, a, b, ai, out, oi, lanes):
     """``out[oi + d] = a[ai + d] + b[ai + d]`` (uint16 arrays; the sum must fit, as SGM's half-sums do) for
@@ -204,11 +213,8 @@ def lanes_sum(typingctx, a, b, ai, out, oi, lanes):
 
     def codegen(context, builder, signature, args):
         a_, b_, ai_, out_, oi_, lanes_ = args
-        at, bt, _, ot = signature.args[:4]
-        v = builder.add(load_i16(context, builder, at, a_, ai_), load_i16(context, builder, bt, b_, ai_))
-        v = builder.select(valid(builder, lanes_), v, ir.Constant(V16, [65535] * LANES))
-        store_vector(context, builder, ot, out_, oi_, v)
-        return reduce_min(builder, v, signed=False)
+        return reduce_min(builder, _chunk_sums(context, builder, signature.args, a_, b_, ai_, out_, oi_, lanes_),
+                          signed=False)
 
     return sig, codegen
 
@@ -223,14 +229,11 @@ def lanes_sum_wide(typingctx, a, b, ai, out, oi, lanes, span):
 
     def codegen(context, builder, signature, args):
         a_, b_, ai_, out_, oi_, lanes_, span_ = args
-        at, bt, _, ot = signature.args[:4]
         mv = cgutils.alloca_once_value(builder, ir.Constant(V16, [65535] * LANES))
         mi = cgutils.alloca_once_value(builder, ir.Constant(VI32, [0] * LANES))
         with cgutils.for_range_slice(builder, ir.Constant(I64, 0), span_, ir.Constant(I64, LANES)) as (i, _):
-            ci = builder.add(ai_, i)
-            v = builder.add(load_i16(context, builder, at, a_, ci), load_i16(context, builder, bt, b_, ci))
-            v = builder.select(valid(builder, builder.sub(lanes_, i)), v, ir.Constant(V16, [65535] * LANES))
-            store_vector(context, builder, ot, out_, builder.add(oi_, i), v)
+            v = _chunk_sums(context, builder, signature.args, a_, b_, builder.add(ai_, i), out_, builder.add(oi_, i),
+                            builder.sub(lanes_, i))
             old = builder.load(mv)
             lower = builder.icmp_unsigned("<", v, old)  # strictly: a lane keeps the first chunk of its minimum
             builder.store(builder.select(lower, v, old), mv)

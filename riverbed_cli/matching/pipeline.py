@@ -393,14 +393,13 @@ def _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, match
         # The LiDAR outside the nominal range bounds the pixels it alone reaches at the range's end (lidar_tubes):
         # their disparity lies beyond the range, where no search finds it. Only the points inside guide the cost.
         # The spacing counts every point (share_all), as match_tiled's tubes do.
-        tube_share = share if range_map is not None else share_all
         if range_map is not None:
             layout = TubeLayout.from_bounds(*check_range_map(range_map, shape, d_min, d_max), d_min)
         elif config.tube.holes == "coarse":
-            lo, hi, hole = lidar_tubes(lidar, d_min, d_max, share=tube_share, return_holes=True, **asdict(config.tube))
+            lo, hi, hole = lidar_tubes(lidar, d_min, d_max, share=share_all, return_holes=True, **asdict(config.tube))
             layout = TubeLayout.from_bounds(*fill_tube_holes(left, right, lo, hi, hole, d_min, d_max, config), d_min)
         else:  # the layout straight from the rule's cells
-            layout = lidar_tube_layout(lidar, d_min, d_max, share=tube_share, **asdict(config.tube))
+            layout = lidar_tube_layout(lidar, d_min, d_max, share=share_all, **asdict(config.tube))
         stats = tube_stats(layout, d_min, d_max)
         if stats.full_share < 1.0:  # tubes as wide as the range everywhere: the full-range volume, exactly
             tubes = layout

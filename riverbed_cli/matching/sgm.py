@@ -194,11 +194,8 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
                     mp = Lmin[q]
                     jump = np.int16(mp + P2)
                     spanq = (wq + LANES - 1) // LANES * LANES
-                    if safe and 1 - _GUARD <= s <= spanq + LANES - 1 - span:
-                        if span == LANES:
-                            m = lanes_step(L, acc, cur, flat, b, ai, w, prev + s - 1, P1, jump, mp, keep)
-                        else:  # one horizontal minimum for the pixel, not one per chunk
-                            m = lanes_step_wide(L, acc, cur, flat, b, ai, w, span, prev + s - 1, P1, jump, mp, keep)
+                    if safe and 1 - _GUARD <= s <= spanq + LANES - 1 - span:  # a wide tube (one chunk: above)
+                        m = lanes_step_wide(L, acc, cur, flat, b, ai, w, span, prev + s - 1, P1, jump, mp, keep)
                     elif safe and _chunks_reach(s, span, wq, spanq):
                         # tubes far apart (a pixel searching the whole range beside a narrow tube): chunk by chunk,
                         # those wholly outside the neighbour's tube from the block of sentinels
