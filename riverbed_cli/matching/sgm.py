@@ -105,6 +105,35 @@ def _chunks_reach(s, span, wq, spanq):
     return True
 
 
+@njit(cache=True, boundscheck=False, inline="never")
+def _common_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pbase, R, RA, P1, P2, keep):
+    # Steps of one direction from pixel xx on while each is the common one: a tube of one chunk whose neighbour's
+    # entry is within reach (in the row before, py >= 0). Returns the first pixel that is not. Apart from _sgm_pass so
+    # that its few values stay in registers: inside the pass's loop, among the rare cases' values, a fifth of a
+    # step's instructions were stack loads and stores.
+    n = flat.shape[0]
+    sent = np.int16(_SENTINEL)
+    while xx < W:
+        ux = np.uint64(xx)  # unsigned indices: no negative-index wrap-around code
+        b = rb[ux]
+        w = rws[ux]
+        px = xx - dx
+        if w > LANES or b + LANES > n or px < 0 or px >= W:
+            return xx
+        up = np.uint64(px)
+        s = ros[ux] - rop[up]
+        if s < 1 - _GUARD or s > (rwp[up] + LANES - 1) // LANES * LANES - 1:
+            return xx
+        cur = (cbase + xx) * R + _GUARD
+        mp = Lmin[np.uint64(pbase + px)]
+        m = lanes_step(L, acc, cur, flat, b, xx * RA, w, (pbase + px) * R + _GUARD + s - 1, P1, np.int16(mp + P2), mp,
+                       keep)
+        lanes_fill(L, cur + LANES, sent)
+        Lmin[np.uint64(cbase + xx)] = m
+        xx += 1
+    return xx
+
+
 @njit(cache=True, boundscheck=False)
 def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, flip):
     # Half of the paths over a dense volume (D > 0: pixel (y, x) holds D disparities at (y * W + x) * D) or a tube
@@ -158,26 +187,21 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
             pslot = py % 3
             pbase = (k * 3 + pslot) * W
             rws, ros, rwp, rop = rw[slot], ro[slot], rw[pslot], ro[pslot]  # this row's layout and the neighbours'
-            # running indices (this pixel's ring entry, its neighbour's, its half-sums): no multiply per pixel
-            cur = cbase * R + _GUARD - R
-            prev = (pbase - dx) * R + _GUARD - R
-            ai = -RA
-            for xx in range(W):
-                cur += R
-                prev += R
-                ai += RA
+            xx = 0
+            while xx < W:
+                if py >= 0:
+                    # the common steps in a lean loop of their own (one chunk, the neighbour's entry within reach);
+                    # this loop takes the pixel where they stop
+                    xx = _common_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pbase, R, RA,
+                                       P1, P2, keep)
+                    if xx >= W:
+                        break
+                cur = (cbase + xx) * R + _GUARD
+                px = xx - dx
+                prev = (pbase + px) * R + _GUARD
+                ai = xx * RA
                 b = rb[xx]
                 w = rws[xx]
-                px = xx - dx
-                if w <= LANES and b + LANES <= n and 0 <= px < W and py >= 0:
-                    # the common step first: one chunk, its neighbour's entry within reach
-                    s = ros[xx] - rop[px]
-                    if 1 - _GUARD <= s <= (rwp[px] + LANES - 1) // LANES * LANES - 1:
-                        mp = Lmin[pbase + px]
-                        m = lanes_step(L, acc, cur, flat, b, ai, w, prev + s - 1, P1, np.int16(mp + P2), mp, keep)
-                        lanes_fill(L, cur + LANES, sent)
-                        Lmin[cbase + xx] = m
-                        continue
                 span = (w + LANES - 1) // LANES * LANES
                 safe = b + span <= n  # every lane's cost and result lie inside the volume
                 if px < 0 or px >= W or py < 0:
@@ -209,6 +233,7 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
                         m = _step_scalar(L, acc[ai:], cur, flat, b, w, span, prev, wq, s, P1, jump, mp, False, keep)
                 lanes_fill(L, cur + span, sent)
                 Lmin[cbase + xx] = m
+                xx += 1
         for xx in range(W):
             b = rb[xx]
             w = rw[slot, xx]
