@@ -86,6 +86,34 @@ def _step_scalar(L, acc, cur, cost, b, w, span, prev, wq, s, P1, jump, mp, first
     return m
 
 
+@njit(cache=True, boundscheck=False)
+def _wide_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pbase, R, RA, P1, P2, keep):
+    # As _common_steps, for tubes wider than one chunk (a pixel no LiDAR reaches, beside others alike): every chunk in
+    # one step (lanes_step_wide), while the neighbour's entry holds every chunk's reads
+    n = flat.shape[0]
+    sent = np.int16(_SENTINEL)
+    while xx < W:
+        ux = np.uint64(xx)
+        b = rb[ux]
+        w = rws[ux]
+        px = xx - dx
+        span = (w + LANES - 1) // LANES * LANES
+        if w <= LANES or b + span > n or px < 0 or px >= W:
+            return xx
+        up = np.uint64(px)
+        s = ros[ux] - rop[up]
+        if s < 1 - _GUARD or s > (rwp[up] + LANES - 1) // LANES * LANES + LANES - 1 - span:
+            return xx
+        cur = (cbase + xx) * R + _GUARD
+        mp = Lmin[np.uint64(pbase + px)]
+        m = lanes_step_wide(L, acc, cur, flat, b, xx * RA, w, span, (pbase + px) * R + _GUARD + s - 1, P1,
+                            np.int16(mp + P2), mp, keep)
+        lanes_fill(L, cur + span, sent)
+        Lmin[np.uint64(cbase + xx)] = m
+        xx += 1
+    return xx
+
+
 @njit(cache=True, inline="always")
 def _wholly_outside(j, wq):
     # whether a chunk whose first disparity is index j of the neighbour's tube (wq wide) reads only outside it: its
@@ -105,12 +133,12 @@ def _chunks_reach(s, span, wq, spanq):
     return True
 
 
-@njit(cache=True, boundscheck=False, inline="never")
+@njit(cache=True, boundscheck=False)
 def _common_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pbase, R, RA, P1, P2, keep):
     # Steps of one direction from pixel xx on while each is the common one: a tube of one chunk whose neighbour's
-    # entry is within reach (in the row before, py >= 0). Returns the first pixel that is not. Apart from _sgm_pass so
-    # that its few values stay in registers: inside the pass's loop, among the rare cases' values, a fifth of a
-    # step's instructions were stack loads and stores.
+    # entry is within reach (in the row before, py >= 0). Returns the first pixel that is not. A loop of its own
+    # (LLVM inlines it), so that its few values stay in registers: inside the pass's loop, among the rare cases'
+    # values, a fifth of a step's instructions were stack loads and stores.
     n = flat.shape[0]
     sent = np.int16(_SENTINEL)
     while xx < W:
@@ -190,10 +218,15 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
             xx = 0
             while xx < W:
                 if py >= 0:
-                    # the common steps in a lean loop of their own (one chunk, the neighbour's entry within reach);
-                    # this loop takes the pixel where they stop
-                    xx = _common_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pbase, R, RA,
-                                       P1, P2, keep)
+                    # the common steps in lean loops of their own (the neighbour's entry within reach: one chunk,
+                    # then wide tubes); this loop takes the pixel where both stop
+                    x0 = -1
+                    while x0 != xx and xx < W:
+                        x0 = xx
+                        xx = _common_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pbase, R,
+                                           RA, P1, P2, keep)
+                        xx = _wide_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pbase, R, RA,
+                                         P1, P2, keep)
                     if xx >= W:
                         break
                 cur = (cbase + xx) * R + _GUARD
