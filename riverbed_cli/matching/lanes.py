@@ -39,8 +39,8 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from .vector_ir import (F32, I16, I32, I64, LANES, V16, VI32, VI64, declared, load_i16, reduce_min, smin, splat,
-                        store_vector, valid, vector_ptr)
+from .vector_ir import (F32, I16, I32, I64, LANES, V16, VI32, VI64, declared, load_i16, masked_store, reduce_min, smin,
+                        splat, store_vector, valid, vector_ptr)
 
 SENTINEL = 16384  # above any path cost (sgm.check_sgm_bounds); SENTINEL + P1 still fits int16
 
@@ -54,6 +54,17 @@ def _store_path_costs(context, builder, sig_args, v, mask, L, cur, acc, ai, keep
     accty = sig_args[1]
     kept = builder.and_(load_i16(context, builder, accty, acc, ai), splat(builder, keep))
     store_vector(context, builder, accty, acc, ai, builder.add(kept, v))
+    return v
+
+
+def _store_half_sum(context, builder, sig_args, v, mask, L, cur, acc, ai, out, oi):
+    # the last direction of a pass: as _store_path_costs, the half-sum (acc + the path costs) then stored to the
+    # pass's result out[oi:] in the tube's lanes only (masked: the lanes past it are other pixels', some already
+    # written); returns the stored path costs
+    v = builder.select(mask, v, ir.Constant(V16, [SENTINEL] * LANES))
+    store_vector(context, builder, sig_args[0], L, cur, v)
+    total = builder.add(load_i16(context, builder, sig_args[1], acc, ai), v)
+    masked_store(builder, total, vector_ptr(context, builder, sig_args[-2], out, oi), mask)
     return v
 
 
@@ -112,6 +123,22 @@ def lanes_step(typingctx, L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, 
 
 
 @intrinsic
+def lanes_step_out(typingctx, L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, out, oi):
+    """:func:`lanes_step` in a pass's last direction: the half-sum ``acc[ai + d] +`` the path cost goes to
+    ``out[oi + d]`` for ``d < lanes`` only (``acc`` is read, not written). Returns the minimum over the lanes."""
+    sig = types.int16(L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, out, oi)
+
+    def codegen(context, builder, signature, args):
+        L_, acc_, cur_, cost_, ci_, ai_, lanes_, prev_, p1_, jump_, mp_, out_, oi_ = args
+        v = _step_value(context, builder, signature.args, L_, cost_, ci_, prev_, p1_, jump_, mp_)
+        v = _store_half_sum(context, builder, signature.args, v, valid(builder, lanes_), L_, cur_, acc_, ai_, out_,
+                            oi_)
+        return reduce_min(builder, v)
+
+    return sig, codegen
+
+
+@intrinsic
 def lanes_step_min(typingctx, L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, keep, mv, first):
     """:func:`lanes_step` for one chunk of a tube wider than ``LANES``: instead of returning the chunk's minimum, its
     lanes join a running minimum ``mv[0:LANES]`` (int16; ``first``: start it), reduced once for the pixel by
@@ -149,6 +176,26 @@ def lanes_step_wide(typingctx, L, acc, cur, cost, ci, ai, lanes, span, prev, p1,
                             p1_, jump_, mp_)
             v = _store_path_costs(context, builder, signature.args, v, valid(builder, builder.sub(lanes_, i)), L_,
                                   builder.add(cur_, i), acc_, builder.add(ai_, i), keep_)
+            builder.store(smin(builder, builder.load(mv), v), mv)
+        return reduce_min(builder, builder.load(mv))
+
+    return sig, codegen
+
+
+@intrinsic
+def lanes_step_wide_out(typingctx, L, acc, cur, cost, ci, ai, lanes, span, prev, p1, jump, mp, out, oi):
+    """:func:`lanes_step_wide` in a pass's last direction, the half-sums to ``out`` as :func:`lanes_step_out`."""
+    sig = types.int16(L, acc, cur, cost, ci, ai, lanes, span, prev, p1, jump, mp, out, oi)
+
+    def codegen(context, builder, signature, args):
+        L_, acc_, cur_, cost_, ci_, ai_, lanes_, span_, prev_, p1_, jump_, mp_, out_, oi_ = args
+        mv = cgutils.alloca_once_value(builder, ir.Constant(V16, [SENTINEL] * LANES))
+        step = ir.Constant(I64, LANES)
+        with cgutils.for_range_slice(builder, ir.Constant(I64, 0), span_, step) as (i, _):
+            v = _step_value(context, builder, signature.args, L_, cost_, builder.add(ci_, i), builder.add(prev_, i),
+                            p1_, jump_, mp_)
+            v = _store_half_sum(context, builder, signature.args, v, valid(builder, builder.sub(lanes_, i)), L_,
+                                builder.add(cur_, i), acc_, builder.add(ai_, i), out_, builder.add(oi_, i))
             builder.store(smin(builder, builder.load(mv), v), mv)
         return reduce_min(builder, builder.load(mv))
 

@@ -9,7 +9,10 @@ the reverse pass; each pass keeps the path costs of the last rows in a small rin
 once per pass; a step works on whole chunks of ``LANES`` disparities at once (:mod:`.lanes`), dense and tube volumes
 alike. A pass sweeps each row one direction at a time, every pixel adding into its own slot of a row of half-sums:
 only the horizontal direction's steps depend on each other, so the CPU overlaps the others' (one pixel at a time,
-with every direction's steps into one shared scratch, was 12-25 % slower). The two passes are independent and run in
+with every direction's steps into one shared scratch, was 12-25 % slower). The last direction stores each pixel's
+half-sum straight into the pass's result (masked to its tube; a copy of the row's half-sums after the sweep took a
+fifth of the pass). The common steps (one chunk, or a wide tube beside a wide tube, the neighbour's entry within
+reach) run in lean loops of their own, the rare cases in the pass's loop. The two passes are independent and run in
 parallel.
 """
 
@@ -18,7 +21,7 @@ from numba import njit, prange
 
 from ..errors import RiverbedError
 from .lanes import (LANES, SENTINEL, lanes_copy, lanes_fill, lanes_first, lanes_reduce, lanes_step, lanes_step_min,
-                    lanes_step_wide)
+                    lanes_step_out, lanes_step_wide, lanes_step_wide_out)
 from .volume import volume_layout
 
 # Directions (dx, dy) swept in the forward raster pass; the reverse pass sweeps their opposites.
@@ -87,7 +90,7 @@ def _step_scalar(L, acc, cur, cost, b, w, span, prev, wq, s, P1, jump, mp, first
 
 
 @njit(cache=True, boundscheck=False)
-def _wide_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pbase, R, RA, P1, P2, keep):
+def _wide_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pbase, R, RA, P1, P2, keep, out, last):
     # As _common_steps, for tubes wider than one chunk (a pixel no LiDAR reaches, beside others alike): every chunk in
     # one step (lanes_step_wide), while the neighbour's entry holds every chunk's reads
     n = flat.shape[0]
@@ -106,8 +109,11 @@ def _wide_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pb
             return xx
         cur = (cbase + xx) * R + _GUARD
         mp = Lmin[np.uint64(pbase + px)]
-        m = lanes_step_wide(L, acc, cur, flat, b, xx * RA, w, span, (pbase + px) * R + _GUARD + s - 1, P1,
-                            np.int16(mp + P2), mp, keep)
+        pi = (pbase + px) * R + _GUARD + s - 1
+        if last:
+            m = lanes_step_wide_out(L, acc, cur, flat, b, xx * RA, w, span, pi, P1, np.int16(mp + P2), mp, out, b)
+        else:
+            m = lanes_step_wide(L, acc, cur, flat, b, xx * RA, w, span, pi, P1, np.int16(mp + P2), mp, keep)
         lanes_fill(L, cur + span, sent)
         Lmin[np.uint64(cbase + xx)] = m
         xx += 1
@@ -134,7 +140,8 @@ def _chunks_reach(s, span, wq, spanq):
 
 
 @njit(cache=True, boundscheck=False)
-def _common_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pbase, R, RA, P1, P2, keep):
+def _common_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pbase, R, RA, P1, P2, keep, out,
+                  last):
     # Steps of one direction from pixel xx on while each is the common one: a tube of one chunk whose neighbour's
     # entry is within reach (in the row before, py >= 0). Returns the first pixel that is not. A loop of its own
     # (LLVM inlines it), so that its few values stay in registers: inside the pass's loop, among the rare cases'
@@ -154,8 +161,11 @@ def _common_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, 
             return xx
         cur = (cbase + xx) * R + _GUARD
         mp = Lmin[np.uint64(pbase + px)]
-        m = lanes_step(L, acc, cur, flat, b, xx * RA, w, (pbase + px) * R + _GUARD + s - 1, P1, np.int16(mp + P2), mp,
-                       keep)
+        pi = (pbase + px) * R + _GUARD + s - 1
+        if last:  # the pass's last direction: the half-sums straight to its result
+            m = lanes_step_out(L, acc, cur, flat, b, xx * RA, w, pi, P1, np.int16(mp + P2), mp, out, b)
+        else:
+            m = lanes_step(L, acc, cur, flat, b, xx * RA, w, pi, P1, np.int16(mp + P2), mp, keep)
         lanes_fill(L, cur + LANES, sent)
         Lmin[np.uint64(cbase + xx)] = m
         xx += 1
@@ -209,6 +219,7 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
                 ro[slot, xx] = np.int64(offsets[pix])
         for k in range(nd):
             keep = zero if k == 0 else every
+            last = k == nd - 1
             dx = dxs[k]
             py = yy - dys[k]
             cbase = (k * 3 + slot) * W
@@ -224,9 +235,9 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
                     while x0 != xx and xx < W:
                         x0 = xx
                         xx = _common_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pbase, R,
-                                           RA, P1, P2, keep)
+                                           RA, P1, P2, keep, out, last)
                         xx = _wide_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pbase, R, RA,
-                                         P1, P2, keep)
+                                         P1, P2, keep, out, last)
                     if xx >= W:
                         break
                 cur = (cbase + xx) * R + _GUARD
@@ -266,18 +277,14 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
                         m = _step_scalar(L, acc[ai:], cur, flat, b, w, span, prev, wq, s, P1, jump, mp, False, keep)
                 lanes_fill(L, cur + span, sent)
                 Lmin[cbase + xx] = m
+                if last:  # the pixel's half-sums to the result (the lean loops store them there themselves)
+                    if safe:
+                        for i in range(0, span, LANES):
+                            lanes_copy(acc, ai + i, out, b + i, w - i)
+                    else:
+                        for i in range(w):
+                            out[b + i] = acc[ai + i]
                 xx += 1
-        for xx in range(W):
-            b = rb[xx]
-            w = rw[slot, xx]
-            span = (w + LANES - 1) // LANES * LANES
-            ai = xx * RA
-            if b + span <= n:
-                for i in range(0, span, LANES):
-                    lanes_copy(acc, ai + i, out, b + i, w - i)
-            else:
-                for i in range(w):
-                    out[b + i] = acc[ai + i]
 
 
 @njit(cache=True, parallel=True)

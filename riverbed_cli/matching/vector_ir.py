@@ -37,6 +37,16 @@ def store_vector(context, builder, arrty, arr, index, value):
     builder.store(value, vector_ptr(context, builder, arrty, arr, index), align=2)
 
 
+def masked_store(builder, value, ptr, mask):
+    """Store the lanes of ``value`` where ``mask`` holds (``llvm.masked.store``); the others are not written."""
+    vty = value.type
+    e = vty.element
+    elem = f"i{e.width}" if isinstance(e, ir.IntType) else ("f64" if isinstance(e, ir.DoubleType) else "f32")
+    fn = declared(builder, f"llvm.masked.store.v{vty.count}{elem}.p0", ir.VoidType(),
+                  [vty, ptr.type, ir.IntType(32), ir.VectorType(ir.IntType(1), vty.count)])
+    builder.call(fn, [value, ptr, ir.Constant(ir.IntType(32), max(1, e.width // 8)), mask])
+
+
 def splat(builder, value, vty=V16):
     if value.type != vty.element and isinstance(value.type, ir.IntType):
         value = builder.trunc(value, vty.element) if value.type.width > vty.element.width else \
