@@ -56,7 +56,7 @@ def auto_window(share, target=4.0, smallest=5, largest=25):
 
 
 @njit(cache=True, inline="always")
-def _claim(j, rows, cols, planes, H, W, C, half, a, b, e_lo, e_hi, owner, dissim, dd):
+def _claim(j, rows, cols, planes, H, W, C, half, spatial, sw, b, e_lo, e_hi, owner, dissim, dd):
     # Offer LiDAR point j's window to its pixels; a pixel keeps the most similar point (ties: lower index), so the
     # result does not depend on the order in which points are offered. Works on the exponent e of eq. 2
     # (W = 1 - exp(-e), increasing in e): no exp in the loop; pixels with e outside [e_lo, e_hi] are not homogeneous.
@@ -68,19 +68,19 @@ def _claim(j, rows, cols, planes, H, W, C, half, a, b, e_lo, e_hi, owner, dissim
     ca = max(0, c0 - half)
     n = min(W, c0 + half + 1) - ca
     for r in range(max(0, r0 - half), min(H, r0 + half + 1)):
-        dr2 = (r - r0) ** 2
         for i0 in range(0, n, LANES):
             c = ca + i0
             whole = c + LANES <= W  # the chunk inside the row: whole-vector loads and stores
             k = r * W + c
+            si = (r - r0 + half) * sw + c - c0 + half  # the spatial terms of this chunk's lanes
             if C == 3:  # an RGB guide: its three distances in registers
                 p0 = r0 * W + c0
                 if whole:  # k: the pixel's index in the first plane as in owner and dissim
                     lanes_claim_rgb_whole(planes, k, H * W, planes[p0], planes[H * W + p0], planes[2 * H * W + p0],
-                                          dissim, owner, k, dr2, c - c0, a, b, e_lo, e_hi, j, n - i0)
+                                          dissim, owner, k, spatial, si, b, e_lo, e_hi, j, n - i0)
                 else:  # the row's last pixels: masked, the next row may be another thread's
                     lanes_claim_rgb(planes, k, H * W, planes[p0], planes[H * W + p0], planes[2 * H * W + p0],
-                                    dissim, owner, k, dr2, c - c0, a, b, e_lo, e_hi, j, n - i0)
+                                    dissim, owner, k, spatial, si, b, e_lo, e_hi, j, n - i0)
                 continue
             for ch in range(C):
                 ref = planes[(ch * H + r0) * W + c0]
@@ -89,9 +89,22 @@ def _claim(j, rows, cols, planes, H, W, C, half, a, b, e_lo, e_hi, owner, dissim
                 else:
                     lanes_colour(planes, (ch * H + r) * W + c, ref, dd, ch == 0, n - i0)
             if whole:
-                lanes_claim_whole(dissim, owner, k, dd, dr2, c - c0, a, b, e_lo, e_hi, j, n - i0)
+                lanes_claim_whole(dissim, owner, k, dd, spatial, si, b, e_lo, e_hi, j, n - i0)
             else:
-                lanes_claim(dissim, owner, k, dd, dr2, c - c0, a, b, e_lo, e_hi, j, n - i0)
+                lanes_claim(dissim, owner, k, dd, spatial, si, b, e_lo, e_hi, j, n - i0)
+
+
+@njit(cache=True)
+def spatial_terms(half, a):
+    """The spatial terms ``(dr^2 + dc^2) a`` of the ownership's exponent (float64), flat, ``sw`` per window row:
+    ``dr`` from ``-half`` to ``half`` (rows), ``dc`` from ``-half`` to ``sw - half - 1`` (columns; ``sw`` reaches
+    ``LANES`` lanes past the window's last chunk). Returns ``(table, sw)``."""
+    sw = 3 * half + LANES + 1
+    t = np.empty((2 * half + 1) * sw, np.float64)
+    for r in range(2 * half + 1):
+        for c in range(sw):
+            t[r * sw + c] = np.float64((r - half) ** 2 + (c - half) ** 2) * a
+    return t, sw
 
 
 @njit(cache=True, parallel=True)
@@ -120,6 +133,7 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
         e_lo, e_hi = -math.log(1.0 - gamma), np.inf
     else:
         e_lo, e_hi = 0.0, -math.log(gamma)
+    spatial, sw = spatial_terms(half, a)
     nb = max(1, H // max(2 * half, 1))
     edges = np.empty(nb + 1, dtype=np.int64)
     for k in range(nb + 1):
@@ -129,7 +143,7 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
             k = 2 * kk + phase
             dd = np.empty(LANES, np.float64)
             for j in range(first_at_least(rows, edges[k]), first_at_least(rows, edges[k + 1])):
-                _claim(j, rows, cols, pflat, H, W, C, half, a, b, e_lo, e_hi, oflat, dflat, dd)
+                _claim(j, rows, cols, pflat, H, W, C, half, spatial, sw, b, e_lo, e_hi, oflat, dflat, dd)
     # exponent -> W (0 stays 0 at LiDAR pixels, inf stays inf where there is no owner): by a polynomial where it
     # gives libm's bits for sure (it vectorises), else by libm (a rare tie, the literal reading's far e)
     w = np.empty((H, W), np.float32)

@@ -21,7 +21,7 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-from .vector_ir import (F32, F64, I16, I32, I64, LANES, LANE_INDEX, MASK, V16, VF32, VF64, VI32, VI64, declared, splat,
+from .vector_ir import (F32, F64, I16, I32, I64, LANES, MASK, V16, VF32, VF64, VI32, declared, splat,
                         valid, vector_ptr)
 
 
@@ -203,34 +203,34 @@ def _colour_intrinsic(masked):
     return lanes_colour
 
 
-def _claim_codegen(context, builder, dd, dissim, owner, ki, dr2, dc0, a, b, e_lo, e_hi, j, mask, arrtys, masked):
-    # point j's claim of the lanes, given their colour distances dd (a float64 vector): see _CLAIM_DOC
-    dc = builder.add(splat(builder, dc0, VI64), LANE_INDEX)
-    sq = builder.sitofp(builder.add(splat(builder, dr2, VI64), builder.mul(dc, dc)), VF64)
-    e = builder.fadd(builder.fmul(sq, splat(builder, a, VF64)), builder.fmul(dd, splat(builder, b, VF64)))
+def _claim_codegen(context, builder, dd, dissim, owner, ki, spatial, si, b, e_lo, e_hi, j, mask, arrtys, masked):
+    # point j's claim of the lanes, given their colour distances dd (a float64 vector): see _CLAIM_DOC. The spatial
+    # terms (dr^2 + dc^2) a come from a table (the same for every point: no integer-to-float conversion per claim)
+    sp = builder.load(vector_ptr(context, builder, arrtys[2], spatial, si, F64), align=8)
+    e = builder.fadd(sp, builder.fmul(dd, splat(builder, b, VF64)))
     dptr = vector_ptr(context, builder, arrtys[0], dissim, ki, F64)
     optr = vector_ptr(context, builder, arrtys[1], owner, ki, I32)
     d = _load_lanes(builder, dptr, mask, VF64, masked)
     o = _load_lanes(builder, optr, mask, VI32, masked)
-    jv = splat(builder, j, VI64)
+    jv = splat(builder, j, VI32)  # point indices fit the int32 owners
     inside = builder.and_(builder.fcmp_ordered("<", splat(builder, e_lo, VF64), e),
                           builder.fcmp_ordered("<=", e, splat(builder, e_hi, VF64)))
-    tie = builder.and_(builder.fcmp_ordered("==", e, d), builder.icmp_signed("<", jv, builder.sext(o, VI64)))
+    tie = builder.and_(builder.fcmp_ordered("==", e, d), builder.icmp_signed("<", jv, o))
     take = builder.and_(mask, builder.and_(inside, builder.or_(builder.fcmp_ordered("<", e, d), tie)))
     _store_lanes(builder, builder.select(take, e, d), d, dptr, mask, masked)
-    _store_lanes(builder, builder.select(take, builder.trunc(jv, VI32), o), o, optr, mask, masked)
+    _store_lanes(builder, builder.select(take, jv, o), o, optr, mask, masked)
 
 
 def _claim_intrinsic(masked):
-    def lanes_claim(typingctx, dissim, owner, ki, dd, dr2, dc0, a, b, e_lo, e_hi, j, lanes):
-        sig = types.void(dissim, owner, ki, dd, dr2, dc0, a, b, e_lo, e_hi, j, lanes)
+    def lanes_claim(typingctx, dissim, owner, ki, dd, spatial, si, b, e_lo, e_hi, j, lanes):
+        sig = types.void(dissim, owner, ki, dd, spatial, si, b, e_lo, e_hi, j, lanes)
 
         def codegen(context, builder, signature, args):
-            dissim_, owner_, ki_, dd_, dr2_, dc0_, a_, b_, elo_, ehi_, j_, lanes_ = args
+            dissim_, owner_, ki_, dd_, spatial_, si_, b_, elo_, ehi_, j_, lanes_ = args
             ddv = builder.load(vector_ptr(context, builder, signature.args[3], dd_, ir.Constant(I64, 0), F64),
                                align=8)
-            _claim_codegen(context, builder, ddv, dissim_, owner_, ki_, dr2_, dc0_, a_, b_, elo_, ehi_, j_,
-                           valid(builder, lanes_), signature.args[:2], masked)
+            _claim_codegen(context, builder, ddv, dissim_, owner_, ki_, spatial_, si_, b_, elo_, ehi_, j_,
+                           valid(builder, lanes_), (signature.args[0], signature.args[1], signature.args[4]), masked)
             return context.get_dummy_value()
 
         return sig, codegen
@@ -239,12 +239,12 @@ def _claim_intrinsic(masked):
 
 
 def _claim_rgb_intrinsic(masked):
-    def lanes_claim_rgb(typingctx, planes, pi, stride, r0, r1, r2, dissim, owner, ki, dr2, dc0, a, b, e_lo, e_hi, j,
+    def lanes_claim_rgb(typingctx, planes, pi, stride, r0, r1, r2, dissim, owner, ki, spatial, si, b, e_lo, e_hi, j,
                         lanes):
-        sig = types.void(planes, pi, stride, r0, r1, r2, dissim, owner, ki, dr2, dc0, a, b, e_lo, e_hi, j, lanes)
+        sig = types.void(planes, pi, stride, r0, r1, r2, dissim, owner, ki, spatial, si, b, e_lo, e_hi, j, lanes)
 
         def codegen(context, builder, signature, args):
-            planes_, pi_, stride_, r0_, r1_, r2_, dissim_, owner_, ki_, dr2_, dc0_, a_, b_, elo_, ehi_, j_, lanes_ = (
+            planes_, pi_, stride_, r0_, r1_, r2_, dissim_, owner_, ki_, spatial_, si_, b_, elo_, ehi_, j_, lanes_ = (
                 args)
             mask = valid(builder, lanes_)
             dd = None
@@ -254,8 +254,8 @@ def _claim_rgb_intrinsic(masked):
                 t = builder.fsub(_load_lanes(builder, ptr, mask, VF32, masked), splat(builder, ref, VF32))
                 sq = builder.fpext(builder.fmul(t, t), VF64)
                 dd = sq if dd is None else builder.fadd(dd, sq)  # (0 + x0) + x1 + x2 as the channel loop adds them
-            _claim_codegen(context, builder, dd, dissim_, owner_, ki_, dr2_, dc0_, a_, b_, elo_, ehi_, j_, mask,
-                           signature.args[6:8], masked)
+            _claim_codegen(context, builder, dd, dissim_, owner_, ki_, spatial_, si_, b_, elo_, ehi_, j_, mask,
+                           (signature.args[6], signature.args[7], signature.args[9]), masked)
             return context.get_dummy_value()
 
         return sig, codegen
@@ -270,7 +270,8 @@ _COLOUR_DOC = """One channel's squared colour differences of the ownership (:fun
     """
 _CLAIM_DOC = """Point ``j``'s claim of ``LANES`` pixels of one window row (:func:`.guidance._claim`).
 
-    Lane ``i``: ``e = (dr2 + dc^2) a + dd[i] b`` with ``dc = dc0 + i`` (the column offset to the point); the pixel
+    Lane ``i``: ``e = spatial[si + i] + dd[i] b``, ``spatial`` (float64) holding the spatial terms ``(dr^2 + dc^2) a``
+    of the window row's column offsets ``dc`` to the point (:func:`.guidance.spatial_terms`); the pixel
     ``ki + i`` of the flat ``dissim`` (float64) and ``owner`` (int32) takes ``e`` and ``j`` where ``e_lo < e <=
     e_hi`` and ``e`` is below its ``dissim`` (or equal to it, with ``j`` below its owner), for the first ``lanes``
     lanes. {reads}
