@@ -85,6 +85,20 @@ def _step_value(context, builder, sig_args, L, cost, ci, prev, p1, jump, mp):
     return builder.sub(builder.add(c, v), splat(builder, mp))
 
 
+def _wide_codegen(context, builder, sig_args, args, store):
+    # the chunks of a wide tube's step (args as lanes_step_wide's up to mp), each stored by store(v, mask, i) (chunk
+    # i); the running minimum in a register, reduced once
+    L, cost, ci, lanes, span, prev, p1, jump, mp = (args[0], args[3], args[4], args[6], args[7], args[8], args[9],
+                                                    args[10], args[11])
+    mv = cgutils.alloca_once_value(builder, ir.Constant(V16, [SENTINEL] * LANES))
+    step = ir.Constant(I64, LANES)
+    with cgutils.for_range_slice(builder, ir.Constant(I64, 0), span, step) as (i, _):
+        v = _step_value(context, builder, sig_args, L, cost, builder.add(ci, i), builder.add(prev, i), p1, jump, mp)
+        v = store(v, valid(builder, builder.sub(lanes, i)), i)
+        builder.store(smin(builder, builder.load(mv), v), mv)
+    return reduce_min(builder, builder.load(mv))
+
+
 @intrinsic
 def lanes_first(typingctx, L, acc, cur, cost, ci, ai, lanes, keep):
     """The first pixel of a path: its path costs are its costs.
@@ -169,15 +183,12 @@ def lanes_step_wide(typingctx, L, acc, cur, cost, ci, ai, lanes, span, prev, p1,
 
     def codegen(context, builder, signature, args):
         L_, acc_, cur_, cost_, ci_, ai_, lanes_, span_, prev_, p1_, jump_, mp_, keep_ = args
-        mv = cgutils.alloca_once_value(builder, ir.Constant(V16, [SENTINEL] * LANES))
-        step = ir.Constant(I64, LANES)
-        with cgutils.for_range_slice(builder, ir.Constant(I64, 0), span_, step) as (i, _):
-            v = _step_value(context, builder, signature.args, L_, cost_, builder.add(ci_, i), builder.add(prev_, i),
-                            p1_, jump_, mp_)
-            v = _store_path_costs(context, builder, signature.args, v, valid(builder, builder.sub(lanes_, i)), L_,
-                                  builder.add(cur_, i), acc_, builder.add(ai_, i), keep_)
-            builder.store(smin(builder, builder.load(mv), v), mv)
-        return reduce_min(builder, builder.load(mv))
+
+        def store(v, mask, i):
+            return _store_path_costs(context, builder, signature.args, v, mask, L_, builder.add(cur_, i), acc_,
+                                     builder.add(ai_, i), keep_)
+
+        return _wide_codegen(context, builder, signature.args, args, store)
 
     return sig, codegen
 
@@ -189,15 +200,12 @@ def lanes_step_wide_out(typingctx, L, acc, cur, cost, ci, ai, lanes, span, prev,
 
     def codegen(context, builder, signature, args):
         L_, acc_, cur_, cost_, ci_, ai_, lanes_, span_, prev_, p1_, jump_, mp_, out_, oi_ = args
-        mv = cgutils.alloca_once_value(builder, ir.Constant(V16, [SENTINEL] * LANES))
-        step = ir.Constant(I64, LANES)
-        with cgutils.for_range_slice(builder, ir.Constant(I64, 0), span_, step) as (i, _):
-            v = _step_value(context, builder, signature.args, L_, cost_, builder.add(ci_, i), builder.add(prev_, i),
-                            p1_, jump_, mp_)
-            v = _store_half_sum(context, builder, signature.args, v, valid(builder, builder.sub(lanes_, i)), L_,
-                                builder.add(cur_, i), acc_, builder.add(ai_, i), out_, builder.add(oi_, i))
-            builder.store(smin(builder, builder.load(mv), v), mv)
-        return reduce_min(builder, builder.load(mv))
+
+        def store(v, mask, i):
+            return _store_half_sum(context, builder, signature.args, v, mask, L_, builder.add(cur_, i), acc_,
+                                   builder.add(ai_, i), out_, builder.add(oi_, i))
+
+        return _wide_codegen(context, builder, signature.args, args, store)
 
     return sig, codegen
 
