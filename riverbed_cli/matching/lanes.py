@@ -153,6 +153,39 @@ def lanes_step_out(typingctx, L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, 
 
 
 @intrinsic
+def lanes_step_pair(typingctx, L, cur, cost, ci, lanes, prev, p1, jump, mp, cur2, prev2, jump2, mp2, out, oi):
+    """Two directions' :func:`lanes_step` of one pixel at once, the first starting its half-sum and the second the
+    pass's last (4 paths: the row's direction and the column's): the cost is loaded once, the path costs go to
+    ``L[cur:]`` and ``L[cur2:]`` (neighbours at ``prev`` and ``prev2``), their sum to ``out[oi + d]`` for ``d <
+    lanes``, with no half-sum in between. Returns both minima, the first in the low 16 bits (int32)."""
+    sig = types.int32(L, cur, cost, ci, lanes, prev, p1, jump, mp, cur2, prev2, jump2, mp2, out, oi)
+
+    def codegen(context, builder, signature, args):
+        L_, cur_, cost_, ci_, lanes_, prev_, p1_, jump_, mp_, cur2_, prev2_, jump2_, mp2_, out_, oi_ = args
+        lt = signature.args[0]
+        c = load_i16(context, builder, signature.args[2], cost_, ci_)
+        mask = valid(builder, lanes_)
+        sent = ir.Constant(V16, [SENTINEL] * LANES)
+        mins = []
+        vs = []
+        for cur, prev, jump, mp in ((cur_, prev_, jump_, mp_), (cur2_, prev2_, jump2_, mp2_)):
+            b = load_i16(context, builder, lt, L_, prev)
+            a = load_i16(context, builder, lt, L_, builder.add(prev, ir.Constant(I64, 1)))
+            e = load_i16(context, builder, lt, L_, builder.add(prev, ir.Constant(I64, 2)))
+            v = smin(builder, a, builder.add(smin(builder, b, e), splat(builder, p1_)))
+            v = smin(builder, v, splat(builder, jump))
+            v = builder.select(mask, builder.sub(builder.add(c, v), splat(builder, mp)), sent)
+            store_vector(context, builder, lt, L_, cur, v)
+            vs.append(v)
+            mins.append(builder.zext(builder.bitcast(reduce_min(builder, v), I16), I32))
+        masked_store(builder, builder.add(vs[0], vs[1]), vector_ptr(context, builder, signature.args[13], out_, oi_),
+                     mask)
+        return builder.or_(mins[0], builder.shl(mins[1], ir.Constant(I32, 16)))
+
+    return sig, codegen
+
+
+@intrinsic
 def lanes_step_min(typingctx, L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, keep, mv, first):
     """:func:`lanes_step` for one chunk of a tube wider than ``LANES``: instead of returning the chunk's minimum, its
     lanes join a running minimum ``mv[0:LANES]`` (int16; ``first``: start it), reduced once for the pixel by

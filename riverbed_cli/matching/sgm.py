@@ -12,8 +12,9 @@ only the horizontal direction's steps depend on each other, so the CPU overlaps 
 with every direction's steps into one shared scratch, was 12-25 % slower). The last direction stores each pixel's
 half-sum straight into the pass's result (masked to its tube; a copy of the row's half-sums after the sweep took a
 fifth of the pass). The common steps (one chunk, or a wide tube beside a wide tube, the neighbour's entry within
-reach) run in lean loops of their own, the rare cases in the pass's loop. The two passes are independent and run in
-parallel.
+reach) run in lean loops of their own, the rare cases in the pass's loop. At 4 paths on tubes a pixel's two
+directions go in one step where both are common ones (:func:`.lanes.lanes_step_pair`: the cost loaded once, no
+half-sum between them); the column's sweep takes the rest. The two passes are independent and run in parallel.
 """
 
 import numpy as np
@@ -21,7 +22,7 @@ from numba import njit, prange
 
 from ..errors import RiverbedError
 from .lanes import (LANES, SENTINEL, lanes_copy, lanes_fill, lanes_first, lanes_reduce, lanes_step, lanes_step_min,
-                    lanes_step_out, lanes_step_wide, lanes_step_wide_out)
+                    lanes_step_out, lanes_step_pair, lanes_step_wide, lanes_step_wide_out)
 from .volume import volume_layout
 
 # Directions (dx, dy) swept in the forward raster pass; the reverse pass sweeps their opposites.
@@ -120,6 +121,40 @@ def _wide_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pb
     return xx
 
 
+@njit(cache=True, boundscheck=False)
+def _pair_steps(L, flat, Lmin, rb, rws, ros, rwp1, rop1, xx, W, cbase0, cbase1, pbase1, R, P1, P2, out, done):
+    # 4 paths: both of a pass's directions of each pixel at once (lanes_step_pair: the row's from pixel xx - 1, the
+    # column's from the row before), from pixel xx on while both are common steps (one chunk, the neighbours'
+    # entries within reach); marks those pixels done. Returns the first pixel that is not.
+    n = flat.shape[0]
+    sent = np.int16(_SENTINEL)
+    while xx < W:
+        ux = np.uint64(xx)
+        b = rb[ux]
+        w = rws[ux]
+        if w > LANES or b + LANES > n or xx < 1:
+            return xx
+        up = np.uint64(xx - 1)
+        s0 = ros[ux] - ros[up]
+        s1 = ros[ux] - rop1[ux]
+        if (s0 < 1 - _GUARD or s0 > (rws[up] + LANES - 1) // LANES * LANES - 1 or s1 < 1 - _GUARD
+                or s1 > (rwp1[ux] + LANES - 1) // LANES * LANES - 1):
+            return xx
+        cur0 = (cbase0 + xx) * R + _GUARD
+        cur1 = (cbase1 + xx) * R + _GUARD
+        mp0 = Lmin[np.uint64(cbase0 + xx - 1)]
+        mp1 = Lmin[np.uint64(pbase1 + xx)]
+        m = lanes_step_pair(L, cur0, flat, b, w, (cbase0 + xx - 1) * R + _GUARD + s0 - 1, P1, np.int16(mp0 + P2), mp0,
+                            cur1, (pbase1 + xx) * R + _GUARD + s1 - 1, np.int16(mp1 + P2), mp1, out, b)
+        lanes_fill(L, cur0 + LANES, sent)
+        lanes_fill(L, cur1 + LANES, sent)
+        Lmin[np.uint64(cbase0 + xx)] = np.int16(m & 0xFFFF)
+        Lmin[np.uint64(cbase1 + xx)] = np.int16(m >> 16)
+        done[ux] = 1
+        xx += 1
+    return xx
+
+
 @njit(cache=True, inline="always")
 def _wholly_outside(j, wq):
     # whether a chunk whose first disparity is index j of the neighbour's tube (wq wide) reads only outside it: its
@@ -203,6 +238,8 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
     rb = np.empty(W, np.int64)
     rw = np.empty((3, W), np.int64)
     ro = np.empty((3, W), np.int64)
+    paired = nd == 2 and D == 0 and dxs[0] == 1 and dys[0] == 0 and dxs[1] == 0 and dys[1] == 1
+    done = np.zeros(W, np.uint8)  # pixels whose directions went paired (_pair_steps)
     for yy in range(H):
         y = H - 1 - yy if flip else yy
         slot = yy % 3
@@ -217,6 +254,11 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
                 rb[xx] = starts[pix]
                 rw[slot, xx] = np.int64(widths[pix])
                 ro[slot, xx] = np.int64(offsets[pix])
+        # 4 paths on a tube volume: the row's and the column's direction of a pixel in one step where both are
+        # common ones (no half-sum between them); the column's sweep then takes the pixels left
+        pair = paired and yy >= 1
+        if pair:
+            done[:] = 0
         for k in range(nd):
             keep = zero if k == 0 else every
             last = k == nd - 1
@@ -228,7 +270,22 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
             rws, ros, rwp, rop = rw[slot], ro[slot], rw[pslot], ro[pslot]  # this row's layout and the neighbours'
             xx = 0
             while xx < W:
-                if py >= 0:
+                if pair:
+                    if k == 0:
+                        xx = _pair_steps(L, flat, Lmin, rb, rws, ros, rw[(yy - 1) % 3], ro[(yy - 1) % 3], xx, W, cbase,
+                                         (3 + slot) * W, (3 + (yy - 1) % 3) * W, R, P1, P2, out, done)
+                        if xx >= W:
+                            break
+                    elif done[xx]:
+                        xx += 1
+                        continue
+                    # wide tubes (never paired) in their lean loop; one-chunk ones not paired below
+                    x0 = xx
+                    xx = _wide_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pbase, R, RA,
+                                     P1, P2, keep, out, last)
+                    if xx != x0:
+                        continue
+                elif py >= 0:
                     # the common steps in lean loops of their own (the neighbour's entry within reach: one chunk,
                     # then wide tubes); this loop takes the pixel where both stop
                     x0 = -1
