@@ -97,9 +97,7 @@ def _wide_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pb
     n = flat.shape[0]
     sent = np.int16(_SENTINEL)
     while xx < W:
-        ux = np.uint64(xx)
-        b = rb[ux]
-        w = rws[ux]
+        ux, b, w = _pixel_layout(rb, rws, xx)
         px = xx - dx
         span = (w + LANES - 1) // LANES * LANES
         if w <= LANES or b + span > n or px < 0 or px >= W:
@@ -129,9 +127,7 @@ def _pair_steps(L, flat, Lmin, rb, rws, ros, rwp1, rop1, xx, W, cbase0, cbase1, 
     n = flat.shape[0]
     sent = np.int16(_SENTINEL)
     while xx < W:
-        ux = np.uint64(xx)
-        b = rb[ux]
-        w = rws[ux]
+        ux, b, w = _pixel_layout(rb, rws, xx)
         if w > LANES or b + LANES > n or xx < 1:
             return xx
         up = np.uint64(xx - 1)
@@ -174,6 +170,13 @@ def _chunks_reach(s, span, wq, spanq):
     return True
 
 
+@njit(cache=True, inline="always")
+def _pixel_layout(rb, rws, xx):
+    # pixel xx's unsigned index (no negative-index wrap-around code), the start of its tube and its width
+    ux = np.uint64(xx)
+    return ux, rb[ux], rws[ux]
+
+
 @njit(cache=True, boundscheck=False)
 def _common_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pbase, R, RA, P1, P2, keep, out,
                   last):
@@ -184,9 +187,7 @@ def _common_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, 
     n = flat.shape[0]
     sent = np.int16(_SENTINEL)
     while xx < W:
-        ux = np.uint64(xx)  # unsigned indices: no negative-index wrap-around code
-        b = rb[ux]
-        w = rws[ux]
+        ux, b, w = _pixel_layout(rb, rws, xx)
         px = xx - dx
         if w > LANES or b + LANES > n or px < 0 or px >= W:
             return xx
