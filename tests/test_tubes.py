@@ -64,6 +64,35 @@ def test_tube_sgm_equals_the_brute_force_reference(paths, seed, D, most):
     np.testing.assert_array_equal(bwd, gather(ref_b, layout).astype(np.uint16))
 
 
+def hole_tubes(rng, H, W, D):
+    """Tubes as the LiDAR makes them: narrow ones whose offsets drift slowly, a block of wide ones (20-40 disparities,
+    offsets drifting alike) and a hole searching the whole range, side by side in rows and columns."""
+    lo = np.clip(np.cumsum(rng.integers(-1, 2, (H, W)), axis=1) + D // 3, 0, D - 1)
+    hi = np.minimum(D - 1, lo + rng.integers(0, 12, (H, W)))
+    lo[2:9, 3:12] = np.clip(lo[2:9, 3:12] - 10, 0, D - 1)
+    hi[2:9, 3:12] = np.minimum(D - 1, lo[2:9, 3:12] + rng.integers(19, 40, (7, 9)))
+    lo[5:12, 9:17], hi[5:12, 9:17] = 0, D - 1
+    return lo, hi
+
+
+# runs of wide tubes beside each other, within reach of their neighbours in the row and the column (at 4 paths both
+# directions of such a pixel go in one step, sgm._wide_pair_steps, and the column's sweep must skip them)
+@pytest.mark.parametrize("paths", [4, 8])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_tube_sgm_with_holes_equals_the_brute_force_reference(paths, seed):
+    rng = np.random.default_rng(seed)
+    H, W, D = 13, 19, 80
+    cost = rng.integers(0, 60, (H, W, D)).astype(np.uint16)
+    lo, hi = hole_tubes(rng, H, W, D)
+    layout = TubeLayout.from_bounds(lo, hi, 0)
+    fwd, bwd = sgm.sgm_aggregate_passes(gather(cost, layout), 7, 40, paths, tubes=layout)
+    dirs = sgm.path_directions(paths)
+    np.testing.assert_array_equal(fwd, gather(sgm_reference(cost, lo, hi, 7, 40, dirs[: paths // 2]),
+                                              layout).astype(np.uint16))
+    np.testing.assert_array_equal(bwd, gather(sgm_reference(cost, lo, hi, 7, 40, dirs[paths // 2:]),
+                                              layout).astype(np.uint16))
+
+
 # (12, 5, 500): narrow tubes, few ties. (40, 30, 6): tubes of up to 30 disparities (two vector chunks of the votes)
 # and costs of 6 values, ties everywhere (the right image's lowest disparity wins them); d_min 2 and -5 (right pixels
 # on both sides of the image)

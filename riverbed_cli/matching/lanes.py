@@ -161,26 +161,60 @@ def lanes_step_pair(typingctx, L, cur, cost, ci, lanes, prev, p1, jump, mp, cur2
     sig = types.int32(L, cur, cost, ci, lanes, prev, p1, jump, mp, cur2, prev2, jump2, mp2, out, oi)
 
     def codegen(context, builder, signature, args):
-        L_, cur_, cost_, ci_, lanes_, prev_, p1_, jump_, mp_, cur2_, prev2_, jump2_, mp2_, out_, oi_ = args
-        lt = signature.args[0]
-        c = load_i16(context, builder, signature.args[2], cost_, ci_)
-        mask = valid(builder, lanes_)
-        sent = ir.Constant(V16, [SENTINEL] * LANES)
-        mins = []
-        vs = []
-        for cur, prev, jump, mp in ((cur_, prev_, jump_, mp_), (cur2_, prev2_, jump2_, mp2_)):
-            b = load_i16(context, builder, lt, L_, prev)
-            a = load_i16(context, builder, lt, L_, builder.add(prev, ir.Constant(I64, 1)))
-            e = load_i16(context, builder, lt, L_, builder.add(prev, ir.Constant(I64, 2)))
-            v = smin(builder, a, builder.add(smin(builder, b, e), splat(builder, p1_)))
-            v = smin(builder, v, splat(builder, jump))
-            v = builder.select(mask, builder.sub(builder.add(c, v), splat(builder, mp)), sent)
-            store_vector(context, builder, lt, L_, cur, v)
-            vs.append(v)
-            mins.append(builder.zext(builder.bitcast(reduce_min(builder, v), I16), I32))
-        masked_store(builder, builder.add(vs[0], vs[1]), vector_ptr(context, builder, signature.args[13], out_, oi_),
-                     mask)
-        return builder.or_(mins[0], builder.shl(mins[1], ir.Constant(I32, 16)))
+        vs = _pair_chunk(context, builder, signature.args, args, ir.Constant(I64, 0))
+        return _pair_minima(builder, [reduce_min(builder, v) for v in vs])
+
+    return sig, codegen
+
+
+def _pair_chunk(context, builder, sig_args, args, i):
+    # chunk i of a pixel's two paired steps (args as lanes_step_pair's): the cost loaded once, each direction's path
+    # costs stored (the sentinel past the tube), their sum to out; returns both directions' path costs
+    L_, cur_, cost_, ci_, lanes_, prev_, p1_, jump_, mp_, cur2_, prev2_, jump2_, mp2_, out_, oi_ = args
+    lt = sig_args[0]
+    c = load_i16(context, builder, sig_args[2], cost_, builder.add(ci_, i))
+    mask = valid(builder, builder.sub(lanes_, i))
+    sent = ir.Constant(V16, [SENTINEL] * LANES)
+    vs = []
+    for cur, prev, jump, mp in ((cur_, prev_, jump_, mp_), (cur2_, prev2_, jump2_, mp2_)):
+        prev = builder.add(prev, i)
+        b = load_i16(context, builder, lt, L_, prev)
+        a = load_i16(context, builder, lt, L_, builder.add(prev, ir.Constant(I64, 1)))
+        e = load_i16(context, builder, lt, L_, builder.add(prev, ir.Constant(I64, 2)))
+        v = smin(builder, a, builder.add(smin(builder, b, e), splat(builder, p1_)))
+        v = smin(builder, v, splat(builder, jump))
+        v = builder.select(mask, builder.sub(builder.add(c, v), splat(builder, mp)), sent)
+        store_vector(context, builder, lt, L_, builder.add(cur, i), v)
+        vs.append(v)
+    masked_store(builder, builder.add(vs[0], vs[1]),
+                 vector_ptr(context, builder, sig_args[13], out_, builder.add(oi_, i)), mask)
+    return vs
+
+
+def _pair_minima(builder, mins):
+    # two int16 minima in one int32, the first in the low 16 bits
+    lo, hi = (builder.zext(builder.bitcast(m, I16), I32) for m in mins)
+    return builder.or_(lo, builder.shl(hi, ir.Constant(I32, 16)))
+
+
+@intrinsic
+def lanes_step_wide_pair(typingctx, L, cur, cost, ci, lanes, span, prev, p1, jump, mp, cur2, prev2, jump2, mp2, out,
+                         oi):
+    """:func:`lanes_step_pair` over a whole tube wider than ``LANES``: ``span`` disparities (a multiple of
+    ``LANES``) a chunk at a time, chunk ``i`` at ``cur + i``, ``ci + i``, ``prev + i``, ``cur2 + i``, ``prev2 + i``,
+    ``oi + i`` with ``lanes - i`` valid lanes; each direction's running minimum in a register, reduced once.
+    Returns both minima, the first in the low 16 bits (int32)."""
+    sig = types.int32(L, cur, cost, ci, lanes, span, prev, p1, jump, mp, cur2, prev2, jump2, mp2, out, oi)
+
+    def codegen(context, builder, signature, args):
+        span_ = args[5]
+        pair_args = args[:5] + args[6:]
+        pair_sig = signature.args[:5] + signature.args[6:]
+        mvs = [cgutils.alloca_once_value(builder, ir.Constant(V16, [SENTINEL] * LANES)) for _ in range(2)]
+        with cgutils.for_range_slice(builder, ir.Constant(I64, 0), span_, ir.Constant(I64, LANES)) as (i, _):
+            for mv, v in zip(mvs, _pair_chunk(context, builder, pair_sig, pair_args, i)):
+                builder.store(smin(builder, builder.load(mv), v), mv)
+        return _pair_minima(builder, [reduce_min(builder, builder.load(mv)) for mv in mvs])
 
     return sig, codegen
 

@@ -13,8 +13,9 @@ with every direction's steps into one shared scratch, was 12-25 % slower). The l
 half-sum straight into the pass's result (masked to its tube; a copy of the row's half-sums after the sweep took a
 fifth of the pass). The common steps (one chunk, or a wide tube beside a wide tube, the neighbour's entry within
 reach) run in lean loops of their own, the rare cases in the pass's loop. At 4 paths on tubes a pixel's two
-directions go in one step where both are common ones (:func:`.lanes.lanes_step_pair`: the cost loaded once, no
-half-sum between them); the column's sweep takes the rest. The two passes are independent and run in parallel.
+directions go in one step where both are common ones, one chunk or wide (:func:`.lanes.lanes_step_pair`,
+:func:`.lanes.lanes_step_wide_pair`: the cost loaded once, no half-sum between them); the column's sweep takes the
+rest. The two passes are independent and run in parallel.
 """
 
 import numpy as np
@@ -22,7 +23,7 @@ from numba import njit, prange
 
 from ..errors import RiverbedError
 from .lanes import (LANES, SENTINEL, lanes_copy, lanes_fill, lanes_first, lanes_reduce, lanes_step, lanes_step_min,
-                    lanes_step_out, lanes_step_pair, lanes_step_wide, lanes_step_wide_out)
+                    lanes_step_out, lanes_step_pair, lanes_step_wide, lanes_step_wide_out, lanes_step_wide_pair)
 from .volume import volume_layout
 
 # Directions (dx, dy) swept in the forward raster pass; the reverse pass sweeps their opposites.
@@ -91,16 +92,18 @@ def _step_scalar(L, acc, cur, cost, b, w, span, prev, wq, s, P1, jump, mp, first
 
 
 @njit(cache=True, boundscheck=False)
-def _wide_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pbase, R, RA, P1, P2, keep, out, last):
+def _wide_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pbase, R, RA, P1, P2, keep, out, last,
+                done):
     # As _common_steps, for tubes wider than one chunk (a pixel no LiDAR reaches, beside others alike): every chunk in
-    # one step (lanes_step_wide), while the neighbour's entry holds every chunk's reads
+    # one step (lanes_step_wide), while the neighbour's entry holds every chunk's reads; stops at a pixel whose
+    # directions went paired (done)
     n = flat.shape[0]
     sent = np.int16(_SENTINEL)
     while xx < W:
         ux, b, w = _pixel_layout(rb, rws, xx)
         px = xx - dx
         span = (w + LANES - 1) // LANES * LANES
-        if w <= LANES or b + span > n or px < 0 or px >= W:
+        if w <= LANES or b + span > n or px < 0 or px >= W or done[ux]:
             return xx
         up = np.uint64(px)
         s = ros[ux] - rop[up]
@@ -144,6 +147,39 @@ def _pair_steps(L, flat, Lmin, rb, rws, ros, rwp1, rop1, xx, W, cbase0, cbase1, 
                             cur1, (pbase1 + xx) * R + _GUARD + s1 - 1, np.int16(mp1 + P2), mp1, out, b)
         lanes_fill(L, cur0 + LANES, sent)
         lanes_fill(L, cur1 + LANES, sent)
+        Lmin[np.uint64(cbase0 + xx)] = np.int16(m & 0xFFFF)
+        Lmin[np.uint64(cbase1 + xx)] = np.int16(m >> 16)
+        done[ux] = 1
+        xx += 1
+    return xx
+
+
+@njit(cache=True, boundscheck=False)
+def _wide_pair_steps(L, flat, Lmin, rb, rws, ros, rwp1, rop1, xx, W, cbase0, cbase1, pbase1, R, P1, P2, out, done):
+    # As _pair_steps, for tubes wider than one chunk (every chunk in one step, lanes_step_wide_pair) while both
+    # neighbours' entries hold every chunk's reads
+    n = flat.shape[0]
+    sent = np.int16(_SENTINEL)
+    while xx < W:
+        ux, b, w = _pixel_layout(rb, rws, xx)
+        span = (w + LANES - 1) // LANES * LANES
+        if w <= LANES or b + span > n or xx < 1:
+            return xx
+        up = np.uint64(xx - 1)
+        s0 = ros[ux] - ros[up]
+        s1 = ros[ux] - rop1[ux]
+        if (s0 < 1 - _GUARD or s0 > (rws[up] + LANES - 1) // LANES * LANES + LANES - 1 - span
+                or s1 < 1 - _GUARD or s1 > (rwp1[ux] + LANES - 1) // LANES * LANES + LANES - 1 - span):
+            return xx
+        cur0 = (cbase0 + xx) * R + _GUARD
+        cur1 = (cbase1 + xx) * R + _GUARD
+        mp0 = Lmin[np.uint64(cbase0 + xx - 1)]
+        mp1 = Lmin[np.uint64(pbase1 + xx)]
+        m = lanes_step_wide_pair(L, cur0, flat, b, w, span, (cbase0 + xx - 1) * R + _GUARD + s0 - 1, P1,
+                                 np.int16(mp0 + P2), mp0, cur1, (pbase1 + xx) * R + _GUARD + s1 - 1,
+                                 np.int16(mp1 + P2), mp1, out, b)
+        lanes_fill(L, cur0 + span, sent)
+        lanes_fill(L, cur1 + span, sent)
         Lmin[np.uint64(cbase0 + xx)] = np.int16(m & 0xFFFF)
         Lmin[np.uint64(cbase1 + xx)] = np.int16(m >> 16)
         done[ux] = 1
@@ -273,17 +309,22 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
             while xx < W:
                 if pair:
                     if k == 0:
+                        x0 = xx
                         xx = _pair_steps(L, flat, Lmin, rb, rws, ros, rw[(yy - 1) % 3], ro[(yy - 1) % 3], xx, W, cbase,
                                          (3 + slot) * W, (3 + (yy - 1) % 3) * W, R, P1, P2, out, done)
+                        xx = _wide_pair_steps(L, flat, Lmin, rb, rws, ros, rw[(yy - 1) % 3], ro[(yy - 1) % 3], xx, W,
+                                              cbase, (3 + slot) * W, (3 + (yy - 1) % 3) * W, R, P1, P2, out, done)
                         if xx >= W:
                             break
+                        if xx != x0:
+                            continue
                     elif done[xx]:
                         xx += 1
                         continue
-                    # wide tubes (never paired) in their lean loop; one-chunk ones not paired below
+                    # wide tubes not paired in their lean loop (it stops at paired ones); one-chunk ones below
                     x0 = xx
                     xx = _wide_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pbase, R, RA,
-                                     P1, P2, keep, out, last)
+                                     P1, P2, keep, out, last, done)
                     if xx != x0:
                         continue
                 elif py >= 0:
@@ -295,7 +336,7 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
                         xx = _common_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pbase, R,
                                            RA, P1, P2, keep, out, last)
                         xx = _wide_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pbase, R, RA,
-                                         P1, P2, keep, out, last)
+                                         P1, P2, keep, out, last, done)
                     if xx >= W:
                         break
                 cur = (cbase + xx) * R + _GUARD
