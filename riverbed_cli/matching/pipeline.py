@@ -133,27 +133,49 @@ def _cut_to_range(sparse, d_min, d_max):
     # In one pass: a copy with NaN outside [d_min, d_max] and per row the finite values and those inside, with the
     # first and last column of each (-1: none). NumPy's masks, sums and np.where took 1 ms on 740 x 500 px, and the
     # points and the shares another pass each; one kernel, as each cached kernel costs a fresh process 3-4 ms to load.
+    # The row's pass is branch-free (it vectorises: 0.5x the time of the loop that tracked the ends as it went);
+    # the ends come after, from scans that stop at the first and last hit.
     H, W = sparse.shape
     per_row = np.empty((H, 6), np.int64)
     out = np.empty((H, W), np.float32)
+    nan = np.float32(np.nan)
     for y in prange(H):
+        row = sparse[y]
+        cut = out[y]
         finite = inside_n = 0
-        f0 = f1 = i0 = i1 = -1
         for x in range(W):
-            v = sparse[y, x]
-            inside = np.float64(v) >= d_min and np.float64(v) <= d_max  # False for NaN and +-inf
-            out[y, x] = v if inside else np.float32(np.nan)
-            if np.isfinite(v):
-                finite += 1
-                f0 = x if f0 < 0 else f0
-                f1 = x
-                if inside:
-                    inside_n += 1
-                    i0 = x if i0 < 0 else i0
-                    i1 = x
+            v = np.float64(row[x])
+            inside = (v >= d_min) & (v <= d_max)  # False for NaN and +-inf
+            cut[x] = row[x] if inside else nan
+            finite += np.int64(abs(v) < np.inf)
+            inside_n += np.int64(inside)
+        f0 = f1 = i0 = i1 = -1
+        if finite:
+            f0, f1 = _row_ends(row, -np.inf, np.inf)
+        if inside_n:
+            i0, i1 = _row_ends(row, d_min, d_max)
         per_row[y, 0], per_row[y, 1], per_row[y, 2], per_row[y, 3], per_row[y, 4], per_row[y, 5] = (
             finite, inside_n, f0, f1, i0, i1)
     return per_row, out
+
+
+@njit(cache=True, inline="always")
+def _row_ends(row, lo, hi):
+    # the first and last column of a row whose value is finite and within [lo, hi] (-1, -1: none)
+    W = row.shape[0]
+    first = last = -1
+    for x in range(W):
+        v = np.float64(row[x])
+        if v >= lo and v <= hi and abs(v) < np.inf:
+            first = x
+            break
+    if first >= 0:
+        for x in range(W - 1, first - 1, -1):
+            v = np.float64(row[x])
+            if v >= lo and v <= hi and abs(v) < np.inf:
+                last = x
+                break
+    return first, last
 
 
 @njit(cache=True, parallel=True)
