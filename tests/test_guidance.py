@@ -271,3 +271,31 @@ def test_riverbed_walls_equal_eq6_value_by_value(form):
             np.testing.assert_allclose(out[y, x], ref, atol=1.0)  # rounded to the nearest stored unit
             n += 1
     assert n > 20  # owned pixels were checked
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_prepare_lidar_equals_numpy(seed):
+    """The LiDAR map's one-pass kernel (pipeline._cut_to_range) against NumPy: the copy cut to the range, and per row
+    the finite values and those inside with their first and last columns; rows empty, all infinite, ends on the
+    range's bounds."""
+    from riverbed_cli.matching.pipeline import _cut_to_range, prepare_lidar
+
+    rng = np.random.default_rng(seed)
+    H, W = 40, 53
+    m = np.where(rng.random((H, W)) < rng.uniform(0.02, 0.5), rng.uniform(-20, 100, (H, W)), np.nan).astype(np.float32)
+    m[rng.integers(0, H, 9), rng.integers(0, W, 9)] = np.inf
+    m[rng.integers(0, H, 9), rng.integers(0, W, 9)] = -np.inf
+    m[5, :], m[6, :] = np.nan, np.inf
+    m[7, 0], m[7, W - 1], m[8, 3] = 0.0, 79.0, 79.00001
+    per_row, cut = _cut_to_range(m, 0.0, 79.0)
+    inside = (m >= 0) & (m <= 79)
+    np.testing.assert_array_equal(cut, np.where(inside, m, np.nan))
+    for y in range(H):
+        fin, ins = np.flatnonzero(np.isfinite(m[y])), np.flatnonzero(inside[y])
+        ends = [(a[0], a[-1]) if a.size else (-1, -1) for a in (fin, ins)]
+        assert tuple(per_row[y]) == (fin.size, ins.size, *ends[0], *ends[1])
+    sparse, (rows, cols, values), _, _ = prepare_lidar(m, (H, W), 0, 79)
+    r, c = np.nonzero(inside)
+    np.testing.assert_array_equal(rows, r)
+    np.testing.assert_array_equal(cols, c)
+    np.testing.assert_array_equal(values, m[r, c].astype(np.float64))
