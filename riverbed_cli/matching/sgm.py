@@ -157,7 +157,8 @@ def _pair_steps(L, flat, Lmin, rb, rws, ros, rwp1, rop1, xx, W, cbase0, cbase1, 
 @njit(cache=True, boundscheck=False)
 def _wide_pair_steps(L, flat, Lmin, rb, rws, ros, rwp1, rop1, xx, W, cbase0, cbase1, pbase1, R, P1, P2, out, done):
     # As _pair_steps, for tubes wider than one chunk (every chunk in one step, lanes_step_wide_pair) while both
-    # neighbours' entries hold every chunk's reads
+    # neighbours' entries hold every chunk's reads. Written out apart from _pair_steps on purpose: their shared lines
+    # folded into inline helpers made the 4-path aggregation 1.19-1.27x slower (docs/tubes.md)
     n = flat.shape[0]
     sent = np.int16(_SENTINEL)
     while xx < W:
