@@ -21,41 +21,14 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-from .vector_ir import (F32, F64, I16, I32, I64, LANES, MASK, V16, VF32, VF64, VI32, declared, splat,
-                        valid, vector_ptr)
+from .vector_ir import (F32, F64, I16, I32, I64, LANES, V16, VF32, VF64, VI32, elem_bytes, masked_load,
+                        masked_store, splat, valid, vector_ptr)
 
 
 
 def _fmin(builder, a, b):
     # Python's min(a, b) of floats: b if b < a else a
     return builder.select(builder.fcmp_ordered("<", b, a), b, a)
-
-
-def _masked_load(builder, ptr, mask, vty=V16):
-    # lanes outside the mask are not read (no fault past an array's end) and load as 0
-    name = f"llvm.masked.load.v{LANES}{_elem_name(vty)}.p0"
-    align = ir.Constant(ir.IntType(32), _elem_bytes(vty))
-    fn = declared(builder, name, vty, [ptr.type, ir.IntType(32), MASK, vty])
-    return builder.call(fn, [ptr, align, mask, ir.Constant(vty, [0] * LANES)])
-
-
-def _masked_store(builder, value, ptr, mask):
-    # lanes outside the mask are not written
-    vty = value.type
-    name = f"llvm.masked.store.v{LANES}{_elem_name(vty)}.p0"
-    align = ir.Constant(ir.IntType(32), _elem_bytes(vty))
-    fn = declared(builder, name, ir.VoidType(), [vty, ptr.type, ir.IntType(32), MASK])
-    builder.call(fn, [value, ptr, align, mask])
-
-
-def _elem_name(vty):
-    e = vty.element
-    return f"i{e.width}" if isinstance(e, ir.IntType) else ("f64" if isinstance(e, ir.DoubleType) else "f32")
-
-
-def _elem_bytes(vty):
-    e = vty.element
-    return e.width // 8 if isinstance(e, ir.IntType) else (8 if isinstance(e, ir.DoubleType) else 4)
 
 
 def _flat_wall(builder, q16, a1, g1, fcap):
@@ -85,15 +58,15 @@ def _neg_exp(builder, x):
 
 def _load_lanes(builder, ptr, mask, vty, masked):
     # masked: lanes outside the mask are not read (0); else all LANES are read
-    return _masked_load(builder, ptr, mask, vty) if masked else builder.load(ptr, align=_elem_bytes(vty))
+    return masked_load(builder, ptr, mask, vty) if masked else builder.load(ptr, align=elem_bytes(vty))
 
 
 def _store_lanes(builder, value, old, ptr, mask, masked):
     # masked: lanes outside the mask are not written; else they are written back with their own values (old)
     if masked:
-        _masked_store(builder, value, ptr, mask)
+        masked_store(builder, value, ptr, mask)
     else:
-        builder.store(builder.select(mask, value, old), ptr, align=_elem_bytes(value.type))
+        builder.store(builder.select(mask, value, old), ptr, align=elem_bytes(value.type))
 
 
 def _walls_intrinsic(masked, n=LANES):

@@ -297,6 +297,7 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
         pair = paired and yy >= 1
         if pair:
             done[:] = 0
+        ps = (yy - 1) % 3  # the row before's slot: the column's neighbours in a paired step
         for k in range(nd):
             keep = zero if k == 0 else every
             last = k == nd - 1
@@ -311,13 +312,11 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
                 if pair:
                     if k == 0:
                         x0 = xx
-                        xx = _pair_steps(L, flat, Lmin, rb, rws, ros, rw[(yy - 1) % 3], ro[(yy - 1) % 3], xx, W, cbase,
-                                         (3 + slot) * W, (3 + (yy - 1) % 3) * W, R, P1, P2, out, done)
-                        xx = _wide_pair_steps(L, flat, Lmin, rb, rws, ros, rw[(yy - 1) % 3], ro[(yy - 1) % 3], xx, W,
-                                              cbase, (3 + slot) * W, (3 + (yy - 1) % 3) * W, R, P1, P2, out, done)
-                        if xx >= W:
-                            break
-                        if xx != x0:
+                        xx = _pair_steps(L, flat, Lmin, rb, rws, ros, rw[ps], ro[ps], xx, W, cbase, (3 + slot) * W,
+                                         (3 + ps) * W, R, P1, P2, out, done)
+                        xx = _wide_pair_steps(L, flat, Lmin, rb, rws, ros, rw[ps], ro[ps], xx, W, cbase, (3 + slot) * W,
+                                              (3 + ps) * W, R, P1, P2, out, done)
+                        if xx != x0:  # (also where they reached the row's end)
                             continue
                     elif done[xx]:
                         xx += 1

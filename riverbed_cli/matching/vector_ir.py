@@ -15,7 +15,6 @@ VI64 = ir.VectorType(I64, LANES)
 VI32 = ir.VectorType(I32, LANES)
 VF32 = ir.VectorType(F32, LANES)
 VF64 = ir.VectorType(F64, LANES)
-MASK = ir.VectorType(ir.IntType(1), LANES)
 LANE_INDEX = ir.Constant(VI64, list(range(LANES)))
 REVERSE = ir.Constant(ir.VectorType(I32, LANES), list(range(LANES - 1, -1, -1)))
 
@@ -37,14 +36,34 @@ def store_vector(context, builder, arrty, arr, index, value):
     builder.store(value, vector_ptr(context, builder, arrty, arr, index), align=2)
 
 
+def elem_name(vty):
+    """The element type of a vector type as LLVM's intrinsic names spell it (``i16``, ``f32``, ``f64``)."""
+    e = vty.element
+    return f"i{e.width}" if isinstance(e, ir.IntType) else ("f64" if isinstance(e, ir.DoubleType) else "f32")
+
+
+def elem_bytes(vty):
+    """The size in bytes of a vector type's element (its natural alignment)."""
+    e = vty.element
+    return e.width // 8 if isinstance(e, ir.IntType) else (8 if isinstance(e, ir.DoubleType) else 4)
+
+
+def masked_load(builder, ptr, mask, vty):
+    """Load a ``vty`` vector where ``mask`` holds (``llvm.masked.load``); the other lanes are not read (no fault past
+    an array's end) and load as 0."""
+    maskty = ir.VectorType(ir.IntType(1), vty.count)
+    fn = declared(builder, f"llvm.masked.load.v{vty.count}{elem_name(vty)}.p0", vty,
+                  [ptr.type, ir.IntType(32), maskty, vty])
+    return builder.call(fn, [ptr, ir.Constant(ir.IntType(32), elem_bytes(vty)), mask,
+                             ir.Constant(vty, [0] * vty.count)])
+
+
 def masked_store(builder, value, ptr, mask):
     """Store the lanes of ``value`` where ``mask`` holds (``llvm.masked.store``); the others are not written."""
     vty = value.type
-    e = vty.element
-    elem = f"i{e.width}" if isinstance(e, ir.IntType) else ("f64" if isinstance(e, ir.DoubleType) else "f32")
-    fn = declared(builder, f"llvm.masked.store.v{vty.count}{elem}.p0", ir.VoidType(),
+    fn = declared(builder, f"llvm.masked.store.v{vty.count}{elem_name(vty)}.p0", ir.VoidType(),
                   [vty, ptr.type, ir.IntType(32), ir.VectorType(ir.IntType(1), vty.count)])
-    builder.call(fn, [value, ptr, ir.Constant(ir.IntType(32), max(1, e.width // 8)), mask])
+    builder.call(fn, [value, ptr, ir.Constant(ir.IntType(32), elem_bytes(vty)), mask])
 
 
 def splat(builder, value, vty=V16):
