@@ -122,13 +122,39 @@ def _wide_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, cbase, pb
     return xx
 
 
+@njit(cache=True, inline="always")
+def _reaches(s, wq, span):
+    # whether a step over span disparities (whole chunks) shifted by s against its neighbour's tube (wq wide) reads
+    # only inside the neighbour's ring-buffer entry (its guard and sentinel chunk included)
+    return 1 - _GUARD <= s <= (wq + LANES - 1) // LANES * LANES + LANES - 1 - span
+
+
+@njit(cache=True, inline="always")
+def _pair_entries(Lmin, cbase0, cbase1, pbase1, xx, R):
+    # a paired step's two ring-buffer entries and its two neighbours' minima (the row's pixel xx - 1, the column's
+    # pixel xx of the row before)
+    return ((cbase0 + xx) * R + _GUARD, (cbase1 + xx) * R + _GUARD, Lmin[np.uint64(cbase0 + xx - 1)],
+            Lmin[np.uint64(pbase1 + xx)])
+
+
+@njit(cache=True, inline="always")
+def _paired(L, Lmin, m, cur0, cur1, at0, at1, span, done, ux):
+    # after a paired step: the sentinel chunk after both entries, both minima (m: the first in the low 16 bits) at
+    # Lmin[at0] and Lmin[at1], the pixel done
+    sent = np.int16(_SENTINEL)
+    lanes_fill(L, cur0 + span, sent)
+    lanes_fill(L, cur1 + span, sent)
+    Lmin[np.uint64(at0)] = np.int16(m & 0xFFFF)
+    Lmin[np.uint64(at1)] = np.int16(m >> 16)
+    done[ux] = 1
+
+
 @njit(cache=True, boundscheck=False)
 def _pair_steps(L, flat, Lmin, rb, rws, ros, rwp1, rop1, xx, W, cbase0, cbase1, pbase1, R, P1, P2, out, done):
     # 4 paths: both of a pass's directions of each pixel at once (lanes_step_pair: the row's from pixel xx - 1, the
     # column's from the row before), from pixel xx on while both are common steps (one chunk, the neighbours'
     # entries within reach); marks those pixels done. Returns the first pixel that is not.
     n = flat.shape[0]
-    sent = np.int16(_SENTINEL)
     while xx < W:
         ux, b, w = _pixel_layout(rb, rws, xx)
         if w > LANES or b + LANES > n or xx < 1:
@@ -136,20 +162,12 @@ def _pair_steps(L, flat, Lmin, rb, rws, ros, rwp1, rop1, xx, W, cbase0, cbase1, 
         up = np.uint64(xx - 1)
         s0 = ros[ux] - ros[up]
         s1 = ros[ux] - rop1[ux]
-        if (s0 < 1 - _GUARD or s0 > (rws[up] + LANES - 1) // LANES * LANES - 1 or s1 < 1 - _GUARD
-                or s1 > (rwp1[ux] + LANES - 1) // LANES * LANES - 1):
+        if not (_reaches(s0, rws[up], LANES) and _reaches(s1, rwp1[ux], LANES)):
             return xx
-        cur0 = (cbase0 + xx) * R + _GUARD
-        cur1 = (cbase1 + xx) * R + _GUARD
-        mp0 = Lmin[np.uint64(cbase0 + xx - 1)]
-        mp1 = Lmin[np.uint64(pbase1 + xx)]
+        cur0, cur1, mp0, mp1 = _pair_entries(Lmin, cbase0, cbase1, pbase1, xx, R)
         m = lanes_step_pair(L, cur0, flat, b, w, (cbase0 + xx - 1) * R + _GUARD + s0 - 1, P1, np.int16(mp0 + P2), mp0,
                             cur1, (pbase1 + xx) * R + _GUARD + s1 - 1, np.int16(mp1 + P2), mp1, out, b)
-        lanes_fill(L, cur0 + LANES, sent)
-        lanes_fill(L, cur1 + LANES, sent)
-        Lmin[np.uint64(cbase0 + xx)] = np.int16(m & 0xFFFF)
-        Lmin[np.uint64(cbase1 + xx)] = np.int16(m >> 16)
-        done[ux] = 1
+        _paired(L, Lmin, m, cur0, cur1, cbase0 + xx, cbase1 + xx, LANES, done, ux)
         xx += 1
     return xx
 
@@ -157,10 +175,8 @@ def _pair_steps(L, flat, Lmin, rb, rws, ros, rwp1, rop1, xx, W, cbase0, cbase1, 
 @njit(cache=True, boundscheck=False)
 def _wide_pair_steps(L, flat, Lmin, rb, rws, ros, rwp1, rop1, xx, W, cbase0, cbase1, pbase1, R, P1, P2, out, done):
     # As _pair_steps, for tubes wider than one chunk (every chunk in one step, lanes_step_wide_pair) while both
-    # neighbours' entries hold every chunk's reads. Written out apart from _pair_steps on purpose: their shared lines
-    # folded into inline helpers made the 4-path aggregation 1.19-1.27x slower (docs/tubes.md)
+    # neighbours' entries hold every chunk's reads
     n = flat.shape[0]
-    sent = np.int16(_SENTINEL)
     while xx < W:
         ux, b, w = _pixel_layout(rb, rws, xx)
         span = (w + LANES - 1) // LANES * LANES
@@ -169,21 +185,13 @@ def _wide_pair_steps(L, flat, Lmin, rb, rws, ros, rwp1, rop1, xx, W, cbase0, cba
         up = np.uint64(xx - 1)
         s0 = ros[ux] - ros[up]
         s1 = ros[ux] - rop1[ux]
-        if (s0 < 1 - _GUARD or s0 > (rws[up] + LANES - 1) // LANES * LANES + LANES - 1 - span
-                or s1 < 1 - _GUARD or s1 > (rwp1[ux] + LANES - 1) // LANES * LANES + LANES - 1 - span):
+        if not (_reaches(s0, rws[up], span) and _reaches(s1, rwp1[ux], span)):
             return xx
-        cur0 = (cbase0 + xx) * R + _GUARD
-        cur1 = (cbase1 + xx) * R + _GUARD
-        mp0 = Lmin[np.uint64(cbase0 + xx - 1)]
-        mp1 = Lmin[np.uint64(pbase1 + xx)]
+        cur0, cur1, mp0, mp1 = _pair_entries(Lmin, cbase0, cbase1, pbase1, xx, R)
         m = lanes_step_wide_pair(L, cur0, flat, b, w, span, (cbase0 + xx - 1) * R + _GUARD + s0 - 1, P1,
                                  np.int16(mp0 + P2), mp0, cur1, (pbase1 + xx) * R + _GUARD + s1 - 1,
                                  np.int16(mp1 + P2), mp1, out, b)
-        lanes_fill(L, cur0 + span, sent)
-        lanes_fill(L, cur1 + span, sent)
-        Lmin[np.uint64(cbase0 + xx)] = np.int16(m & 0xFFFF)
-        Lmin[np.uint64(cbase1 + xx)] = np.int16(m >> 16)
-        done[ux] = 1
+        _paired(L, Lmin, m, cur0, cur1, cbase0 + xx, cbase1 + xx, span, done, ux)
         xx += 1
     return xx
 
