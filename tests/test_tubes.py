@@ -93,6 +93,38 @@ def test_tube_sgm_with_holes_equals_the_brute_force_reference(paths, seed):
                                               layout).astype(np.uint16))
 
 
+# aggregation with the selection handed over row by row (sgm.sgm_aggregate_select) against the two stages one after
+# the other: dense and tube volumes, with and without the left-right check, on both threads and on one (where the
+# passes run one after the other and the second thread's hand-over does all the rows)
+@pytest.mark.parametrize("threads", [2, 1])
+@pytest.mark.parametrize("tube", [True, False])
+@pytest.mark.parametrize("paths", [4, 8])
+def test_aggregation_with_selection_equals_the_two_stages(threads, tube, paths):
+    import numba
+
+    rng = np.random.default_rng(paths + 2 * tube)
+    H, W, D = 41, 37, 30
+    cost = rng.integers(0, 60, (H, W, D)).astype(np.uint16)
+    layout = None
+    if tube:
+        lo, hi = hole_tubes(rng, H, W, D)
+        layout = TubeLayout.from_bounds(lo - 3, hi - 3, -3)
+        cost = gather(cost, layout)
+    before = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        for lr_check, status in ((False, False), (True, False), (False, True), (True, True)):
+            fwd, bwd = sgm.sgm_aggregate_passes(cost, 7, 40, paths, tubes=layout)
+            want = disparity.select_disparity(fwd, -3, True, lr_check, 1, bwd, tubes=layout, return_status=status)
+            got = sgm.sgm_aggregate_select(cost, 7, 40, -3, paths, tubes=layout, lr_check=lr_check,
+                                           return_status=status)
+            for a, b in zip(*((want, got) if status else ((want,), (got,)))):
+                np.testing.assert_array_equal(a, b)
+            assert np.isnan(got[0] if status else got).any() == lr_check  # the check rejects some pixels
+    finally:
+        numba.set_num_threads(before)
+
+
 # (12, 5, 500): narrow tubes, few ties. (40, 30, 6): tubes of up to 30 disparities (two vector chunks of the votes)
 # and costs of 6 values, ties everywhere (the right image's lowest disparity wins them); d_min 2 and -5 (right pixels
 # on both sides of the image)

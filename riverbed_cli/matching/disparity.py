@@ -61,26 +61,23 @@ def _lr_reject(disp_row, best_left, right_best, d_min, W, lr_threshold, keep, st
                 disp_row[x] = np.nan
 
 
-@njit(cache=True, parallel=True)
-def _select_kernel(fwd, bwd, d_min, subpixel, lr_check, lr_threshold, keep):
-    H, W, D = fwd.shape
-    disp = np.empty((H, W), dtype=np.float32)
-    status = np.zeros((H, W if keep else 1), dtype=np.int8)  # keep: 1 where the check fails
-    for y in prange(H):
-        s = np.empty(D, dtype=np.int32)
-        best_left = np.empty(W, dtype=np.int64)
-        right_cost = np.full(W, 2147483647, dtype=np.int64)
-        right_best = np.zeros(W, dtype=np.int64)
-        for x in range(W):
-            for i in range(D):
-                s[i] = np.int32(fwd[y, x, i]) + np.int32(bwd[y, x, i])
-            bi, disp[y, x] = _pick(s, 0, D, 0, d_min, subpixel)
-            best_left[x] = bi
-            if lr_check:
-                _vote_right(s, D, x, 0, d_min, W, right_cost, right_best)
+@njit(cache=True, inline="always")
+def _dense_row(fwd, bwd, y, W, D, d_min, subpixel, lr_check, lr_threshold, keep, disp, status):
+    # row y of a dense selection: fwd and bwd flat (pixel (y, x) at (y * W + x) * D), status (H, W or 1)
+    s = np.empty(D, dtype=np.int32)
+    best_left = np.empty(W, dtype=np.int64)
+    right_cost = np.full(W, 2147483647, dtype=np.int64)
+    right_best = np.zeros(W, dtype=np.int64)
+    for x in range(W):
+        b = (y * W + x) * D
+        for i in range(D):
+            s[i] = np.int32(fwd[b + i]) + np.int32(bwd[b + i])
+        bi, disp[y, x] = _pick(s, 0, D, 0, d_min, subpixel)
+        best_left[x] = bi
         if lr_check:
-            _lr_reject(disp[y], best_left, right_best, d_min, W, lr_threshold, keep, status[y])
-    return disp, status
+            _vote_right(s, D, x, 0, d_min, W, right_cost, right_best)
+    if lr_check:
+        _lr_reject(disp[y], best_left, right_best, d_min, W, lr_threshold, keep, status[y])
 
 
 @njit(cache=True, inline="always")
@@ -100,60 +97,99 @@ def _tube_winner(fwd, bwd, n, b, D, o, d_min, subpixel, s, si):
     return _pick(s, si, D, o, d_min, subpixel)
 
 
-@njit(cache=True, parallel=True)
-def _select_tube_kernel(fwd, bwd, d_min, subpixel, start, width, offset, wmax):
-    # _select_kernel on a tube volume, without the left-right check: pixel (y, x) holds width[y, x] (<= wmax)
-    # disparities from d_min + offset[y, x]
-    H, W = start.shape
+@njit(cache=True, inline="always")
+def _tube_row(fwd, bwd, y, start, width, offset, wmax, d_min, subpixel, disp):
+    # row y of a tube selection without the left-right check: pixel (y, x) holds width[y, x] (<= wmax) disparities
+    # from d_min + offset[y, x]
     n = fwd.shape[0]
-    disp = np.empty((H, W), dtype=np.float32)
-    for y in prange(H):
-        s = np.empty((wmax + LANES - 1) // LANES * LANES, dtype=np.uint16)
-        for x in range(W):
-            disp[y, x] = _tube_winner(fwd, bwd, n, start[y, x], np.int64(width[y, x]), np.int64(offset[y, x]), d_min,
-                                      subpixel, s, 0)[1]
-    return disp
+    s = np.empty((wmax + LANES - 1) // LANES * LANES, dtype=np.uint16)
+    for x in range(start.shape[1]):
+        disp[y, x] = _tube_winner(fwd, bwd, n, start[y, x], np.int64(width[y, x]), np.int64(offset[y, x]), d_min,
+                                  subpixel, s, 0)[1]
 
 
-@njit(cache=True, parallel=True)
-def _select_tube_lr_kernel(fwd, bwd, d_min, subpixel, lr_threshold, keep, start, width, offset, wmax):
-    # _select_tube_kernel with the left-right check. A row's sums are kept for the right image's votes, which go
-    # LANES disparities at a time (lanes.lanes_vote), the pixels taken 0, 16, 32, ..., then 1, 17, ...: a pixel's
-    # votes read and write the right pixels beside its row neighbour's, and read right after that neighbour's store
-    # they waited for it (no store-to-load forwarding); LANES pixels apart they do not overlap. The lowest disparity
-    # wins a tie, as in the scalar scan in row order: the same bits as _vote_right.
-    H, W = start.shape
+@njit(cache=True, inline="always")
+def _tube_lr_row(fwd, bwd, y, start, width, offset, wmax, d_min, subpixel, lr_threshold, keep, disp, status):
+    # _tube_row with the left-right check. A row's sums are kept for the right image's votes, which go LANES
+    # disparities at a time (lanes.lanes_vote), the pixels taken 0, 16, 32, ..., then 1, 17, ...: a pixel's votes
+    # read and write the right pixels beside its row neighbour's, and read right after that neighbour's store they
+    # waited for it (no store-to-load forwarding); LANES pixels apart they do not overlap. The lowest disparity wins
+    # a tie, as in the scalar scan in row order: the same bits as _vote_right.
+    W = start.shape[1]
     n = fwd.shape[0]
     span_max = (wmax + LANES - 1) // LANES * LANES
+    rs = np.empty(W * span_max + LANES, dtype=np.uint16)  # the row's sums, pixel x at x * span_max
+    best_left = np.empty(W, dtype=np.int64)  # winner as d - d_min
+    reach = 0  # the row's largest disparity, as d - d_min + 1
+    for x in range(W):
+        D = np.int64(width[y, x])
+        o = np.int64(offset[y, x])
+        bi, disp[y, x] = _tube_winner(fwd, bwd, n, start[y, x], D, o, d_min, subpixel, rs, x * span_max)
+        best_left[x] = o + bi
+        reach = max(reach, o + D)
+    # right pixels xr = x - d lie in [-(d_min + reach - 1), W - 1 - d_min]: padded so that every chunk's whole
+    # vector lies inside
+    pad = max(0, d_min + reach - 1) + LANES
+    right_cost = np.full(pad + W + max(0, -d_min) + LANES, 2147483647, dtype=np.int32)
+    right_best = np.zeros(right_cost.shape[0], dtype=np.int32)
+    for x0 in range(LANES):
+        for x in range(x0, W, LANES):
+            D = np.int64(width[y, x])
+            o = np.int64(offset[y, x])
+            if D <= LANES // 2:  # most tubes: half the lanes
+                xr0 = x - (d_min + o)
+                lanes_vote_half(rs, x * span_max, D, right_cost, right_best, pad + xr0, xr0, W, o)
+                continue
+            for i in range(0, D, LANES):
+                xr0 = x - (d_min + o + i)
+                lanes_vote(rs, x * span_max + i, D - i, right_cost, right_best, pad + xr0, xr0, W, o + i)
+    _lr_reject(disp[y], best_left, right_best[pad:], d_min, W, lr_threshold, keep, status[y])
+
+
+@njit(cache=True, inline="always")
+def select_row(fwd, bwd, y, W, D, start, width, offset, wmax, d_min, subpixel, lr_check, lr_threshold, keep, disp,
+               status):
+    """Row ``y`` of the disparity selection (:func:`select_disparity`) into ``disp`` and ``status``: the sums of
+    the half-sums ``fwd`` and ``bwd`` (flat uint16), of a dense volume (``D > 0``: pixel ``(y, x)`` at ``(y * W +
+    x) * D``) or a tube volume (``D == 0``, the layout's ``start``, ``width``, ``offset``, widest ``wmax``); the
+    left-right check where ``lr_check``, marked in ``status`` where ``keep`` (else NaN in ``disp``). Rows are
+    independent: any thread may select any row once both half-sums hold it."""
+    if D > 0:
+        _dense_row(fwd, bwd, y, W, D, d_min, subpixel, lr_check, lr_threshold, keep, disp, status)
+    elif lr_check:
+        _tube_lr_row(fwd, bwd, y, start, width, offset, wmax, d_min, subpixel, lr_threshold, keep, disp, status)
+    else:
+        _tube_row(fwd, bwd, y, start, width, offset, wmax, d_min, subpixel, disp)
+
+
+@njit(cache=True, parallel=True)
+def _select_kernel(fwd, bwd, H, W, D, start, width, offset, wmax, d_min, subpixel, lr_check, lr_threshold, keep):
+    # every row's select_row, in parallel
     disp = np.empty((H, W), dtype=np.float32)
     status = np.zeros((H, W if keep else 1), dtype=np.int8)  # keep: 1 where the check fails
     for y in prange(H):
-        rs = np.empty(W * span_max + LANES, dtype=np.uint16)  # the row's sums, pixel x at x * span_max
-        best_left = np.empty(W, dtype=np.int64)  # winner as d - d_min
-        reach = 0  # the row's largest disparity, as d - d_min + 1
-        for x in range(W):
-            D = np.int64(width[y, x])
-            o = np.int64(offset[y, x])
-            bi, disp[y, x] = _tube_winner(fwd, bwd, n, start[y, x], D, o, d_min, subpixel, rs, x * span_max)
-            best_left[x] = o + bi
-            reach = max(reach, o + D)
-        # right pixels xr = x - d lie in [-(d_min + reach - 1), W - 1 - d_min]: padded so that every chunk's whole
-        # vector lies inside
-        pad = max(0, d_min + reach - 1) + LANES
-        right_cost = np.full(pad + W + max(0, -d_min) + LANES, 2147483647, dtype=np.int32)
-        right_best = np.zeros(right_cost.shape[0], dtype=np.int32)
-        for x0 in range(LANES):
-            for x in range(x0, W, LANES):
-                D = np.int64(width[y, x])
-                o = np.int64(offset[y, x])
-                if D <= LANES // 2:  # most tubes: half the lanes
-                    xr0 = x - (d_min + o)
-                    lanes_vote_half(rs, x * span_max, D, right_cost, right_best, pad + xr0, xr0, W, o)
-                    continue
-                for i in range(0, D, LANES):
-                    xr0 = x - (d_min + o + i)
-                    lanes_vote(rs, x * span_max + i, D - i, right_cost, right_best, pad + xr0, xr0, W, o + i)
-        _lr_reject(disp[y], best_left, right_best[pad:], d_min, W, lr_threshold, keep, status[y])
+        select_row(fwd, bwd, y, W, D, start, width, offset, wmax, d_min, subpixel, lr_check, lr_threshold, keep,
+                   disp, status)
+    return disp, status
+
+
+def selection_layout(shape, tubes):
+    """``(H, W, D, start, width, offset, wmax)`` for :func:`select_row` of a dense ``(H, W, D)`` volume's shape
+    (empty layout arrays) or a tube volume (``tubes``, :class:`~riverbed_cli.matching.volume.TubeLayout`)."""
+    if tubes is not None:
+        H, W = tubes.shape
+        return H, W, 0, tubes.start, tubes.width, tubes.offset, int(tubes.max_width)
+    H, W, D = shape
+    none = np.zeros((0, 0), np.int32)
+    return H, W, int(D), np.zeros((0, 0), np.int64), none, none, int(D)
+
+
+def finish_selection(disp, status, lr_check, return_status):
+    """:func:`select_disparity`'s result from the selection's ``disp`` and ``status``."""
+    if not return_status:
+        return disp
+    if lr_check:
+        disp[status > 0] = np.nan
     return disp, status
 
 
@@ -191,24 +227,14 @@ def select_disparity(aggregated, d_min, subpixel=True, lr_check=False, lr_thresh
         aggregated2 = np.zeros_like(aggregated)
     if aggregated.shape != aggregated2.shape:
         raise RiverbedError(f"cost volumes differ in shape: {aggregated.shape} vs {aggregated2.shape}")
-    if tubes is not None:
-        if aggregated.size != tubes.size:
-            raise RiverbedError(f"tube volume of {aggregated.size} costs does not match its layout ({tubes.size})")
-        if lr_check or return_status:
-            disp, status = _select_tube_lr_kernel(aggregated, aggregated2, int(d_min), bool(subpixel),
-                                                  int(lr_threshold), bool(return_status), tubes.start, tubes.width,
-                                                  tubes.offset, int(tubes.max_width))
-        else:
-            disp, status = _select_tube_kernel(aggregated, aggregated2, int(d_min), bool(subpixel), tubes.start,
-                                               tubes.width, tubes.offset, int(tubes.max_width)), None
-    else:
-        disp, status = _select_kernel(aggregated, aggregated2, int(d_min), bool(subpixel),
-                                      bool(lr_check or return_status), int(lr_threshold), bool(return_status))
-    if not return_status:
-        return disp
-    if lr_check:
-        disp[status > 0] = np.nan
-    return disp, status
+    if tubes is not None and aggregated.size != tubes.size:
+        raise RiverbedError(f"tube volume of {aggregated.size} costs does not match its layout ({tubes.size})")
+    check = bool(lr_check or return_status)
+    disp, status = _select_kernel(np.ascontiguousarray(aggregated).reshape(-1),
+                                  np.ascontiguousarray(aggregated2).reshape(-1),
+                                  *selection_layout(aggregated.shape, tubes), int(d_min), bool(subpixel), check,
+                                  int(lr_threshold), bool(return_status))
+    return finish_selection(disp, status, lr_check, return_status)
 
 
 @njit(cache=True, inline="always")

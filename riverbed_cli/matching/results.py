@@ -15,8 +15,9 @@ from ..records import RecordMapping
 class MatchInfo(RecordMapping):
     """What a match did: timings (s), the settings that mattered, the range searched.
 
-    ``stages`` holds seconds per stage (``cost``, ``guidance``, ``aggregation``, ``selection``, ``refinement``;
-    ``first_pass`` for riverbed+; AD-Census's ``optimisation``); ``window`` the riverbed window used (None for
+    ``stages`` holds seconds per stage (``cost``, ``guidance``, ``aggregation``, ``refinement``: the SGM
+    matcher's ``aggregation`` includes the disparity selection, which runs in the same kernel; AD-Census's
+    ``selection`` and ``optimisation``; ``first_pass`` for riverbed+); ``window`` the riverbed window used (None for
     guides without one); ``size`` ``[width, height]``; ``refinement`` AD-Census's outlier counts and timings;
     ``range`` the search-range mode (``tube`` or ``full``); ``tubes`` with tubes: ``mean_width``, ``max_width``,
     ``nominal`` (disparities of ``[d_min, d_max]``) and ``full_share`` (share of pixels searching the nominal

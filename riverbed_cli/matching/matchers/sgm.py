@@ -1,7 +1,8 @@
 """``sgm``: census cost, guidance, Semi-Global Matching, winner-takes-all with sub-pixel fit, median.
 
-Stages: :func:`..census.census_cost` -> the guide -> :func:`..sgm.sgm_aggregate_passes` ->
-:func:`..disparity.select_disparity` -> :func:`..disparity.median_filter`.
+Stages: :func:`..census.census_cost` -> the guide -> :func:`..sgm.sgm_aggregate_select` (SGM's passes and the
+disparity selection, :func:`..disparity.select_row`, in one kernel: the ``aggregation`` stage holds both) ->
+:func:`..disparity.median_filter`.
 """
 
 import time
@@ -63,19 +64,16 @@ class SGMMatcher(Matcher):
         _lap(stages, "guidance", t0)
 
         t0 = time.perf_counter()
-        fwd, bwd = sgm.sgm_aggregate_passes(volume.data, s.p1 * scale, s.p2 * scale, s.paths,
-                                            max_cost=volume.max_cost, tubes=tubes)
+        # aggregation and selection in one kernel: a row's disparity is selected while the other pass goes on
+        disp = sgm.sgm_aggregate_select(volume.data, s.p1 * scale, s.p2 * scale, d_min, s.paths,
+                                        max_cost=volume.max_cost, tubes=tubes, subpixel=config.subpixel,
+                                        lr_check=s.lr_check, lr_threshold=s.lr_threshold,
+                                        return_status=return_status)
         del volume
-        _lap(stages, "aggregation", t0)
-
-        t0 = time.perf_counter()
-        disp = disparity.select_disparity(fwd, d_min, config.subpixel, s.lr_check, s.lr_threshold, aggregated2=bwd,
-                                          tubes=tubes, return_status=return_status)
         status = None
         if return_status:
             disp, status = disp
-        del fwd, bwd
-        _lap(stages, "selection", t0)
+        _lap(stages, "aggregation", t0)  # the selection's time included
 
         t0 = time.perf_counter()
         disp = disparity.median_filter(disp, config.median)
