@@ -139,8 +139,12 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
     for k in range(nb + 1):
         edges[k] = k * H // nb  # bands of at least H // nb >= 2 * half rows
     for phase in range(2):
-        for kk in prange((nb + 1 - phase) // 2):
-            k = 2 * kk + phase
+        m = (nb + 1 - phase) // 2  # the phase's bands
+        for kk in prange(m):
+            # the bands taken alternately from the phase's two halves: the threads' contiguous shares of the loop
+            # then hold bands from all over the image (the LiDAR's density differs between its parts)
+            j = 2 * kk if kk < (m + 1) // 2 else 2 * (kk - (m + 1) // 2) + 1
+            k = 2 * j + phase
             dd = np.empty(LANES, np.float64)
             for j in range(first_at_least(rows, edges[k]), first_at_least(rows, edges[k + 1])):
                 _claim(j, rows, cols, pflat, H, W, C, half, spatial, sw, b, e_lo, e_hi, oflat, dflat, dd)
