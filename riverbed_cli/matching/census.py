@@ -10,6 +10,7 @@ from numba import njit, prange
 from ..errors import RiverbedError
 from ..settings import parse_census_window
 from .lanes import LANES, lanes_census, lanes_census_bits, lanes_census_half
+from .volume import spread_rows
 
 # SWAR popcount constants. They must be np.uint64: mixing uint64 with int64 silently gives float64 in Numba.
 _M1 = np.uint64(0x5555555555555555)
@@ -126,7 +127,8 @@ def _census_tube_kernel(cl, cr, d_min, flat, start, width, offset, outside, scal
     # keeps its own loop: through the vector path's bookkeeping it took 1.18x as long on the aerial pair).
     H, W = cl.shape
     n = flat.shape[0]
-    for y in prange(H):
+    for yy in prange(H):
+        y = spread_rows(yy, H)
         row = cr[y]
         if not vector:
             for x in range(W):

@@ -10,6 +10,7 @@ from numba import njit, prange
 
 from ..errors import RiverbedError
 from .lanes import LANES, lanes_find, lanes_sum, lanes_sum_wide, lanes_vote, lanes_vote_half
+from .volume import spread_rows
 
 
 @njit(cache=True, inline="always")
@@ -167,9 +168,9 @@ def _select_kernel(fwd, bwd, H, W, D, start, width, offset, wmax, d_min, subpixe
     # every row's select_row, in parallel
     disp = np.empty((H, W), dtype=np.float32)
     status = np.zeros((H, W if keep else 1), dtype=np.int8)  # keep: 1 where the check fails
-    for y in prange(H):
-        select_row(fwd, bwd, y, W, D, start, width, offset, wmax, d_min, subpixel, lr_check, lr_threshold, keep,
-                   disp, status)
+    for yy in prange(H):
+        select_row(fwd, bwd, spread_rows(yy, H), W, D, start, width, offset, wmax, d_min, subpixel, lr_check,
+                   lr_threshold, keep, disp, status)
     return disp, status
 
 

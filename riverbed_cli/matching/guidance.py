@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
-from .volume import volume_layout
+from .volume import spread_rows, volume_layout
 from ..geometry.coverage import lidar_points, lidar_share, lidar_share_of_points, pixels_where  # noqa: F401  (re-exported)
 from ..geometry.coverage import row_offsets
 from ..geometry.interpolation import first_at_least
@@ -141,10 +141,7 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
     for phase in range(2):
         m = (nb + 1 - phase) // 2  # the phase's bands
         for kk in prange(m):
-            # the bands taken alternately from the phase's two halves: the threads' contiguous shares of the loop
-            # then hold bands from all over the image (the LiDAR's density differs between its parts)
-            j = 2 * kk if kk < (m + 1) // 2 else 2 * (kk - (m + 1) // 2) + 1
-            k = 2 * j + phase
+            k = 2 * spread_rows(kk, m) + phase  # bands from all over the image in each thread's share
             dd = np.empty(LANES, np.float64)
             for j in range(first_at_least(rows, edges[k]), first_at_least(rows, edges[k + 1])):
                 _claim(j, rows, cols, pflat, H, W, C, half, spatial, sw, b, e_lo, e_hi, oflat, dflat, dd)

@@ -26,7 +26,7 @@ from .lanes import (LANES, SENTINEL, lanes_copy, lanes_fill, lanes_first, lanes_
                     lanes_step_out, lanes_step_pair, lanes_step_wide, lanes_step_wide_out, lanes_step_wide_pair)
 from .atomics import exchange, load_acquire, store_release
 from .disparity import finish_selection, select_row
-from .volume import volume_layout
+from .volume import spread_rows, volume_layout
 
 # Directions (dx, dy) swept in the forward raster pass; the reverse pass sweeps their opposites.
 _FORWARD_DIRS = {
@@ -436,7 +436,8 @@ def _sgm_select_kernel(flat, fwd, bwd, fu, bu, H, W, D, start, width, offset, wm
                 break
             select_row(fu, bu, y, W, D, start, width, offset, wmax, d_min, subpixel, lr_check, lr_threshold, keep,
                        disp, status)
-    for y in prange(H):
+    for yy in prange(H):
+        y = spread_rows(yy, H)
         if taken[y] == 0:
             select_row(fu, bu, y, W, D, start, width, offset, wmax, d_min, subpixel, lr_check, lr_threshold, keep,
                        disp, status)

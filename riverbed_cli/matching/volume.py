@@ -118,3 +118,13 @@ def volume_layout(data, shape, tubes=None):
         raise RiverbedError(f"tube volume of {data.size} costs does not match its layout ({tubes.size} for "
                             f"{tubes.shape})")
     return data, W, 0, tubes.start, tubes.width, tubes.offset
+
+
+@njit(cache=True, inline="always")
+def spread_rows(i, n):
+    """Row ``i`` of ``n`` in a parallel loop's order where the first half of the loop takes the even rows and the
+    second half the odd ones: the threads' contiguous shares of the loop then hold rows from all over the image, as
+    even as its rows' work (tube widths vary between its parts: the cut speed pair's lower half holds twice the tube
+    cells of its upper half)."""
+    h = (n + 1) // 2
+    return 2 * i if i < h else 2 * (i - h) + 1
