@@ -449,8 +449,9 @@ def sgm_aggregate_select(cost, p1, p2, d_min, paths=8, max_cost=None, tubes=None
     """:func:`sgm_aggregate_passes` followed by :func:`.disparity.select_disparity` of its two half-sums (the same
     arguments; ``d_min`` the disparity at index 0), in one kernel: each row's disparity is selected as soon as both
     passes have done it, by the thread whose pass ended first while the other pass goes on, so that its core does
-    not wait idle (the passes differ by up to a fifth in time). The same result as the two functions, bit for bit;
-    on the speed pairs' 4-path tube volumes aggregation and selection 0.83-0.93x of their time (docs/tubes.md).
+    not wait idle (run side by side, the reverse pass took 1.1-2x the forward pass's time on the speed pairs). The
+    same result as the two functions, bit for bit; aggregation and selection 0.83-0.99x of their time on the speed
+    pairs' 4-path tube volumes (docs/tubes.md).
 
     Returns the disparity (H, W) float32, or ``(disparity, status)`` with ``return_status`` (as
     :func:`.disparity.select_disparity`).
