@@ -6,12 +6,8 @@ these are LLVM's atomic instructions (llvmlite), which neither the compiler nor 
 :func:`store_release` after writing a row, a :func:`load_acquire` before reading it.
 """
 
-from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
-
-_I64 = ir.IntType(64)
-
 
 def _element(context, builder, arrty, arr, index):
     data = context.make_array(arrty)(context, builder, arr).data

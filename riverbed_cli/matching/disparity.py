@@ -10,7 +10,7 @@ from numba import njit, prange
 
 from ..errors import RiverbedError
 from .lanes import LANES, lanes_find, lanes_sum, lanes_sum_wide, lanes_vote, lanes_vote_half
-from .volume import spread_rows
+from .volume import spread_rows, volume_layout
 
 
 @njit(cache=True, inline="always")
@@ -174,17 +174,6 @@ def _select_kernel(fwd, bwd, H, W, D, start, width, offset, wmax, d_min, subpixe
     return disp, status
 
 
-def selection_layout(shape, tubes):
-    """``(H, W, D, start, width, offset, wmax)`` for :func:`select_row` of a dense ``(H, W, D)`` volume's shape
-    (empty layout arrays) or a tube volume (``tubes``, :class:`~riverbed_cli.matching.volume.TubeLayout`)."""
-    if tubes is not None:
-        H, W = tubes.shape
-        return H, W, 0, tubes.start, tubes.width, tubes.offset, int(tubes.max_width)
-    H, W, D = shape
-    none = np.zeros((0, 0), np.int32)
-    return H, W, int(D), np.zeros((0, 0), np.int64), none, none, int(D)
-
-
 def finish_selection(disp, status, lr_check, return_status):
     """:func:`select_disparity`'s result from the selection's ``disp`` and ``status``."""
     if not return_status:
@@ -228,12 +217,11 @@ def select_disparity(aggregated, d_min, subpixel=True, lr_check=False, lr_thresh
         aggregated2 = np.zeros_like(aggregated)
     if aggregated.shape != aggregated2.shape:
         raise RiverbedError(f"cost volumes differ in shape: {aggregated.shape} vs {aggregated2.shape}")
-    if tubes is not None and aggregated.size != tubes.size:
-        raise RiverbedError(f"tube volume of {aggregated.size} costs does not match its layout ({tubes.size})")
-    check = bool(lr_check or return_status)
-    disp, status = _select_kernel(np.ascontiguousarray(aggregated).reshape(-1),
-                                  np.ascontiguousarray(aggregated2).reshape(-1),
-                                  *selection_layout(aggregated.shape, tubes), int(d_min), bool(subpixel), check,
+    shape = tubes.shape if tubes is not None else aggregated.shape[:2]
+    flat, W, D, start, width, offset = volume_layout(np.ascontiguousarray(aggregated), shape, tubes)
+    wmax = int(tubes.max_width) if tubes is not None else D
+    disp, status = _select_kernel(flat, np.ascontiguousarray(aggregated2).reshape(-1), shape[0], W, D, start, width,
+                                  offset, wmax, int(d_min), bool(subpixel), bool(lr_check or return_status),
                                   int(lr_threshold), bool(return_status))
     return finish_selection(disp, status, lr_check, return_status)
 

@@ -410,14 +410,14 @@ def _sgm_two_passes(flat, fwd, bwd, H, W, D, start, width, offset, wmax, dxs, dy
 
 
 @njit(cache=True, parallel=True)
-def _sgm_select_kernel(flat, fwd, bwd, fu, bu, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, d_min, subpixel,
+def _sgm_select_kernel(flat, fwd, bwd, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, d_min, subpixel,
                        lr_check, lr_threshold, keep):
     # _sgm_two_passes, each row's disparity selected as soon as both passes hold it. A pass tells how many rows it
     # has done (progress, -1 before it starts); once its own pass is over, a thread selects the rows from its far
     # end (the rows the other pass did first), as long as the other pass holds them and no one took them, and stops
     # at the first it cannot select; the rows left go to both threads after. No thread waits for another: run one
-    # after the other (a single thread), the first selects nothing and the second everything. fu and bu are fwd and
-    # bwd as uint16 (the same memory).
+    # after the other (a single thread), the first selects nothing and the second everything.
+    fu, bu = fwd.view(np.uint16), bwd.view(np.uint16)  # the half-sums as the selection reads them
     disp = np.empty((H, W), dtype=np.float32)
     status = np.zeros((H, W if keep else 1), dtype=np.int8)  # keep: 1 where the check fails
     taken = np.zeros(H, np.int64)  # 1: a thread has selected (or is selecting) the row
@@ -458,8 +458,8 @@ def sgm_aggregate_select(cost, p1, p2, d_min, paths=8, max_cost=None, tubes=None
     """
     fwd, bwd, args = _passes_setup(cost, p1, p2, paths, max_cost, tubes)
     check = bool(lr_check or return_status)
-    disp, status = _sgm_select_kernel(*args[:3], fwd.reshape(-1), bwd.reshape(-1), *args[3:], int(d_min),
-                                      bool(subpixel), check, int(lr_threshold), bool(return_status))
+    disp, status = _sgm_select_kernel(*args, int(d_min), bool(subpixel), check, int(lr_threshold),
+                                      bool(return_status))
     return finish_selection(disp, status, lr_check, return_status)
 
 
