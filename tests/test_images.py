@@ -178,3 +178,20 @@ def test_to_guide_shapes_and_scaling():
     c = to_guide(rgb)
     assert c.shape == (5, 7, 3) and c.dtype == np.float32
     np.testing.assert_array_equal(c, rgb.astype(np.float32))
+
+
+@pytest.mark.parametrize("shape", [(500, 740, 3), (64, 64, 4), (1, 5000, 3), (4096, 1), (70, 70), (63, 65, 1)])
+def test_large_8bit_images_convert_exactly(shape):
+    # 8-bit images of 4096 samples and more go through OpenCV's conversion (io.images._to_float255): the same
+    # values as NumPy's, every channel, as grey and as guide, in the input's shape
+    img = np.random.default_rng(sum(shape)).integers(0, 256, shape, dtype=np.uint8)
+    f = img.astype(np.float32)
+    guide = to_guide(img)
+    assert guide.dtype == np.float32
+    np.testing.assert_array_equal(guide.reshape(f.shape[:2] + (-1,)), f.reshape(f.shape[:2] + (-1,))[:, :, :3])
+    grey = to_grey(img)
+    assert grey.shape == img.shape[:2] and grey.dtype == np.float32
+    if img.ndim == 3 and img.shape[2] >= 3:
+        np.testing.assert_array_equal(grey, cv2.cvtColor(np.ascontiguousarray(f[:, :, :3]), cv2.COLOR_RGB2GRAY))
+    else:
+        np.testing.assert_array_equal(grey, f.reshape(f.shape[:2]))

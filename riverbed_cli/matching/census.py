@@ -38,7 +38,7 @@ def _census_kernel(pad, H, W, hw, hh):
     # all their bits in registers (lanes.lanes_census_bits); the row's last pixels one neighbour at a time over the
     # remaining columns (the loop over x innermost and branch-free, so it vectorises). Bits are appended in
     # row-major window order.
-    out = np.zeros((H, W), dtype=np.uint64)
+    out = np.empty((H, W), dtype=np.uint64)  # every word is written below (a serial zero fill took 0.1 ms)
     one = np.uint64(1)
     Wp = W + 2 * hw
     offsets = np.empty((2 * hh + 1) * (2 * hw + 1) - 1, np.int64)  # flat offsets of the neighbours in pad
@@ -57,6 +57,7 @@ def _census_kernel(pad, H, W, hw, hh):
         if full == W:
             continue
         row = out[y, full:]
+        row[:] = 0
         centre = pad[y + hh, hw + full:hw + W]
         for dy in range(-hh, hh + 1):
             for dx in range(-hw, hw + 1):
