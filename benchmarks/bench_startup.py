@@ -5,7 +5,9 @@ Usage: python benchmarks/bench_startup.py [DATA_DIR] [--before REV] [--repeat 7]
 On the 740 x 500 speed pair (80 disparities, 5 % LiDAR, ``--tile 0``, the default tubes and fusion), fresh
 processes in round-robin: this tree, this tree with ``RIVERBED_NUMBA_REFRESH=1`` (Numba refreshes its target context
 before loading the cached kernels, as it does by default: riverbed_cli/cli/cached_kernels.py), and the commit ``REV``
-(default: the last commit before this session's start-up work) run from an exported copy of its sources. Each
+(default: the last commit before this session's start-up work) run from an exported copy of its sources, and
+this tree with ``RIVERBED_GC=default`` (Python's garbage collector as it is: no pause while the command starts up,
+nothing frozen for the exit; riverbed_cli/scale/collector.py). Each
 variant's Numba cache is filled by one run first. Reports medians of the whole-process wall time, the matching
 ``seconds`` from --json, and the rest (interpreter, imports, loading the kernels, reading and writing files).
 """
@@ -44,7 +46,7 @@ def export(rev, dest):
 
 
 def run(pythonpath, args, extra_env):
-    env = {k: v for k, v in os.environ.items() if k not in ("RIVERBED_NUMBA_REFRESH", "PYTHONPATH")}
+    env = {k: v for k, v in os.environ.items() if k not in ("RIVERBED_NUMBA_REFRESH", "RIVERBED_GC", "PYTHONPATH")}
     env.update(extra_env, PYTHONPATH=str(pythonpath))
     t = time.perf_counter()
     p = subprocess.run([sys.executable, "-m", "riverbed_cli", "match", *args, "--json", "--overwrite"], env=env,
@@ -68,6 +70,7 @@ def main():
         variants = [
             ("this tree", ROOT, {}),
             ("this tree, RIVERBED_NUMBA_REFRESH=1 (Numba's own cache loading)", ROOT, {"RIVERBED_NUMBA_REFRESH": "1"}),
+            ("this tree, RIVERBED_GC=default (Python's collector as it is)", ROOT, {"RIVERBED_GC": "default"}),
             (f"commit {args.before}", export(args.before, old), {}),
         ]
         for _, path, env in variants:

@@ -7,6 +7,7 @@ import importlib
 import click
 
 from ..errors import RiverbedError
+from ..scale import collector
 from .options import setup_logging
 
 
@@ -73,3 +74,10 @@ def cli(verbose, quiet):
     Reference image is the left one; disparity d = x_left - x_right >= 0.
     """
     setup_logging(-1 if quiet else verbose)
+
+
+def main(args=None):
+    """The ``riverbed`` program (the console script, ``python -m riverbed_cli``): :func:`cli` in a process of its own,
+    with the garbage collector set for a short-lived process (:mod:`~riverbed_cli.scale.collector`). Exits."""
+    with collector.program():
+        cli.main(args=args, prog_name="riverbed")

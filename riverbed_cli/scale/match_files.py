@@ -20,6 +20,7 @@ from ..matching.pipeline import disparity_range_from_sparse, match_pair, resolve
 from ..matching.registry import get_guide
 from ..products.visualize import disparity_picture, write_picture
 from ..matching.guidance import lidar_share_of_points
+from .collector import start_up_done
 from .heap import match_heap_bytes, prefault_heap
 from .tiles import match_tiled, plan_tiles, scan_range_map, tube_widths
 from .workers import spin_between_regions
@@ -167,6 +168,7 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     kind = lidar_kind(config.fuse.lidar, len(points[0]), (H, W)) if points is not None else None
     with prefault_heap(_heap_estimate(H, W, rng, widths, plan, overlap)):
         warm_up(config=config, fusion_lidar=kind)
+    start_up_done()  # the command's collector back on, start-up's objects frozen (scale/collector.py)
     if plan is not None and plan.tiled:
         return _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, plan.size, overlap,
                             lidar_range, output, color_png, overwrite, progress, rmap, confidence, scan)
