@@ -150,12 +150,15 @@ def opencv_tile(folder, size=1024, d_range=512):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sizes", default="10,20,40", help="megapixels, comma separated")
-    ap.add_argument("--workdir", default=None)
+    ap.add_argument("--workdir", default=None,
+                    help="folder for the generated pairs (made if missing; default: the system's temporary folder)")
     ap.add_argument("--skip-full", action="store_true", help="do not match the full range on the largest size")
     ap.add_argument("--ranges", default="tile,tube",
                     help="range modes matched at every size (tile, tube; map: a range map of the GT +- 4 px)")
     args = ap.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
+    if args.workdir:
+        Path(args.workdir).mkdir(parents=True, exist_ok=True)  # the pairs go in a temporary folder inside it
     with tempfile.TemporaryDirectory(dir=args.workdir) as tmp:
         rows = []
         for mp in sizes:
