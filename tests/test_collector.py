@@ -1,5 +1,5 @@
-"""The garbage collector of the ``riverbed`` program (riverbed_cli/scale/collector.py): off while ``riverbed match``
-starts up, on again with start-up's objects frozen, everything frozen for the exit; untouched outside the program."""
+"""The garbage collector of the ``riverbed`` program (riverbed_cli/scale/collector.py): off while a command starts up,
+on again with start-up's objects frozen, everything frozen for the exit; untouched outside the program."""
 
 import gc
 import json
@@ -89,6 +89,10 @@ def test_match_process_exits_with_its_objects_frozen_and_collector_on(tmp_path, 
                              tmp_path)
     assert p.returncode == 1 and lines == ["riverbed: error: nope.png: file not found"]
     assert int(state[1]) > 0 and state[3] == "False"
+    # another command: its start-up ends once its module is imported (cli.main.RiverbedGroup), errors or not
+    p, lines, state = _probe(["evaluate", "nope.tif", "nope.tif"], tmp_path)
+    assert p.returncode == 1 and lines == ["riverbed: error: nope.tif: file not found"]
+    assert int(state[1]) > 10_000 and state[3] == "True"
     # RIVERBED_GC=default: as Python has it
     p, lines, state = _probe(args + ["--overwrite"], tmp_path, RIVERBED_GC="default")
     assert p.returncode == 0 and state[1:] == ["0", "enabled", "True"]

@@ -35,6 +35,12 @@ COMMANDS = {
 }
 
 
+#: commands that import their library only when they run, and end the program's start-up themselves
+#: (``riverbed match``: once its kernels are loaded, ``scale/match_files.py``); the others' start-up ends when their
+#: module has been imported (:mod:`~riverbed_cli.scale.collector`)
+LATE_START_UP = {"match"}
+
+
 class RiverbedGroup(click.Group):
     """Subcommands loaded on demand; library errors turned into one-line messages instead of tracebacks."""
 
@@ -45,7 +51,10 @@ class RiverbedGroup(click.Group):
         if name not in COMMANDS:
             return None
         module, attr, _ = COMMANDS[name]
-        return getattr(importlib.import_module(f"{__package__}.{module}"), attr)
+        command = getattr(importlib.import_module(f"{__package__}.{module}"), attr)
+        if name not in LATE_START_UP:
+            collector.start_up_done()  # its modules are loaded: the collector on again (in the program only)
+        return command
 
     def format_commands(self, ctx, formatter):
         # the one-line help from the table: listing the commands imports none of them
@@ -80,4 +89,5 @@ def main(args=None):
     """The ``riverbed`` program (the console script, ``python -m riverbed_cli``): :func:`cli` in a process of its own,
     with the garbage collector set for a short-lived process (:mod:`~riverbed_cli.scale.collector`). Exits."""
     with collector.program():
+        collector.pause_for_start_up()  # until the command's modules (and riverbed match's kernels) are loaded
         cli.main(args=args, prog_name="riverbed")

@@ -8,7 +8,6 @@ module loads no Numba kernel: the matching library is imported when the command 
 import click
 
 from .cached_kernels import skip_refresh_on_cache_loads
-from ..scale.collector import pause_for_start_up
 from ..matching.config import MATCH_SETTINGS, MatchConfig
 from .options import input_path, json_opt, output_opt, overwrite_opt, print_json, progress_bar, setting_options
 
@@ -51,7 +50,6 @@ def match_cmd(left, right, output, sparse, sparse_scale, range_map, color_png, c
     (Middlebury, inf invalid) or .png (KITTI 16-bit, d*256, 0 invalid). Options marked [name] apply to that
     matcher or guide only.
     """
-    pause_for_start_up()  # no garbage collections while the modules and kernels load (scale/collector.py)
     skip_refresh_on_cache_loads()  # Numba's cached kernels load without its compiler's start-up
     from ..scale.match_files import match_files  # the matching stack loads here, not for --help
 

@@ -11,10 +11,12 @@ parts of it were the collector's, not riverbed's:
   not trace. Everything else of the exit stays: ``atexit`` handlers (logging, dask, temporary files), and
   every object freed by reference counting as its module is cleared. Only cycles alive at exit are left to the
   operating system, which takes the whole process's memory back anyway.
-* **While it starts up** the command imports Numba, rasterio, OpenCV and riverbed and loads its kernels:
-  allocations that trigger collections of objects that all stay alive. :func:`pause_for_start_up` turns the
-  collector off for that time, and :func:`start_up_done` (once the kernels are loaded) freezes what start-up made
-  and turns it on again, so that the match's own collections trace only the match's objects.
+* **While it starts up** a command imports Numba, rasterio, OpenCV and riverbed (and ``riverbed match`` loads its
+  kernels): allocations that trigger collections of objects that all stay alive. :func:`pause_for_start_up` (at
+  the program's start) turns the collector off for that time, and :func:`start_up_done` freezes what start-up made
+  and turns it on again, so that the command's own collections trace only its own objects: once the command's
+  module is imported (``cli.main.RiverbedGroup``), or for ``riverbed match``, which imports the matching stack when
+  it runs, once its kernels are loaded (``scale/match_files.py``).
 
 Measured (fresh processes of the speed pair's ``--paths 4 --fusion none`` match, five alternating rounds): 0.67-0.72 s
 wall as before, 0.57-0.63 s frozen at exit only, 0.55-0.58 s with the start-up pause as well (docs/tubes.md).
