@@ -1,5 +1,5 @@
-"""Python's cyclic garbage collector in a ``riverbed`` process: off while ``riverbed match`` starts up, and not
-tracing the process's objects again when it exits.
+"""Python's cyclic garbage collector in a ``riverbed`` process: off while a command starts up, and not tracing the
+process's objects again when it exits.
 
 A fresh ``riverbed match`` of the 740 x 500 speed pair took about 0.7 s of wall time for 0.02 s of matching. Two
 parts of it were the collector's, not riverbed's:
@@ -19,7 +19,9 @@ parts of it were the collector's, not riverbed's:
   it runs, once its kernels are loaded (``scale/match_files.py``).
 
 Measured (fresh processes of the speed pair's ``--paths 4 --fusion none`` match, five alternating rounds): 0.67-0.72 s
-wall as before, 0.57-0.63 s frozen at exit only, 0.55-0.58 s with the start-up pause as well (docs/tubes.md).
+wall as before, 0.57-0.63 s frozen at exit only, 0.55-0.58 s with the start-up pause as well (docs/tubes.md). The
+garbage start-up leaves in cycles stays frozen (as ``gc.freeze``'s documentation has it for a process that forks):
+the fused default's peak RSS on that pair 295.3-296.0 MB against 294.0-294.6 MB.
 
 Only for the program (:func:`program`, the ``riverbed`` console script and ``python -m riverbed_cli``): a program
 that imports riverbed, or a test that invokes the command in its own process (click's ``CliRunner``), keeps its
