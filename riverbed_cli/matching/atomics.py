@@ -9,6 +9,7 @@ these are LLVM's atomic instructions (llvmlite), which neither the compiler nor 
 from numba import types
 from numba.extending import intrinsic
 
+
 def _element(context, builder, arrty, arr, index):
     data = context.make_array(arrty)(context, builder, arr).data
     return builder.gep(data, [index])
