@@ -23,7 +23,8 @@ from numba import njit, prange
 
 from ..errors import RiverbedError
 from .lanes import (LANES, SENTINEL, lanes_copy, lanes_fill, lanes_first, lanes_reduce, lanes_step, lanes_step_min,
-                    lanes_step_out, lanes_step_pair, lanes_step_wide, lanes_step_wide_out, lanes_step_wide_pair)
+                    lanes_step_out, lanes_step_pair, lanes_step_pair_aligned, lanes_step_wide, lanes_step_wide_out,
+                    lanes_step_wide_pair)
 from .atomics import exchange, load_acquire, store_release
 from .disparity import finish_selection, select_row
 from .volume import spread_rows, volume_layout
@@ -168,8 +169,13 @@ def _pair_steps(L, flat, Lmin, rb, rws, ros, rwp1, rop1, xx, W, cbase0, cbase1, 
         if not (_reaches(s0, rws[up], LANES) and _reaches(s1, rwp1[ux], LANES)):
             return xx
         cur0, cur1, mp0, mp1 = _pair_entries(Lmin, cbase0, cbase1, pbase1, xx, R)
-        m = lanes_step_pair(L, cur0, flat, b, w, (cbase0 + xx - 1) * R + _GUARD + s0 - 1, P1, np.int16(mp0 + P2), mp0,
-                            cur1, (pbase1 + xx) * R + _GUARD + s1 - 1, np.int16(mp1 + P2), mp1, out, b)
+        pent = (cbase0 + xx - 1) * R + _GUARD  # the row neighbour's entry
+        if s0 == 0 and rws[up] <= LANES:  # nearly every step: its costs as lane shifts of the chunk it just stored
+            m = lanes_step_pair_aligned(L, cur0, flat, b, w, pent, P1, np.int16(mp0 + P2), mp0, cur1,
+                                        (pbase1 + xx) * R + _GUARD + s1 - 1, np.int16(mp1 + P2), mp1, out, b)
+        else:
+            m = lanes_step_pair(L, cur0, flat, b, w, pent + s0 - 1, P1, np.int16(mp0 + P2), mp0, cur1,
+                                (pbase1 + xx) * R + _GUARD + s1 - 1, np.int16(mp1 + P2), mp1, out, b)
         _paired(L, Lmin, m, cur0, cur1, cbase0 + xx, cbase1 + xx, LANES, done, ux)
         xx += 1
     return xx
