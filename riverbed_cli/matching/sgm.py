@@ -15,7 +15,9 @@ fifth of the pass). The common steps (one chunk, or a wide tube beside a wide tu
 reach) run in lean loops of their own, the rare cases in the pass's loop. At 4 paths on tubes a pixel's two
 directions go in one step where both are common ones, one chunk or wide (:func:`.lanes.lanes_step_pair`,
 :func:`.lanes.lanes_step_wide_pair`: the cost loaded once, no half-sum between them); the column's sweep takes the
-rest. The two passes are independent and run in parallel.
+rest. Where the row's neighbour has a one-chunk tube at the same offset (nearly every narrow step: the tubes are made
+per cell), its path costs come as lane shifts of the chunk it has just stored (:func:`.lanes.lanes_step_pair_aligned`):
+loads one disparity off that address waited for the store. The two passes are independent and run in parallel.
 """
 
 import numpy as np
