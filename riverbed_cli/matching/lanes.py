@@ -167,6 +167,12 @@ def lanes_step_pair(typingctx, L, cur, cost, ci, lanes, prev, p1, jump, mp, cur2
     return sig, codegen
 
 
+# shuffle_vector(sentinels, pv, _LANE_BEFORE): lane d holds pv[d - 1] (lane 0 the sentinel before the tube);
+# shuffle_vector(pv, sentinels, _LANE_AFTER): lane d holds pv[d + 1] (the last lane the sentinel chunk's)
+_LANE_BEFORE = ir.Constant(VI32, [LANES - 1 + d for d in range(LANES)])
+_LANE_AFTER = ir.Constant(VI32, [d + 1 for d in range(LANES)])
+
+
 @intrinsic
 def lanes_step_pair_aligned(typingctx, L, cur, cost, ci, lanes, pent, p1, jump, mp, cur2, prev2, jump2, mp2, out, oi):
     """:func:`lanes_step_pair` where the row's neighbour has a tube of at most ``LANES`` disparities starting at the
@@ -186,12 +192,6 @@ def lanes_step_pair_aligned(typingctx, L, cur, cost, ci, lanes, pent, p1, jump, 
         return _pair_minima(builder, [reduce_min(builder, v) for v in vs])
 
     return sig, codegen
-
-
-# shuffle_vector(sentinels, pv, _LANE_BEFORE): lane d holds pv[d - 1] (lane 0 the sentinel before the tube);
-# shuffle_vector(pv, sentinels, _LANE_AFTER): lane d holds pv[d + 1] (the last lane the sentinel chunk's)
-_LANE_BEFORE = ir.Constant(VI32, [LANES - 1 + d for d in range(LANES)])
-_LANE_AFTER = ir.Constant(VI32, [d + 1 for d in range(LANES)])
 
 
 def _pair_chunk(context, builder, sig_args, args, i, row=None):

@@ -172,12 +172,13 @@ def _pair_steps(L, flat, Lmin, rb, rws, ros, rwp1, rop1, xx, W, cbase0, cbase1, 
             return xx
         cur0, cur1, mp0, mp1 = _pair_entries(Lmin, cbase0, cbase1, pbase1, xx, R)
         pent = (cbase0 + xx - 1) * R + _GUARD  # the row neighbour's entry
+        prev1 = (pbase1 + xx) * R + _GUARD + s1 - 1  # the column neighbour's costs, one disparity before
         if s0 == 0 and rws[up] <= LANES:  # nearly every step: its costs as lane shifts of the chunk it just stored
-            m = lanes_step_pair_aligned(L, cur0, flat, b, w, pent, P1, np.int16(mp0 + P2), mp0, cur1,
-                                        (pbase1 + xx) * R + _GUARD + s1 - 1, np.int16(mp1 + P2), mp1, out, b)
+            m = lanes_step_pair_aligned(L, cur0, flat, b, w, pent, P1, np.int16(mp0 + P2), mp0, cur1, prev1,
+                                        np.int16(mp1 + P2), mp1, out, b)
         else:
-            m = lanes_step_pair(L, cur0, flat, b, w, pent + s0 - 1, P1, np.int16(mp0 + P2), mp0, cur1,
-                                (pbase1 + xx) * R + _GUARD + s1 - 1, np.int16(mp1 + P2), mp1, out, b)
+            m = lanes_step_pair(L, cur0, flat, b, w, pent + s0 - 1, P1, np.int16(mp0 + P2), mp0, cur1, prev1,
+                                np.int16(mp1 + P2), mp1, out, b)
         _paired(L, Lmin, m, cur0, cur1, cbase0 + xx, cbase1 + xx, LANES, done, ux)
         xx += 1
     return xx
@@ -342,7 +343,6 @@ def _sgm_pass(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, 
                         if xx != x0:  # (also where they reached the row's end)
                             continue
                     elif done[xx]:  # the paired pixels' run in a tight loop of its own (0.95-0.97x the pass)
-                        xx += 1
                         while xx < W and done[xx]:
                             xx += 1
                         continue
