@@ -93,6 +93,38 @@ def test_tube_sgm_with_holes_equals_the_brute_force_reference(paths, seed):
                                               layout).astype(np.uint16))
 
 
+def cell_made_tubes(rng, H, W, D, cell=4):
+    """Tubes as the rule makes them, constant over cells of ``cell`` x ``cell`` pixels: offsets from a few values (so
+    that a row's neighbouring cells often start at the same disparity with other widths), widths of 1-16 with a
+    few wider cells among them."""
+    ch, cw = -(-H // cell), -(-W // cell)
+    lo = rng.choice([D // 4, D // 4 + 1, D // 2], (ch, cw))
+    width = rng.integers(1, 17, (ch, cw))
+    width[rng.random((ch, cw)) < 0.1] = 30
+    hi = np.minimum(D - 1, lo + width - 1)
+    expand = lambda a: np.repeat(np.repeat(a, cell, axis=0), cell, axis=1)[:H, :W]  # noqa: E731
+    return expand(lo), expand(hi)
+
+
+# tubes made per cell: at 4 paths most steps go in runs along a row whose tubes start at the same disparity
+# (lanes.lanes_run_pair, the row's path costs carried in registers), ended by a wider tube, another offset, a column
+# neighbour out of reach or the row's end
+@pytest.mark.parametrize("paths", [4, 8])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_tube_sgm_on_cell_tubes_equals_the_brute_force_reference(paths, seed):
+    rng = np.random.default_rng(seed)
+    H, W, D = 14, 23, 48
+    cost = rng.integers(0, 60, (H, W, D)).astype(np.uint16)
+    lo, hi = cell_made_tubes(rng, H, W, D)
+    layout = TubeLayout.from_bounds(lo, hi, 0)
+    fwd, bwd = sgm.sgm_aggregate_passes(gather(cost, layout), 7, 40, paths, tubes=layout)
+    dirs = sgm.path_directions(paths)
+    np.testing.assert_array_equal(fwd, gather(sgm_reference(cost, lo, hi, 7, 40, dirs[: paths // 2]),
+                                              layout).astype(np.uint16))
+    np.testing.assert_array_equal(bwd, gather(sgm_reference(cost, lo, hi, 7, 40, dirs[paths // 2:]),
+                                              layout).astype(np.uint16))
+
+
 # aggregation with the selection handed over row by row (sgm.sgm_aggregate_select) against the two stages one after
 # the other: dense and tube volumes, with and without the left-right check, on both threads and on one (where the
 # passes run one after the other and the second thread's hand-over does all the rows)

@@ -173,45 +173,152 @@ _LANE_BEFORE = ir.Constant(VI32, [LANES - 1 + d for d in range(LANES)])
 _LANE_AFTER = ir.Constant(VI32, [d + 1 for d in range(LANES)])
 
 
-@intrinsic
-def lanes_step_pair_aligned(typingctx, L, cur, cost, ci, lanes, pent, p1, jump, mp, cur2, prev2, jump2, mp2, out, oi):
-    """:func:`lanes_step_pair` where the row's neighbour has a tube of at most ``LANES`` disparities starting at the
-    same disparity: ``pent`` is the start of its entry (its path costs at ``L[pent:pent + LANES]``, the sentinel
-    before and after them), and its costs at ``d - 1``, ``d``, ``d + 1`` are lane shifts of that one chunk.
+def _spread_min(builder, v):
+    # the minimum over the lanes in every lane, by swapping halves, quarters, ... (no trip through a scalar register:
+    # on the run's chain from pixel to pixel)
+    n = LANES
+    while n > 1:
+        n //= 2
+        swap = ir.Constant(VI32, [i ^ n for i in range(LANES)])
+        v = smin(builder, v, builder.shuffle_vector(v, ir.Constant(V16, ir.Undefined), swap))
+    return v
 
-    The chunk is loaded at the address the neighbour's step has just stored it to, which the CPU forwards from the
-    store; :func:`lanes_step_pair`'s loads one disparity off that address wait until the store is written (on the
-    speed pairs' captured 4-path volumes, 0.94-0.95x (cut) and 0.88-0.89x (whole scene) of its passes' time)."""
-    sig = types.int32(L, cur, cost, ci, lanes, pent, p1, jump, mp, cur2, prev2, jump2, mp2, out, oi)
+
+def _element(context, builder, arrty, arr, index):
+    # a pointer to arr[index] (any 1-D array)
+    return builder.gep(context.make_array(arrty)(context, builder, arr).data, [index])
+
+
+@intrinsic
+def lanes_run_pair(typingctx, L, cost, Lmin, rb, rws, ros, rwp1, rop1, done, out, xx, W, n, guard, cbase0, cbase1,
+                   pbase1, R, p1, p2):
+    """:func:`lanes_step_pair` over a run of a row's pixels from ``xx`` on, each starting at the same disparity as
+    its row neighbour with at most ``LANES`` disparities (nearly every narrow step: the tubes are made per cell).
+
+    The row's path costs are carried from pixel to pixel in registers: the neighbour's costs at ``d - 1``, ``d``,
+    ``d + 1`` are lane shifts of its chunk against the sentinel, its minimum is spread over the lanes without a
+    scalar register, and the step is ``c + min(v - mp, P2)`` (the same integers as ``c + min(v, mp + P2) - mp``),
+    so that ``v`` does not wait for the minimum. Loads one disparity off the address where the neighbour's step had
+    just stored its costs waited for the store; a step per pixel reloaded the run's few values from the stack.
+
+    The arguments are :func:`.sgm._pair_steps`'s (the sweep's layout ``rb``, ``rws``, ``ros`` of this row and
+    ``rwp1``, ``rop1`` of the row before, indexed by the sweep's pixel; ``n`` the volume's size, ``guard`` the ring
+    buffer's entries' guard). The caller has checked that pixel ``xx`` qualifies; the run goes on while the next
+    pixel does: a tube of at most ``LANES`` disparities whose whole chunk lies inside the volume, starting at the
+    same disparity as its row neighbour's, and whose column neighbour's entry holds all its reads. Each pixel's
+    column path costs and minimum, its half-sum and ``done`` are written as :func:`lanes_step_pair`'s caller writes
+    them; the row's path costs and minimum only for the run's last pixel (the only one another step reads). Returns
+    the first pixel after the run."""
+    sig = types.int64(L, cost, Lmin, rb, rws, ros, rwp1, rop1, done, out, xx, W, n, guard, cbase0, cbase1, pbase1,
+                      R, p1, p2)
 
     def codegen(context, builder, signature, args):
-        pv = load_i16(context, builder, signature.args[0], args[0], args[5])
+        (L_, cost_, Lmin_, rb_, rws_, ros_, rwp1_, rop1_, done_, out_, xx_, W_, n_, guard_, cb0, cb1, pb1, R_, p1_,
+         p2_) = args
+        tys = signature.args
+        lt = tys[0]
+        lanes = ir.Constant(I64, LANES)
+        one = ir.Constant(I64, 1)
         sent = ir.Constant(V16, [SENTINEL] * LANES)
-        row = (builder.shuffle_vector(sent, pv, _LANE_BEFORE), pv, builder.shuffle_vector(pv, sent, _LANE_AFTER))
-        vs = _pair_chunk(context, builder, signature.args, args, ir.Constant(I64, 0), row)
-        return _pair_minima(builder, [reduce_min(builder, v) for v in vs])
+
+        def get(k, index):  # element index of the k-th argument (a 1-D array)
+            return builder.load(_element(context, builder, tys[k], args[k], index))
+
+        def entry(base, x):  # the start of a ring-buffer entry
+            return builder.add(builder.mul(builder.add(base, x), R_), guard_)
+
+        x_ptr = cgutils.alloca_once_value(builder, xx_)
+        pv_ptr = cgutils.alloca_once_value(builder, load_i16(context, builder, lt, L_,
+                                                             entry(cb0, builder.sub(xx_, one))))
+        mp_ptr = cgutils.alloca_once_value(builder, splat(builder, get(2, builder.sub(builder.add(cb0, xx_), one))))
+        body = builder.append_basic_block("run_body")
+        check = builder.append_basic_block("run_check")
+        exit_ = builder.append_basic_block("run_exit")
+        builder.branch(body)
+
+        builder.position_at_end(body)
+        x = builder.load(x_ptr)
+        b = get(3, x)
+        w = get(4, x)
+        s1 = builder.sub(get(5, x), get(7, x))
+        mask = valid(builder, w)
+        c = load_i16(context, builder, tys[1], cost_, b)
+        # the row's step from the previous pixel's costs in a register (lane shifts against the sentinel)
+        pv = builder.load(pv_ptr)
+        mpv = builder.load(mp_ptr)  # the previous pixel's minimum in every lane
+        before = builder.shuffle_vector(sent, pv, _LANE_BEFORE)
+        after = builder.shuffle_vector(pv, sent, _LANE_AFTER)
+        v0 = smin(builder, pv, builder.add(smin(builder, before, after), splat(builder, p1_)))
+        # c + min(v0, mp + P2) - mp as c + min(v0 - mp, P2) (the same integers): v0 does not wait for the minimum
+        v0 = smin(builder, builder.sub(v0, mpv), splat(builder, p2_))
+        row = builder.select(mask, builder.add(c, v0), sent)
+        # the column's step from the row before's entry, shifted by the difference of the tubes' offsets
+        prev = builder.sub(builder.add(entry(pb1, x), s1), one)
+        mp1 = get(2, builder.add(pb1, x))
+        bb, aa, ee = (load_i16(context, builder, lt, L_, builder.add(prev, ir.Constant(I64, k))) for k in range(3))
+        v1 = smin(builder, aa, builder.add(smin(builder, bb, ee), splat(builder, p1_)))
+        v1 = smin(builder, v1, splat(builder, builder.add(mp1, p2_)))
+        col = builder.select(mask, builder.sub(builder.add(c, v1), splat(builder, mp1)), sent)
+        cur1 = entry(cb1, x)
+        store_vector(context, builder, lt, L_, cur1, col)
+        store_vector(context, builder, lt, L_, builder.add(cur1, lanes), sent)
+        masked_store(builder, builder.add(row, col), vector_ptr(context, builder, tys[9], out_, b), mask)
+        builder.store(reduce_min(builder, col), _element(context, builder, tys[2], Lmin_, builder.add(cb1, x)))
+        builder.store(ir.Constant(ir.IntType(8), 1), _element(context, builder, tys[8], done_, x))
+        builder.store(row, pv_ptr)
+        builder.store(_spread_min(builder, row), mp_ptr)
+        nx = builder.add(x, one)
+        builder.store(nx, x_ptr)
+        builder.branch(check)
+
+        # whether the next pixel qualifies (each test in its own block: the later ones read its layout)
+        builder.position_at_end(check)
+        tests = [lambda: builder.icmp_signed("<", nx, W_),
+                 lambda: builder.icmp_signed("<=", get(4, nx), lanes),
+                 lambda: builder.icmp_signed("<=", builder.add(get(3, nx), lanes), n_),
+                 lambda: builder.icmp_signed("==", get(5, nx), get(5, x))]
+
+        def reach():
+            s = builder.sub(get(5, nx), get(7, nx))
+            top = builder.and_(builder.add(get(6, nx), ir.Constant(I64, LANES - 1)), ir.Constant(I64, -LANES))
+            return builder.and_(builder.icmp_signed(">=", s, builder.sub(one, guard_)),
+                                builder.icmp_signed("<=", s, builder.sub(top, one)))
+
+        tests.append(reach)
+        for k, test in enumerate(tests):
+            nxt = body if k == len(tests) - 1 else builder.append_basic_block(f"run_check{k}")
+            builder.cbranch(test(), nxt, exit_)
+            if nxt is not body:
+                builder.position_at_end(nxt)
+
+        # the run's last pixel's row path costs and minimum, for the step after the run
+        builder.position_at_end(exit_)
+        x = builder.load(x_ptr)
+        last = builder.sub(x, one)
+        cur0 = entry(cb0, last)
+        store_vector(context, builder, lt, L_, cur0, builder.load(pv_ptr))
+        store_vector(context, builder, lt, L_, builder.add(cur0, lanes), sent)
+        builder.store(builder.extract_element(builder.load(mp_ptr), ir.Constant(I32, 0)),
+                      _element(context, builder, tys[2], Lmin_, builder.add(cb0, last)))
+        return x
 
     return sig, codegen
 
 
-def _pair_chunk(context, builder, sig_args, args, i, row=None):
+def _pair_chunk(context, builder, sig_args, args, i):
     # chunk i of a pixel's two paired steps (args as lanes_step_pair's): the cost loaded once, each direction's path
-    # costs stored (the sentinel past the tube), their sum to out; returns both directions' path costs. row: the
-    # first direction's neighbouring costs (b, a, e) if the caller has them
+    # costs stored (the sentinel past the tube), their sum to out; returns both directions' path costs
     L_, cur_, cost_, ci_, lanes_, prev_, p1_, jump_, mp_, cur2_, prev2_, jump2_, mp2_, out_, oi_ = args
     lt = sig_args[0]
     c = load_i16(context, builder, sig_args[2], cost_, builder.add(ci_, i))
     mask = valid(builder, builder.sub(lanes_, i))
     sent = ir.Constant(V16, [SENTINEL] * LANES)
     vs = []
-    for k, (cur, prev, jump, mp) in enumerate(((cur_, prev_, jump_, mp_), (cur2_, prev2_, jump2_, mp2_))):
-        if k == 0 and row is not None:
-            b, a, e = row
-        else:
-            prev = builder.add(prev, i)
-            b = load_i16(context, builder, lt, L_, prev)
-            a = load_i16(context, builder, lt, L_, builder.add(prev, ir.Constant(I64, 1)))
-            e = load_i16(context, builder, lt, L_, builder.add(prev, ir.Constant(I64, 2)))
+    for cur, prev, jump, mp in ((cur_, prev_, jump_, mp_), (cur2_, prev2_, jump2_, mp2_)):
+        prev = builder.add(prev, i)
+        b = load_i16(context, builder, lt, L_, prev)
+        a = load_i16(context, builder, lt, L_, builder.add(prev, ir.Constant(I64, 1)))
+        e = load_i16(context, builder, lt, L_, builder.add(prev, ir.Constant(I64, 2)))
         v = smin(builder, a, builder.add(smin(builder, b, e), splat(builder, p1_)))
         v = smin(builder, v, splat(builder, jump))
         v = builder.select(mask, builder.sub(builder.add(c, v), splat(builder, mp)), sent)

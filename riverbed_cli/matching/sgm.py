@@ -16,16 +16,16 @@ reach) run in lean loops of their own, the rare cases in the pass's loop. At 4 p
 directions go in one step where both are common ones, one chunk or wide (:func:`.lanes.lanes_step_pair`,
 :func:`.lanes.lanes_step_wide_pair`: the cost loaded once, no half-sum between them); the column's sweep takes the
 rest. Where the row's neighbour has a one-chunk tube at the same offset (nearly every narrow step: the tubes are made
-per cell), its path costs come as lane shifts of the chunk it has just stored (:func:`.lanes.lanes_step_pair_aligned`):
-loads one disparity off that address waited for the store. The two passes are independent and run in parallel.
+per cell), the steps go in runs whose row path costs stay in registers (:func:`.lanes.lanes_run_pair`). The two
+passes are independent and run in parallel.
 """
 
 import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
-from .lanes import (LANES, SENTINEL, lanes_copy, lanes_fill, lanes_first, lanes_reduce, lanes_step, lanes_step_min,
-                    lanes_step_out, lanes_step_pair, lanes_step_pair_aligned, lanes_step_wide, lanes_step_wide_out,
+from .lanes import (LANES, SENTINEL, lanes_copy, lanes_fill, lanes_first, lanes_reduce, lanes_run_pair, lanes_step,
+                    lanes_step_min, lanes_step_out, lanes_step_pair, lanes_step_wide, lanes_step_wide_out,
                     lanes_step_wide_pair)
 from .atomics import exchange, load_acquire, store_release
 from .disparity import finish_selection, select_row
@@ -170,15 +170,13 @@ def _pair_steps(L, flat, Lmin, rb, rws, ros, rwp1, rop1, xx, W, cbase0, cbase1, 
         s1 = ros[ux] - rop1[ux]
         if not (_reaches(s0, rws[up], LANES) and _reaches(s1, rwp1[ux], LANES)):
             return xx
+        if s0 == 0 and rws[up] <= LANES:  # nearly every step: a run of them, the row's costs in registers
+            xx = lanes_run_pair(L, flat, Lmin, rb, rws, ros, rwp1, rop1, done, out, xx, W, n, _GUARD, cbase0, cbase1,
+                                pbase1, R, P1, P2)
+            continue
         cur0, cur1, mp0, mp1 = _pair_entries(Lmin, cbase0, cbase1, pbase1, xx, R)
-        pent = (cbase0 + xx - 1) * R + _GUARD  # the row neighbour's entry
-        prev1 = (pbase1 + xx) * R + _GUARD + s1 - 1  # the column neighbour's costs, one disparity before
-        if s0 == 0 and rws[up] <= LANES:  # nearly every step: its costs as lane shifts of the chunk it just stored
-            m = lanes_step_pair_aligned(L, cur0, flat, b, w, pent, P1, np.int16(mp0 + P2), mp0, cur1, prev1,
-                                        np.int16(mp1 + P2), mp1, out, b)
-        else:
-            m = lanes_step_pair(L, cur0, flat, b, w, pent + s0 - 1, P1, np.int16(mp0 + P2), mp0, cur1, prev1,
-                                np.int16(mp1 + P2), mp1, out, b)
+        m = lanes_step_pair(L, cur0, flat, b, w, (cbase0 + xx - 1) * R + _GUARD + s0 - 1, P1, np.int16(mp0 + P2), mp0,
+                            cur1, (pbase1 + xx) * R + _GUARD + s1 - 1, np.int16(mp1 + P2), mp1, out, b)
         _paired(L, Lmin, m, cur0, cur1, cbase0 + xx, cbase1 + xx, LANES, done, ux)
         xx += 1
     return xx
