@@ -24,9 +24,9 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
-from .lanes import (LANES, SENTINEL, lanes_copy, lanes_fill, lanes_first, lanes_reduce, lanes_run_pair, lanes_step,
-                    lanes_step_min, lanes_step_out, lanes_step_pair, lanes_step_wide, lanes_step_wide_out,
-                    lanes_step_wide_pair)
+from .lanes import (LANES, RUN_CHUNKS_MAX, SENTINEL, lanes_copy, lanes_fill, lanes_first, lanes_reduce,
+                    lanes_run_pair, lanes_step, lanes_step_min, lanes_step_out, lanes_step_pair, lanes_step_wide,
+                    lanes_step_wide_out, lanes_step_wide_pair)
 from .atomics import exchange, load_acquire, store_release
 from .disparity import finish_selection, select_row
 from .volume import spread_rows, volume_layout
@@ -172,7 +172,7 @@ def _pair_steps(L, flat, Lmin, rb, rws, ros, rwp1, rop1, xx, W, cbase0, cbase1, 
             return xx
         if s0 == 0 and rws[up] <= LANES:  # nearly every step: a run of them, the row's costs in registers
             xx = lanes_run_pair(L, flat, Lmin, rb, rws, ros, rwp1, rop1, done, out, xx, W, n, _GUARD, cbase0, cbase1,
-                                pbase1, R, P1, P2)
+                                pbase1, R, P1, P2, 1)
             continue
         cur0, cur1, mp0, mp1 = _pair_entries(Lmin, cbase0, cbase1, pbase1, xx, R)
         m = lanes_step_pair(L, cur0, flat, b, w, (cbase0 + xx - 1) * R + _GUARD + s0 - 1, P1, np.int16(mp0 + P2), mp0,
@@ -197,6 +197,12 @@ def _wide_pair_steps(L, flat, Lmin, rb, rws, ros, rwp1, rop1, xx, W, cbase0, cba
         s1 = ros[ux] - rop1[ux]
         if not (_reaches(s0, rws[up], span) and _reaches(s1, rwp1[ux], span)):
             return xx
+        chunks = span // LANES
+        if s0 == 0 and (rws[up] + LANES - 1) // LANES == chunks and chunks <= RUN_CHUNKS_MAX:
+            # a run along the row (a hole's pixels, or a block of wide tubes), its path costs in registers
+            xx = lanes_run_pair(L, flat, Lmin, rb, rws, ros, rwp1, rop1, done, out, xx, W, n, _GUARD, cbase0, cbase1,
+                                pbase1, R, P1, P2, chunks)
+            continue
         cur0, cur1, mp0, mp1 = _pair_entries(Lmin, cbase0, cbase1, pbase1, xx, R)
         m = lanes_step_wide_pair(L, cur0, flat, b, w, span, (cbase0 + xx - 1) * R + _GUARD + s0 - 1, P1,
                                  np.int16(mp0 + P2), mp0, cur1, (pbase1 + xx) * R + _GUARD + s1 - 1,
