@@ -218,6 +218,24 @@ def test_ownership_matches_brute_force(window, channels):
     np.testing.assert_allclose(dis, ref_dis, rtol=1e-5)
 
 
+# the matcher hands a uint8 left image over as it is (io.images.guide_source): the same owners and weights as its
+# float32 copy, grey and RGB
+@pytest.mark.parametrize("channels", [1, 3])
+def test_ownership_of_a_uint8_guide_equals_its_float_copy(channels):
+    rng = np.random.default_rng(channels)
+    H, W = 45, 67
+    guide = rng.integers(0, 256, (H, W, channels)).astype(np.uint8)
+    guide[10:30, 20:50] = guide[10, 20]  # a flat patch: ties between points
+    sparse = np.where(rng.random((H, W)) < 0.05, rng.uniform(0, 30, (H, W)), np.nan).astype(np.float32)
+    owner, dis = homogeneous_owners(sparse, guide, 9)
+    ref_owner, ref_dis = homogeneous_owners(sparse, guide.astype(np.float32), 9)
+    assert (owner >= 0).mean() > 0.2
+    np.testing.assert_array_equal(owner, ref_owner)
+    np.testing.assert_array_equal(dis, ref_dis)
+    if channels == 1:  # a grey image as read (H x W)
+        np.testing.assert_array_equal(homogeneous_owners(sparse, guide[:, :, 0], 9)[0], ref_owner)
+
+
 def test_ownership_weights_are_libm_bits():
     # the polynomial with its rounding check gives float32(-expm1(-e)) to the bit; libm where it cannot be sure
     rng = np.random.default_rng(3)

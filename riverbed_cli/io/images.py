@@ -231,6 +231,18 @@ def to_guide(img, bits=None):
     raise RiverbedError(f"image must be HxW or HxWx3, got shape {f.shape}")
 
 
+def guide_source(img, bits=None):
+    """The left image for the guides' colour similarities: a ``uint8`` grey or RGB image as it is (``H x W x C``, a
+    view), which :func:`~riverbed_cli.matching.guidance.homogeneous_owners` reads without a float copy and the other
+    guides convert as they did (:func:`~riverbed_cli.matching.guidance.guide_image`); any other image as
+    :func:`to_guide` makes it."""
+    img = np.asarray(img)
+    layout = img.ndim == 2 or (img.ndim == 3 and img.shape[2] in (1, 3))
+    if img.dtype == np.uint8 and img.flags.c_contiguous and layout:
+        return img[:, :, None] if img.ndim == 2 else img
+    return to_guide(img, bits)
+
+
 def check_pair(left, right, left_path=None, right_path=None):
     """Raise :class:`RiverbedError` (naming ``right_path``) if the two images differ in height or width.
 

@@ -120,7 +120,7 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
     for y in prange(H):
         for ch in range(C):  # channel by channel: the writes in order (0.6x the time of pixel by pixel)
             for x in range(W):
-                planes[ch, y, x] = guide[y, x, ch]
+                planes[ch, y, x] = np.float32(guide[y, x, ch])  # a uint8 guide's samples exactly
         owner[y] = -1  # filled here in parallel (np.full is one thread's)
         dissim[y] = np.inf
     pflat, oflat, dflat = planes.reshape(-1), owner.reshape(-1), dissim.reshape(-1)
@@ -208,10 +208,13 @@ def _weight_sure(e):
     return f if sure else (np.float32(np.inf) if e == np.inf else np.float32(np.nan))
 
 
-def guide_image(guide, shape):
+def guide_image(guide, shape, keep_uint8=False):
     """The left image for colour similarities as contiguous float32 ``H x W x C`` (a grey image gets ``C = 1``),
-    checked against the sparse map's ``shape``."""
-    guide = np.asarray(guide, dtype=np.float32)
+    checked against the sparse map's ``shape``; with ``keep_uint8`` a ``uint8`` image stays ``uint8`` (its samples
+    are the 0..255 scale's float32 values exactly)."""
+    guide = np.asarray(guide)
+    if not (keep_uint8 and guide.dtype == np.uint8):
+        guide = np.asarray(guide, dtype=np.float32)
     if guide.ndim == 2:
         guide = guide[:, :, None]
     if guide.shape[:2] != tuple(shape):
@@ -226,8 +229,9 @@ def homogeneous_owners(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0
     ----------
     sparse : (H, W) float
         Sparse disparities of the left image, NaN where there is no LiDAR.
-    guide : (H, W) or (H, W, C) float
-        Left image on a 0..255 scale (colour differences are averaged over channels).
+    guide : (H, W) or (H, W, C) float, or uint8
+        Left image on a 0..255 scale (colour differences are averaged over channels). A ``uint8`` image is read as
+        it is (the kernel takes its samples to float32 as it lays out its planes: no float copy of the image).
     window : int
         Odd side ``s`` of the square window around each LiDAR point.
     literal_eq3 : bool
@@ -246,7 +250,7 @@ def homogeneous_owners(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0
     window = int(window)
     if window < 1 or window % 2 == 0:
         raise RiverbedError(f"riverbed window must be a positive odd number, got {window}")
-    guide = guide_image(guide, sparse.shape)
+    guide = guide_image(guide, sparse.shape, keep_uint8=True)
     rows, cols, _ = lidar_points(sparse) if points is None else points
     return _owners_kernel(rows, cols, guide, window // 2,
                           float(sigma_xy), float(sigma_i), float(gamma), bool(literal_eq3))

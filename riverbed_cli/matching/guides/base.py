@@ -13,9 +13,10 @@ class GuidanceInputs:
     """What a matcher hands a guide.
 
     ``sparse``: (H, W) float32 LiDAR disparities of the left image, NaN elsewhere (all inside the searched range);
-    ``image``: the left image on a 0..255 scale, (H, W, C) float32 (:func:`~riverbed_cli.io.images.to_guide`), or
-    None for guides that do not read it; ``share``: the LiDAR share of the image
-    (:func:`~riverbed_cli.matching.guidance.lidar_share`); ``fbar``: the wall scale ``F_bar`` in plain cost units;
+    ``image``: the left image on a 0..255 scale, (H, W, C) float32 (:func:`~riverbed_cli.io.images.to_guide`) or
+    uint8 as read (:func:`~riverbed_cli.io.images.guide_source`), or None for guides that do not read it;
+    ``share``: the LiDAR share of the image (:func:`~riverbed_cli.matching.guidance.lidar_share`); ``fbar``: the
+    wall scale ``F_bar`` in plain cost units;
     ``cap``: the largest guided cost the aggregation can take (stored units); ``first_pass``: what the guide's
     :meth:`Guide.prepare` returned; ``want_support``: also return the support (AD-Census's refinement keeps the
     winners inside it); ``points``: the LiDAR's ``(rows, cols, values)``

@@ -10,7 +10,7 @@ import time
 import numpy as np
 
 from ...errors import RiverbedError
-from ...io.images import effective_bits, to_grey, to_guide
+from ...io.images import effective_bits, guide_source, to_grey
 from .. import census, disparity, guidance, sgm
 from ..guides.base import GuidanceInputs
 from ..registry import get_guide, register_matcher
@@ -57,7 +57,7 @@ class SGMMatcher(Matcher):
             fbar = nbits / 2.0 if g.wall_scale == "auto" else float(g.wall_scale)
             if cap <= nbits * scale:
                 raise RiverbedError(f"P2 {s.p2} is too large for {s.paths} paths with guided uint16 costs")
-            image = to_guide(left, bits) if guide.needs_image else None
+            image = guide_source(left, bits) if guide.needs_image else None
             inputs = GuidanceInputs(sparse, image, share, fbar, cap, first_pass, points=points)
             result = guide.modulate(volume, inputs, config)
             volume, window = result.volume, result.window
