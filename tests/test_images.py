@@ -153,6 +153,43 @@ def test_to_grey_8bit_unchanged_and_luma():
                                                0.299 * 10 + 0.587 * 20 + 0.114 * 30]], atol=1e-3)
 
 
+def _luma_reference(rgb):
+    """fma(B, 0.114, fma(R, 0.299, G * 0.587)) in float32, each fused multiply-add rounded once: computed in float64
+    (a float32 sample times a float32 weight is exact there) and rounded to float32 (for 8-bit samples the values of
+    OpenCV's vector code, every triple)."""
+    r, g, b = (rgb[..., c].astype(np.float32).astype(np.float64) for c in range(3))
+    cr, cg, cb = (np.float64(np.float32(w)) for w in (0.299, 0.587, 0.114))
+    inner = (r * cr + (g * cg).astype(np.float32).astype(np.float64)).astype(np.float32).astype(np.float64)
+    return (b * cb + inner).astype(np.float32)
+
+
+def test_to_grey_is_the_fused_luma_at_every_pixel():
+    # every 8-bit RGB triple, in rows of 4096 (the vector steps) and as single columns (the row's last pixels, one by
+    # one): the same values
+    v = np.arange(256, dtype=np.uint8)
+    rgb = np.stack(np.meshgrid(v, v, v, indexing="ij"), -1).reshape(4096, 4096, 3)
+    expect = _luma_reference(rgb)
+    np.testing.assert_array_equal(to_grey(rgb), expect)
+    cols = rgb[:64, :37]
+    np.testing.assert_array_equal(np.hstack([to_grey(cols[:, x:x + 1]) for x in range(37)]), expect[:64, :37])
+    np.testing.assert_array_equal(to_grey(cols), expect[:64, :37])  # two vector steps and 5 pixels one by one
+    # 16-bit and float samples on the same scale, and an alpha channel, give the same values
+    np.testing.assert_array_equal(to_grey(cols.astype(np.uint16) * 16), expect[:64, :37])
+    np.testing.assert_array_equal(to_grey(cols.astype(np.float64)), expect[:64, :37])
+    rgba = np.dstack([cols, np.full(cols.shape[:2], 9, np.uint8)])
+    np.testing.assert_array_equal(to_grey(rgba), expect[:64, :37])
+
+
+def test_to_grey_equals_opencv_vector_code_where_it_runs():
+    # OpenCV's COLOR_RGB2GRAY on float32 gives the same values in its vector steps (AVX2, AVX-512: fused
+    # multiply-adds); its scalar code for a row's last pixels rounds otherwise. Rows of 64 px: no scalar tail at
+    # any vector width.
+    if not (cv2.useOptimized() and cv2.checkHardwareSupport(11) and cv2.checkHardwareSupport(12)):  # AVX2, FMA3
+        pytest.skip("OpenCV's vector code here is not the AVX2 / AVX-512 one")
+    rgb = np.random.default_rng(3).integers(0, 256, (300, 64, 3)).astype(np.uint8)
+    np.testing.assert_array_equal(to_grey(rgb), cv2.cvtColor(rgb.astype(np.float32), cv2.COLOR_RGB2GRAY))
+
+
 def test_to_grey_12bit_in_16bit_container():
     img = np.array([[0, 16, 4095]], np.uint16)  # 12-bit data
     assert effective_bits(img) == 12
@@ -183,7 +220,7 @@ def test_to_guide_shapes_and_scaling():
 @pytest.mark.parametrize("shape", [(500, 740, 3), (64, 64, 4), (1, 5000, 3), (4096, 1), (70, 70), (63, 65, 1)])
 def test_large_8bit_images_convert_exactly(shape):
     # 8-bit images of 4096 samples and more go through OpenCV's conversion (io.images._to_float255): the same
-    # values as NumPy's, every channel, as grey and as guide, in the input's shape
+    # values as NumPy's, every channel, as guide; the grey from the samples, in the input's shape
     img = np.random.default_rng(sum(shape)).integers(0, 256, shape, dtype=np.uint8)
     f = img.astype(np.float32)
     guide = to_guide(img)
@@ -192,6 +229,6 @@ def test_large_8bit_images_convert_exactly(shape):
     grey = to_grey(img)
     assert grey.shape == img.shape[:2] and grey.dtype == np.float32
     if img.ndim == 3 and img.shape[2] >= 3:
-        np.testing.assert_array_equal(grey, cv2.cvtColor(np.ascontiguousarray(f[:, :, :3]), cv2.COLOR_RGB2GRAY))
+        np.testing.assert_array_equal(grey, _luma_reference(img))
     else:
         np.testing.assert_array_equal(grey, f.reshape(f.shape[:2]))

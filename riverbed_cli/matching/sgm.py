@@ -15,20 +15,20 @@ fifth of the pass). The common steps (one chunk, or a wide tube beside a wide tu
 reach) run in lean loops of their own, the rare cases in the pass's loop. At 4 paths on tubes a pixel's two
 directions go in one step where both are common ones, one chunk or wide (:func:`.lanes.lanes_step_pair`,
 :func:`.lanes.lanes_step_wide_pair`: the cost loaded once, no half-sum between them); the column's sweep takes the
-rest. Where the row's neighbour has a one-chunk tube at the same offset (nearly every narrow step: the tubes are made
-per cell), the steps go in runs whose row path costs stay in registers (:func:`.lanes.lanes_run_pair`). The two
-passes are independent and run in parallel.
+rest. Where the row's neighbour's tube starts at the same disparity and takes as many chunks (nearly every step: the
+tubes are made per cell, and a hole's pixels all search the whole range), the steps go in runs whose row path costs
+stay in registers (:func:`.lanes_runs.lanes_run_pair`). The two passes are independent and run in parallel.
 """
 
 import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
-from .lanes import (LANES, RUN_CHUNKS_MAX, SENTINEL, lanes_copy, lanes_fill, lanes_first, lanes_reduce,
-                    lanes_run_pair, lanes_step, lanes_step_min, lanes_step_out, lanes_step_pair, lanes_step_wide,
-                    lanes_step_wide_out, lanes_step_wide_pair)
+from .lanes import (LANES, SENTINEL, lanes_copy, lanes_fill, lanes_first, lanes_reduce, lanes_step, lanes_step_min,
+                    lanes_step_out, lanes_step_pair, lanes_step_wide, lanes_step_wide_out, lanes_step_wide_pair)
 from .atomics import exchange, load_acquire, store_release
 from .disparity import finish_selection, select_row
+from .lanes_runs import RUN_CHUNKS_MAX, lanes_run_pair
 from .volume import spread_rows, volume_layout
 
 # Directions (dx, dy) swept in the forward raster pass; the reverse pass sweeps their opposites.
