@@ -64,6 +64,15 @@ def test_tube_sgm_equals_the_brute_force_reference(paths, seed, D, most):
     np.testing.assert_array_equal(bwd, gather(ref_b, layout).astype(np.uint16))
 
 
+def assert_passes_equal_the_reference(cost, lo, hi, paths):
+    """Both SGM passes over the tubes ``[lo, hi]`` of ``cost`` (P1 7, P2 40) equal the brute-force reference."""
+    layout = TubeLayout.from_bounds(lo, hi, 0)
+    fwd, bwd = sgm.sgm_aggregate_passes(gather(cost, layout), 7, 40, paths, tubes=layout)
+    dirs = sgm.path_directions(paths)
+    for got, half in ((fwd, dirs[: paths // 2]), (bwd, dirs[paths // 2:])):
+        np.testing.assert_array_equal(got, gather(sgm_reference(cost, lo, hi, 7, 40, half), layout).astype(np.uint16))
+
+
 def hole_tubes(rng, H, W, D):
     """Tubes as the LiDAR makes them: narrow ones whose offsets drift slowly, a block of wide ones (20-40 disparities,
     offsets drifting alike) and a hole searching the whole range, side by side in rows and columns."""
@@ -84,14 +93,7 @@ def test_tube_sgm_with_holes_equals_the_brute_force_reference(paths, seed, D):
     rng = np.random.default_rng(seed)
     H, W = 13, 19
     cost = rng.integers(0, 60, (H, W, D)).astype(np.uint16)
-    lo, hi = hole_tubes(rng, H, W, D)
-    layout = TubeLayout.from_bounds(lo, hi, 0)
-    fwd, bwd = sgm.sgm_aggregate_passes(gather(cost, layout), 7, 40, paths, tubes=layout)
-    dirs = sgm.path_directions(paths)
-    np.testing.assert_array_equal(fwd, gather(sgm_reference(cost, lo, hi, 7, 40, dirs[: paths // 2]),
-                                              layout).astype(np.uint16))
-    np.testing.assert_array_equal(bwd, gather(sgm_reference(cost, lo, hi, 7, 40, dirs[paths // 2:]),
-                                              layout).astype(np.uint16))
+    assert_passes_equal_the_reference(cost, *hole_tubes(rng, H, W, D), paths)
 
 
 def cell_made_tubes(rng, H, W, D, cell=4):
@@ -108,22 +110,15 @@ def cell_made_tubes(rng, H, W, D, cell=4):
 
 
 # tubes made per cell: at 4 paths most steps go in runs along a row whose tubes start at the same disparity
-# (lanes.lanes_run_pair, the row's path costs carried in registers), ended by a wider tube, another offset, a column
-# neighbour out of reach or the row's end
+# (lanes_runs.lanes_run_pair, the row's path costs carried in registers), ended by a wider tube, another offset, a
+# column neighbour out of reach or the row's end
 @pytest.mark.parametrize("paths", [4, 8])
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_tube_sgm_on_cell_tubes_equals_the_brute_force_reference(paths, seed):
     rng = np.random.default_rng(seed)
     H, W, D = 14, 23, 48
     cost = rng.integers(0, 60, (H, W, D)).astype(np.uint16)
-    lo, hi = cell_made_tubes(rng, H, W, D)
-    layout = TubeLayout.from_bounds(lo, hi, 0)
-    fwd, bwd = sgm.sgm_aggregate_passes(gather(cost, layout), 7, 40, paths, tubes=layout)
-    dirs = sgm.path_directions(paths)
-    np.testing.assert_array_equal(fwd, gather(sgm_reference(cost, lo, hi, 7, 40, dirs[: paths // 2]),
-                                              layout).astype(np.uint16))
-    np.testing.assert_array_equal(bwd, gather(sgm_reference(cost, lo, hi, 7, 40, dirs[paths // 2:]),
-                                              layout).astype(np.uint16))
+    assert_passes_equal_the_reference(cost, *cell_made_tubes(rng, H, W, D), paths)
 
 
 # aggregation with the selection handed over row by row (sgm.sgm_aggregate_select) against the two stages one after
