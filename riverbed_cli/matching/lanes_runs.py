@@ -57,10 +57,9 @@ def _run_codegen(context, builder, tys, args, C):
     def entry(base, x):  # the start of a ring-buffer entry
         return builder.add(builder.mul(builder.add(base, x), R_), guard_)
 
-    def chunks(w):  # how many chunks a tube of w disparities takes
-        return builder.ashr(builder.add(w, ir.Constant(I64, LANES - 1)), ir.Constant(I64, 4 if LANES == 16 else 0))
+    def chunks(w):  # how many chunks a tube of w (>= 0) disparities takes
+        return builder.udiv(builder.add(w, ir.Constant(I64, LANES - 1)), lanes)
 
-    assert LANES == 16
     x_ptr = cgutils.alloca_once_value(builder, xx_)
     pent = entry(cb0, builder.sub(xx_, one))
     pv_ptrs = [cgutils.alloca_once_value(builder, load_i16(context, builder, lt, L_,
