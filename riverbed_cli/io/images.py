@@ -187,17 +187,20 @@ LUMA = (np.float32(0.299), np.float32(0.587), np.float32(0.114))
 _GREY_LANES = 16  # pixels per vector step of _grey_kernel
 
 
+def _fma(builder, a, b, c):
+    # a * b + c rounded once, float32 or a vector of them (llvm.fma: the FMA instruction, or libm's correctly
+    # rounded fmaf on a CPU without it)
+    t = a.type
+    name = f"llvm.fma.v{t.count}f32" if isinstance(t, ir.VectorType) else "llvm.fma.f32"
+    fn = builder.module.globals.get(name) or ir.Function(builder.module, ir.FunctionType(t, [t, t, t]), name)
+    return builder.call(fn, [a, b, c])
+
+
 @intrinsic
 def _fma32(typingctx, a, b, c):
-    # a * b + c rounded once (llvm.fma: the FMA instruction, or libm's correctly rounded fmaf on a CPU without it)
+    # _fma of three float32 scalars
     sig = types.float32(types.float32, types.float32, types.float32)
-
-    def codegen(context, builder, signature, args):
-        f32 = ir.FloatType()
-        fn = builder.module.declare_intrinsic("llvm.fma", [f32], ir.FunctionType(f32, [f32, f32, f32]))
-        return builder.call(fn, args)
-
-    return sig, codegen
+    return sig, lambda context, builder, signature, args: _fma(builder, *args)
 
 
 @intrinsic
@@ -225,10 +228,8 @@ def _grey_lanes(typingctx, img, i, out, o, scale, cr, cg, cb):
             return builder.fmul(x, _splat(builder, scale_, vf))
 
         r, g, b = (channel(c) for c in range(3))
-        name = f"llvm.fma.v{n}f32"
-        fma = builder.module.globals.get(name) or ir.Function(builder.module, ir.FunctionType(vf, [vf, vf, vf]), name)
-        grey = builder.call(fma, [r, _splat(builder, cr_, vf), builder.fmul(g, _splat(builder, cg_, vf))])
-        grey = builder.call(fma, [b, _splat(builder, cb_, vf), grey])
+        grey = _fma(builder, r, _splat(builder, cr_, vf), builder.fmul(g, _splat(builder, cg_, vf)))
+        grey = _fma(builder, b, _splat(builder, cb_, vf), grey)
         dst = builder.gep(context.make_array(signature.args[2])(context, builder, out_).data, [o_])
         builder.store(grey, builder.bitcast(dst, vf.as_pointer()), align=4)
         return context.get_dummy_value()
@@ -237,6 +238,7 @@ def _grey_lanes(typingctx, img, i, out, o, scale, cr, cg, cb):
 
 
 def _splat(builder, value, vty):
+    # value in every lane of vty (io sits below matching.vector_ir, which has the same for the matchers)
     one = builder.insert_element(ir.Constant(vty, ir.Undefined), value, ir.Constant(ir.IntType(32), 0))
     return builder.shuffle_vector(one, ir.Constant(vty, ir.Undefined),
                                   ir.Constant(ir.VectorType(ir.IntType(32), vty.count), [0] * vty.count))

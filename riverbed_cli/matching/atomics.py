@@ -9,10 +9,7 @@ these are LLVM's atomic instructions (llvmlite), which neither the compiler nor 
 from numba import types
 from numba.extending import intrinsic
 
-
-def _element(context, builder, arrty, arr, index):
-    data = context.make_array(arrty)(context, builder, arr).data
-    return builder.gep(data, [index])
+from .vector_ir import element_ptr
 
 
 def _check(arr):
@@ -28,7 +25,7 @@ def load_acquire(typingctx, arr, index):
     sig = types.int64(arr, index)
 
     def codegen(context, builder, signature, args):
-        return builder.load_atomic(_element(context, builder, signature.args[0], *args), "acquire", 8)
+        return builder.load_atomic(element_ptr(context, builder, signature.args[0], *args), "acquire", 8)
 
     return sig, codegen
 
@@ -43,7 +40,7 @@ def store_release(typingctx, arr, index, value):
     def codegen(context, builder, signature, args):
         arr_, index_, value_ = args
         value_ = context.cast(builder, value_, signature.args[2], types.int64)
-        builder.store_atomic(value_, _element(context, builder, signature.args[0], arr_, index_), "release", 8)
+        builder.store_atomic(value_, element_ptr(context, builder, signature.args[0], arr_, index_), "release", 8)
         return context.get_dummy_value()
 
     return sig, codegen
@@ -59,7 +56,7 @@ def exchange(typingctx, arr, index, value):
     def codegen(context, builder, signature, args):
         arr_, index_, value_ = args
         value_ = context.cast(builder, value_, signature.args[2], types.int64)
-        return builder.atomic_rmw("xchg", _element(context, builder, signature.args[0], arr_, index_), value_,
+        return builder.atomic_rmw("xchg", element_ptr(context, builder, signature.args[0], arr_, index_), value_,
                                   "seq_cst")
 
     return sig, codegen

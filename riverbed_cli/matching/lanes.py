@@ -73,14 +73,19 @@ def _finish(context, builder, sig_args, v, mask, L, cur, acc, ai, keep):
     return reduce_min(builder, _store_path_costs(context, builder, sig_args, v, mask, L, cur, acc, ai, keep))
 
 
-def _step_value(context, builder, sig_args, L, cost, ci, prev, p1, jump, mp):
-    # cost + min(a, min(b, e) + P1, jump) - mp with a, b, e the previous path costs at prev + 1, prev, prev + 2
-    lt = sig_args[0]
+def neighbour_min(context, builder, lt, L, prev, p1, jump):
+    """``min(a, min(b, e) + P1, jump)`` with ``a, b, e`` the neighbour's path costs ``L[prev + 1]``, ``L[prev]``,
+    ``L[prev + 2]`` (``LANES`` lanes each; ``lt`` the type of ``L``): the part of a step from its neighbour."""
     b = load_i16(context, builder, lt, L, prev)
     a = load_i16(context, builder, lt, L, builder.add(prev, ir.Constant(I64, 1)))
     e = load_i16(context, builder, lt, L, builder.add(prev, ir.Constant(I64, 2)))
     v = smin(builder, a, builder.add(smin(builder, b, e), splat(builder, p1)))
-    v = smin(builder, v, splat(builder, jump))
+    return smin(builder, v, splat(builder, jump))
+
+
+def _step_value(context, builder, sig_args, L, cost, ci, prev, p1, jump, mp):
+    # cost + min(a, min(b, e) + P1, jump) - mp with a, b, e the previous path costs at prev + 1, prev, prev + 2
+    v = neighbour_min(context, builder, sig_args[0], L, prev, p1, jump)
     c = load_i16(context, builder, sig_args[3], cost, ci)
     return builder.sub(builder.add(c, v), splat(builder, mp))
 
@@ -177,12 +182,7 @@ def _pair_chunk(context, builder, sig_args, args, i):
     sent = ir.Constant(V16, [SENTINEL] * LANES)
     vs = []
     for cur, prev, jump, mp in ((cur_, prev_, jump_, mp_), (cur2_, prev2_, jump2_, mp2_)):
-        prev = builder.add(prev, i)
-        b = load_i16(context, builder, lt, L_, prev)
-        a = load_i16(context, builder, lt, L_, builder.add(prev, ir.Constant(I64, 1)))
-        e = load_i16(context, builder, lt, L_, builder.add(prev, ir.Constant(I64, 2)))
-        v = smin(builder, a, builder.add(smin(builder, b, e), splat(builder, p1_)))
-        v = smin(builder, v, splat(builder, jump))
+        v = neighbour_min(context, builder, lt, L_, builder.add(prev, i), p1_, jump)
         v = builder.select(mask, builder.sub(builder.add(c, v), splat(builder, mp)), sent)
         store_vector(context, builder, lt, L_, builder.add(cur, i), v)
         vs.append(v)

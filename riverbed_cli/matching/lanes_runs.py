@@ -11,9 +11,9 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from .lanes import SENTINEL
-from .vector_ir import I32, I64, LANES, V16, VI32, load_i16, masked_store, reduce_min, smin, splat, store_vector, \
-    valid, vector_ptr
+from .lanes import SENTINEL, neighbour_min
+from .vector_ir import (I32, I64, LANES, V16, VI32, element_ptr, load_i16, masked_store, reduce_min, smin, splat,
+                        store_vector, valid, vector_ptr)
 
 # shuffle_vector(sentinels, pv, _LANE_BEFORE): lane d holds pv[d - 1] (lane 0 the sentinel before the tube);
 # shuffle_vector(pv, sentinels, _LANE_AFTER): lane d holds pv[d + 1] (the last lane the sentinel chunk's)
@@ -32,11 +32,6 @@ def _spread_min(builder, v):
     return v
 
 
-def _element(context, builder, arrty, arr, index):
-    # a pointer to arr[index] (any 1-D array)
-    return builder.gep(context.make_array(arrty)(context, builder, arr).data, [index])
-
-
 #: the widest tubes (in chunks of LANES) whose steps go in runs (lanes_run_pair): an aerial pair's 0..143 holes are 9
 RUN_CHUNKS_MAX = 12
 
@@ -52,7 +47,7 @@ def _run_codegen(context, builder, tys, args, C):
     sent = ir.Constant(V16, [SENTINEL] * LANES)
 
     def get(k, index):  # element index of the k-th argument (a 1-D array)
-        return builder.load(_element(context, builder, tys[k], args[k], index))
+        return builder.load(element_ptr(context, builder, tys[k], args[k], index))
 
     def entry(base, x):  # the start of a ring-buffer entry
         return builder.add(builder.mul(builder.add(base, x), R_), guard_)
@@ -93,10 +88,7 @@ def _run_codegen(context, builder, tys, args, C):
         v0 = smin(builder, builder.sub(v0, mpv), splat(builder, p2_))
         row = builder.select(mask, builder.add(c, v0), sent)
         # the column's step from the row before's entry, shifted by the difference of the tubes' offsets
-        pc = builder.add(prev, off)
-        bb, aa, ee = (load_i16(context, builder, lt, L_, builder.add(pc, ir.Constant(I64, k))) for k in range(3))
-        v1 = smin(builder, aa, builder.add(smin(builder, bb, ee), splat(builder, p1_)))
-        v1 = smin(builder, v1, splat(builder, builder.add(mp1, p2_)))
+        v1 = neighbour_min(context, builder, lt, L_, builder.add(prev, off), p1_, builder.add(mp1, p2_))
         col = builder.select(mask, builder.sub(builder.add(c, v1), splat(builder, mp1)), sent)
         store_vector(context, builder, lt, L_, builder.add(cur1, off), col)
         masked_store(builder, builder.add(row, col), vector_ptr(context, builder, tys[9], out_, builder.add(b, off)),
@@ -105,8 +97,8 @@ def _run_codegen(context, builder, tys, args, C):
         rmin = row if rmin is None else smin(builder, rmin, row)
         cmin = col if cmin is None else smin(builder, cmin, col)
     store_vector(context, builder, lt, L_, builder.add(cur1, span), sent)
-    builder.store(reduce_min(builder, cmin), _element(context, builder, tys[2], Lmin_, builder.add(cb1, x)))
-    builder.store(ir.Constant(ir.IntType(8), 1), _element(context, builder, tys[8], done_, x))
+    builder.store(reduce_min(builder, cmin), element_ptr(context, builder, tys[2], Lmin_, builder.add(cb1, x)))
+    builder.store(ir.Constant(ir.IntType(8), 1), element_ptr(context, builder, tys[8], done_, x))
     for ptr, row in zip(pv_ptrs, rows):
         builder.store(row, ptr)
     builder.store(_spread_min(builder, rmin), mp_ptr)
@@ -144,7 +136,7 @@ def _run_codegen(context, builder, tys, args, C):
         store_vector(context, builder, lt, L_, builder.add(cur0, ir.Constant(I64, i * LANES)), builder.load(ptr))
     store_vector(context, builder, lt, L_, builder.add(cur0, span), sent)
     builder.store(builder.extract_element(builder.load(mp_ptr), ir.Constant(I32, 0)),
-                  _element(context, builder, tys[2], Lmin_, builder.add(cb0, last)))
+                  element_ptr(context, builder, tys[2], Lmin_, builder.add(cb0, last)))
     return x
 
 

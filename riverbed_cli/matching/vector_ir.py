@@ -19,10 +19,14 @@ LANE_INDEX = ir.Constant(VI64, list(range(LANES)))
 REVERSE = ir.Constant(ir.VectorType(I32, LANES), list(range(LANES - 1, -1, -1)))
 
 
+def element_ptr(context, builder, arrty, arr, index):
+    """A pointer to ``arr[index]`` of a 1-D array (or of a C-contiguous array's flat data)."""
+    return builder.gep(context.make_array(arrty)(context, builder, arr).data, [index])
+
+
 def vector_ptr(context, builder, arrty, arr, index, elem=None):
-    data = context.make_array(arrty)(context, builder, arr).data
     vty = ir.VectorType(elem or I16, LANES)
-    return builder.bitcast(builder.gep(data, [index]), vty.as_pointer())
+    return builder.bitcast(element_ptr(context, builder, arrty, arr, index), vty.as_pointer())
 
 
 def load_i16(context, builder, arrty, arr, index):
