@@ -8,7 +8,7 @@ from riverbed_cli.matching import census, diffusion, disparity, guidance, riverb
 from riverbed_cli.matching.guidance import lidar_share
 from riverbed_cli.matching.pipeline import match_pair
 from riverbed_cli.matching.tubes import lidar_tube_layout, lidar_tubes
-from riverbed_cli.matching.volume import TubeLayout
+from riverbed_cli.matching.volume import BAND_ROWS, TubeLayout, band_pair_rows, band_pairs
 from tube_volumes import gather
 
 SENT = 10 ** 9
@@ -529,3 +529,18 @@ def test_coarse_holes_from_the_command_line_untiled_and_tiled(cones, tmp_path):
     assert np.array_equal(one.disparity, read_disparity(tmp_path / "d.tif"), equal_nan=True)
     bad = CliRunner().invoke(cli, base[:-1] + ["nearest", "--tile", "0", "-o", str(tmp_path / "b.tif")])
     assert bad.exit_code != 0 and "expected one of full, coarse, got 'nearest'" in bad.output
+
+
+@pytest.mark.parametrize("H", [1, 7, 15, 16, 17, 31, 32, 33, 500])
+def test_band_pairs_share_every_row_once_and_alternate(H):
+    """The row-parallel kernels' shares (volume.band_pair_rows): every row once; with two threads (the loop's two
+    contiguous halves) the first takes the even pairs of bands, the second the odd ones, in every kernel alike."""
+    m = band_pairs(H)
+    shares = [[], []]
+    for i in range(m):
+        r0, r1 = band_pair_rows(i, m, H)
+        shares[0 if i < (m + 1) // 2 else 1] += range(r0, r1)
+    assert sorted(shares[0] + shares[1]) == list(range(H))
+    for t in (0, 1):
+        assert {y // (2 * BAND_ROWS) % 2 for y in shares[t]} <= {t}
+    assert len(shares[1]) == 0 if H <= 2 * BAND_ROWS else len(shares[1]) > 0

@@ -10,7 +10,7 @@ from numba import njit, prange
 from ..errors import RiverbedError
 from ..settings import parse_census_window
 from .lanes import LANES, lanes_census, lanes_census_bits, lanes_census_half
-from .volume import spread_rows
+from .volume import band_pair_rows, band_pairs
 
 # SWAR popcount constants. They must be np.uint64: mixing uint64 with int64 silently gives float64 in Numba.
 _M1 = np.uint64(0x5555555555555555)
@@ -51,21 +51,24 @@ def _census_kernel(pad, H, W, hw, hh):
     flat_pad = pad.reshape(-1)
     flat_out = out.reshape(-1)
     full = W // LANES * LANES
-    for y in prange(H):
-        for x0 in range(0, full, LANES):
-            lanes_census_bits(flat_pad, (y + hh) * Wp + hw + x0, offsets, flat_out, y * W + x0)
-        if full == W:
-            continue
-        row = out[y, full:]
-        row[:] = 0
-        centre = pad[y + hh, hw + full:hw + W]
-        for dy in range(-hh, hh + 1):
-            for dx in range(-hw, hw + 1):
-                if dy == 0 and dx == 0:
-                    continue
-                nb = pad[y + hh + dy, hw + dx + full:hw + dx + W]
-                for x in range(W - full):
-                    row[x] = (row[x] << one) | np.uint64(nb[x] < centre[x])
+    m = band_pairs(H)
+    for i in prange(m):  # the rows' shares of the cost kernel that reads them (volume.band_pair_rows)
+        r0, r1 = band_pair_rows(i, m, H)
+        for y in range(r0, r1):
+            for x0 in range(0, full, LANES):
+                lanes_census_bits(flat_pad, (y + hh) * Wp + hw + x0, offsets, flat_out, y * W + x0)
+            if full == W:
+                continue
+            row = out[y, full:]
+            row[:] = 0
+            centre = pad[y + hh, hw + full:hw + W]
+            for dy in range(-hh, hh + 1):
+                for dx in range(-hw, hw + 1):
+                    if dy == 0 and dx == 0:
+                        continue
+                    nb = pad[y + hh + dy, hw + dx + full:hw + dx + W]
+                    for x in range(W - full):
+                        row[x] = (row[x] << one) | np.uint64(nb[x] < centre[x])
     return out
 
 
@@ -128,30 +131,34 @@ def _census_tube_kernel(cl, cr, d_min, flat, start, width, offset, outside, scal
     # keeps its own loop: through the vector path's bookkeeping it took 1.18x as long on the aerial pair).
     H, W = cl.shape
     n = flat.shape[0]
-    for yy in prange(H):
-        y = spread_rows(yy, H)
-        row = cr[y]
-        if not vector:
-            for x in range(W):
-                _pixel_costs(flat, np.uint64(start[y, x]), np.int64(width[y, x]), x - d_min - np.int64(offset[y, x]),
-                             cl[y, x], row, outside, scale)
-            continue
-        end = start[y + 1, 0] if y + 1 < H else n  # where the next row's tubes start
-        for x in range(W):
-            b = np.int64(start[y, x])
-            w = np.int64(width[y, x])
-            top = x - d_min - np.int64(offset[y, x])
-            a = cl[y, x]
-            half = LANES // 2
-            if w <= half and top - half + 1 >= 0 and top < W and b + half <= end:  # most tubes: half the lanes
-                lanes_census_half(flat, b, a, row, top, scale)
+    m = band_pairs(H)
+    for k in prange(m):  # the rows' shares of every row-parallel kernel of the match (volume.band_pair_rows)
+        r0, r1 = band_pair_rows(k, m, H)
+        for y in range(r0, r1):
+            row = cr[y]
+            if not vector:
+                for x in range(W):
+                    _pixel_costs(flat, np.uint64(start[y, x]), np.int64(width[y, x]),
+                                 x - d_min - np.int64(offset[y, x]), cl[y, x], row, outside, scale)
                 continue
-            i = 0
-            while i < w and top - i - LANES + 1 >= 0 and top - i < W and b + i + LANES <= end:
-                lanes_census(flat, b + i, a, row, top - i, scale)
-                i += LANES
-            if i < w:
-                _pixel_costs(flat, np.uint64(b + i), w - i, top - i, a, row, outside, scale)
+            # where the next row's tubes start: the next row is this thread's inside the pair, but the chunks stop
+            # at the row's end all the same (the pair's last row is another thread's, and the same bits either way)
+            end = start[y + 1, 0] if y + 1 < H else n
+            for x in range(W):
+                b = np.int64(start[y, x])
+                w = np.int64(width[y, x])
+                top = x - d_min - np.int64(offset[y, x])
+                a = cl[y, x]
+                half = LANES // 2
+                if w <= half and top - half + 1 >= 0 and top < W and b + half <= end:  # most tubes: half the lanes
+                    lanes_census_half(flat, b, a, row, top, scale)
+                    continue
+                i = 0
+                while i < w and top - i - LANES + 1 >= 0 and top - i < W and b + i + LANES <= end:
+                    lanes_census(flat, b + i, a, row, top - i, scale)
+                    i += LANES
+                if i < w:
+                    _pixel_costs(flat, np.uint64(b + i), w - i, top - i, a, row, outside, scale)
 
 
 def census_cost(census_left, census_right, d_min, d_max, outside_cost, scale=1, tubes=None):

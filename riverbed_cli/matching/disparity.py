@@ -10,7 +10,7 @@ from numba import njit, prange
 
 from ..errors import RiverbedError
 from .lanes import LANES, lanes_find, lanes_sum, lanes_sum_wide, lanes_vote, lanes_vote_half
-from .volume import spread_rows, volume_layout
+from .volume import band_pair_rows, band_pairs, volume_layout
 
 
 @njit(cache=True, inline="always")
@@ -168,9 +168,12 @@ def _select_kernel(fwd, bwd, H, W, D, start, width, offset, wmax, d_min, subpixe
     # every row's select_row, in parallel
     disp = np.empty((H, W), dtype=np.float32)
     status = np.zeros((H, W if keep else 1), dtype=np.int8)  # keep: 1 where the check fails
-    for yy in prange(H):
-        select_row(fwd, bwd, spread_rows(yy, H), W, D, start, width, offset, wmax, d_min, subpixel, lr_check,
-                   lr_threshold, keep, disp, status)
+    m = band_pairs(H)
+    for i in prange(m):  # the rows' shares of every row-parallel kernel of the match (volume.band_pair_rows)
+        r0, r1 = band_pair_rows(i, m, H)
+        for y in range(r0, r1):
+            select_row(fwd, bwd, y, W, D, start, width, offset, wmax, d_min, subpixel, lr_check, lr_threshold, keep,
+                       disp, status)
     return disp, status
 
 

@@ -27,9 +27,8 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
-from .volume import spread_rows, volume_layout
+from .volume import BAND_ROWS, band_pair_rows, band_pairs, spread_rows, volume_layout
 from ..geometry.coverage import lidar_points, lidar_share, lidar_share_of_points, pixels_where  # noqa: F401  (re-exported)
-from ..geometry.coverage import row_offsets
 from ..geometry.interpolation import first_at_least
 from .lanes import LANES
 from .lanes_guidance import (lanes_claim, lanes_claim_rgb, lanes_claim_rgb_whole, lanes_claim_whole, lanes_colour,
@@ -117,17 +116,19 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
     planes = np.empty((C, H, W), np.float32)
     owner = np.empty((H, W), dtype=np.int32)
     dissim = np.empty((H, W), dtype=np.float64)  # float64 while comparing, so ties are real ties
-    for y in prange(H):
-        for ch in range(C):  # channel by channel: the writes in order (0.6x the time of pixel by pixel)
-            for x in range(W):
-                planes[ch, y, x] = np.float32(guide[y, x, ch])  # a uint8 guide's samples exactly
-        owner[y] = -1  # filled here in parallel (np.full is one thread's)
-        dissim[y] = np.inf
+    nr = band_pairs(H)
+    for i in prange(nr):  # the rows' shares of every row-parallel kernel of the match (volume.band_pair_rows)
+        r0, r1 = band_pair_rows(i, nr, H)
+        for y in range(r0, r1):
+            for ch in range(C):  # channel by channel: the writes in order (0.6x the time of pixel by pixel)
+                for x in range(W):
+                    planes[ch, y, x] = np.float32(guide[y, x, ch])  # a uint8 guide's samples exactly
+            owner[y] = -1  # filled here in parallel (np.full is one thread's)
+            dissim[y] = np.inf
+            for j in range(first_at_least(rows, y), first_at_least(rows, y + 1)):  # the LiDAR pixels: their own
+                owner[y, cols[j]] = j
+                dissim[y, cols[j]] = 0.0
     pflat, oflat, dflat = planes.reshape(-1), owner.reshape(-1), dissim.reshape(-1)
-    n = rows.shape[0]
-    for j in range(n):
-        owner[rows[j], cols[j]] = j
-        dissim[rows[j], cols[j]] = 0.0
     a = 1.0 / (2.0 * sigma_xy * sigma_xy)
     b = 1.0 / (2.0 * sigma_i * sigma_i * C)  # mean over channels of the squared colour difference
     # Homogeneous: 1 - W >= gamma, i.e. e <= -ln(gamma); eq. 3 as printed (W > gamma): e > -ln(1 - gamma).
@@ -136,22 +137,26 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
     else:
         e_lo, e_hi = 0.0, -math.log(gamma)
     spatial, sw = spatial_terms(half, a)
-    nb = max(1, H // max(2 * half, 1))
-    edges = np.empty(nb + 1, dtype=np.int64)
-    for k in range(nb + 1):
-        edges[k] = k * H // nb  # bands of at least H // nb >= 2 * half rows
+    # bands of hb >= 2 * half rows (the last may be short), a multiple of volume.BAND_ROWS: at the default window
+    # the pairs of bands are the other kernels' shares of rows
+    hb = max(1, (2 * half + BAND_ROWS - 1) // BAND_ROWS) * BAND_ROWS
+    nb = (H + hb - 1) // hb
+    m = (nb + 1) // 2  # pairs of bands
     for phase in range(2):
-        m = (nb + 1 - phase) // 2  # the phase's bands
         for kk in prange(m):
-            k = 2 * spread_rows(kk, m) + phase  # bands from all over the image in each thread's share
+            k = 2 * spread_rows(kk, m) + phase  # the pair's first or second band
+            if k >= nb:
+                continue
             dd = np.empty(LANES, np.float64)
-            for j in range(first_at_least(rows, edges[k]), first_at_least(rows, edges[k + 1])):
+            for j in range(first_at_least(rows, k * hb), first_at_least(rows, min(H, (k + 1) * hb))):
                 _claim(j, rows, cols, pflat, H, W, C, half, spatial, sw, b, e_lo, e_hi, oflat, dflat, dd)
     # exponent -> W (0 stays 0 at LiDAR pixels, inf stays inf where there is no owner): by a polynomial where it
     # gives libm's bits for sure (it vectorises), else by libm (a rare tie, the literal reading's far e)
     w = np.empty((H, W), np.float32)
-    for y in prange(H):
-        _weights_row(dissim[y], w[y])
+    for i in prange(nr):
+        r0, r1 = band_pair_rows(i, nr, H)
+        for y in range(r0, r1):
+            _weights_row(dissim[y], w[y])
     return owner, w
 
 
@@ -293,9 +298,9 @@ def _modulate_pixel(flat, base, D, d_min, dm, w, limit, k, band, form, scale, fb
 
 
 @njit(cache=True, parallel=True)
-def _modulate_kernel(flat, W, D0, owner, ends, dissim, values, d_min0, k, c, band, form, scale, fbar, cap, tstart,
-                     twidth, toffset):
-    # In place, only at the guided pixels (owner >= 0; ends: their row offsets, coverage.row_offsets). flat holds
+def _modulate_kernel(flat, W, D0, owner, dissim, values, d_min0, k, c, band, form, scale, fbar, cap, tstart, twidth,
+                     toffset):
+    # In place, only at the guided pixels (owner >= 0). flat holds
     # q = scale * F (a dense H x W x D0 volume flattened, or with tstart/twidth/toffset, 0 x 0 for none, per-pixel
     # tubes); every form is out = (alpha + beta * g) * q + gamma * g with the wall height g in [0, 1] (module
     # docstring).
@@ -305,24 +310,14 @@ def _modulate_kernel(flat, W, D0, owner, ends, dissim, values, d_min0, k, c, ban
     fcap64 = np.float64(cap)
     tube = tstart.shape[0] > 0
     H = owner.shape[0]
-    # Blocks of rows holding about as many guided pixels each, in parallel, each in order (no list of the guided
-    # pixels: finding it took 0.2-0.3 ms on the speed pairs, 2.2 on the 1 MP aerial tile). A chunk of LANES
-    # disparities may reach past its pixel's tube into the next pixels' (or the volume's end): inside the block
-    # (before its limit, the start of the next block's first row) those are this thread's, to come, or nobody's,
-    # and whole vectors are read and written back; past the limit the chunk is masked.
-    n = ends[H]
-    nb = max(1, min(n, 64))
-    edges = np.empty(nb + 1, np.int64)
-    for b in range(nb):
-        edges[b] = first_at_least(ends, b * n // nb)
-    edges[nb] = H
-    for bb in prange(nb):
-        # every other block in each thread's share (volume.spread_rows): equal counts of guided pixels are not equal
-        # work where tube widths differ over the image (on the cut speed pair the threads were busy 7.8-8.0 and
-        # 10.7-10.9 M cycles with contiguous shares, 8.6-8.7 each with spread ones)
-        blk = spread_rows(bb, nb)
-        r0 = min(edges[blk], H)
-        r1 = max(r0, min(edges[blk + 1], H))
+    # The rows' shares of every row-parallel kernel of the match (volume.band_pair_rows), each pair in order (no list
+    # of the guided pixels: finding it took 0.2-0.3 ms on the speed pairs, 2.2 on the 1 MP aerial tile). A chunk of
+    # LANES disparities may reach past its pixel's tube into the next pixels' (or the volume's end): inside the pair
+    # (before its limit, the start of the next pair's first row) those are this thread's, to come, or nobody's, and
+    # whole vectors are read and written back; past the limit the chunk is masked.
+    m = band_pairs(H)
+    for i in prange(m):
+        r0, r1 = band_pair_rows(i, m, H)
         if r1 < H:
             limit = tstart[r1, 0] if tube else r1 * W * D0
         else:
@@ -374,7 +369,7 @@ def _apply(cost, owner, dissim, values, rows, cols, d_min, k, c, band, form, cos
             raise RiverbedError("give the wall scale fbar for a tube volume")
         fbar = wall_scale(cost, rows, cols, cost_scale)
     flat, W, D, ts, tw, to = volume_layout(cost, owner.shape, tubes)
-    _modulate_kernel(flat, W, D, owner, row_offsets(owner >= 0), dissim, values, int(d_min),
+    _modulate_kernel(flat, W, D, owner, dissim, values, int(d_min),
                      float(k), float(c), float(band), FORMS[form], float(cost_scale), fbar, int(cap), ts, tw, to)
     return cost
 

@@ -22,7 +22,7 @@ from .config import MatchConfig
 from .registry import get_fusion, get_guide, get_matcher
 from .results import MatchInfo, MatchResult
 from .tubes import HOLE_FACTOR, hole_bounds, lidar_tube_layout, lidar_tubes, range_map_summary, tube_stats
-from .volume import TubeLayout
+from .volume import TubeLayout, band_pair_rows, band_pairs
 
 log = logging.getLogger(__name__)
 
@@ -139,23 +139,26 @@ def _cut_to_range(sparse, d_min, d_max):
     per_row = np.empty((H, 6), np.int64)
     out = np.empty((H, W), np.float32)
     nan = np.float32(np.nan)
-    for y in prange(H):
-        row = sparse[y]
-        cut = out[y]
-        finite = inside_n = 0
-        for x in range(W):
-            v = np.float64(row[x])
-            inside = (v >= d_min) & (v <= d_max)  # False for NaN and +-inf
-            cut[x] = row[x] if inside else nan
-            finite += np.int64(abs(v) < np.inf)
-            inside_n += np.int64(inside)
-        f0 = f1 = i0 = i1 = -1
-        if finite:
-            f0, f1 = _row_ends(row, -np.inf, np.inf)
-        if inside_n:
-            i0, i1 = _row_ends(row, d_min, d_max)
-        per_row[y, 0], per_row[y, 1], per_row[y, 2], per_row[y, 3], per_row[y, 4], per_row[y, 5] = (
-            finite, inside_n, f0, f1, i0, i1)
+    m = band_pairs(H)
+    for i in prange(m):  # the rows' shares of every row-parallel kernel of the match (volume.band_pair_rows)
+        r0, r1 = band_pair_rows(i, m, H)
+        for y in range(r0, r1):
+            row = sparse[y]
+            cut = out[y]
+            finite = inside_n = 0
+            for x in range(W):
+                v = np.float64(row[x])
+                inside = (v >= d_min) & (v <= d_max)  # False for NaN and +-inf
+                cut[x] = row[x] if inside else nan
+                finite += np.int64(abs(v) < np.inf)
+                inside_n += np.int64(inside)
+            f0 = f1 = i0 = i1 = -1
+            if finite:
+                f0, f1 = _row_ends(row, -np.inf, np.inf)
+            if inside_n:
+                i0, i1 = _row_ends(row, d_min, d_max)
+            per_row[y, 0], per_row[y, 1], per_row[y, 2], per_row[y, 3], per_row[y, 4], per_row[y, 5] = (
+                finite, inside_n, f0, f1, i0, i1)
     return per_row, out
 
 
@@ -189,15 +192,18 @@ def _points_of_rows(sparse, per_row):
     rows = np.empty(at[H], np.int64)
     cols = np.empty(at[H], np.int64)
     values = np.empty(at[H], np.float64)
-    for y in prange(H):
-        k = at[y]
-        for x in range(max(per_row[y, 4], 0), per_row[y, 5] + 1):
-            v = sparse[y, x]
-            if np.isfinite(v):
-                rows[k] = y
-                cols[k] = x
-                values[k] = np.float64(v)
-                k += 1
+    m = band_pairs(H)
+    for i in prange(m):  # the rows' shares of every row-parallel kernel of the match (volume.band_pair_rows)
+        r0, r1 = band_pair_rows(i, m, H)
+        for y in range(r0, r1):
+            k = at[y]
+            for x in range(max(per_row[y, 4], 0), per_row[y, 5] + 1):
+                v = sparse[y, x]
+                if np.isfinite(v):
+                    rows[k] = y
+                    cols[k] = x
+                    values[k] = np.float64(v)
+                    k += 1
     return rows, cols, values
 
 

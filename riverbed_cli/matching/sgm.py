@@ -29,7 +29,7 @@ from .lanes import (LANES, SENTINEL, lanes_copy, lanes_fill, lanes_first, lanes_
 from .atomics import exchange, load_acquire, store_release
 from .disparity import finish_selection, select_row
 from .lanes_runs import RUN_CHUNKS_MAX, lanes_run_pair
-from .volume import spread_rows, volume_layout
+from .volume import band_pair_rows, band_pairs, volume_layout
 
 # Directions (dx, dy) swept in the forward raster pass; the reverse pass sweeps their opposites.
 _FORWARD_DIRS = {
@@ -453,11 +453,13 @@ def _sgm_select_kernel(flat, fwd, bwd, H, W, D, start, width, offset, wmax, dxs,
                 break
             select_row(fu, bu, y, W, D, start, width, offset, wmax, d_min, subpixel, lr_check, lr_threshold, keep,
                        disp, status)
-    for yy in prange(H):
-        y = spread_rows(yy, H)
-        if taken[y] == 0:
-            select_row(fu, bu, y, W, D, start, width, offset, wmax, d_min, subpixel, lr_check, lr_threshold, keep,
-                       disp, status)
+    m = band_pairs(H)
+    for i in prange(m):  # the rows' shares of every row-parallel kernel of the match (volume.band_pair_rows)
+        r0, r1 = band_pair_rows(i, m, H)
+        for y in range(r0, r1):
+            if taken[y] == 0:
+                select_row(fu, bu, y, W, D, start, width, offset, wmax, d_min, subpixel, lr_check, lr_threshold,
+                           keep, disp, status)
     return disp, status
 
 

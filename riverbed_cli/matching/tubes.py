@@ -40,7 +40,7 @@ from numba import njit, prange
 from ..errors import RiverbedError
 from ..records import RecordMapping
 from .guidance import lidar_share
-from .volume import TubeLayout
+from .volume import TubeLayout, band_pair_rows, band_pairs
 
 
 @dataclass
@@ -162,27 +162,32 @@ def _cells_layout(tlo, thi, cell, H, W, d_min):
     start = np.empty((H, W), np.int64)
     rows = np.zeros(H + 1, np.int64)
     widest = np.zeros(H, np.int64)
-    for y in prange(H):
-        cy = y // cell
-        total = 0
-        most = 0
-        for cx in range(tlo.shape[1]):
-            o = tlo[cy, cx] - d_min
-            w = thi[cy, cx] - tlo[cy, cx] + 1
-            most = max(most, w)
-            for x in range(cx * cell, min(W, (cx + 1) * cell)):
-                offset[y, x] = o
-                width[y, x] = w
-                total += w
-        rows[y + 1] = total
-        widest[y] = most
+    m = band_pairs(H)
+    for i in prange(m):  # the rows' shares of every row-parallel kernel of the match (volume.band_pair_rows)
+        r0, r1 = band_pair_rows(i, m, H)
+        for y in range(r0, r1):
+            cy = y // cell
+            total = 0
+            most = 0
+            for cx in range(tlo.shape[1]):
+                o = tlo[cy, cx] - d_min
+                w = thi[cy, cx] - tlo[cy, cx] + 1
+                most = max(most, w)
+                for x in range(cx * cell, min(W, (cx + 1) * cell)):
+                    offset[y, x] = o
+                    width[y, x] = w
+                    total += w
+            rows[y + 1] = total
+            widest[y] = most
     for y in range(H):
         rows[y + 1] += rows[y]
-    for y in prange(H):
-        s = rows[y]
-        for x in range(W):
-            start[y, x] = s
-            s += width[y, x]
+    for i in prange(m):
+        r0, r1 = band_pair_rows(i, m, H)
+        for y in range(r0, r1):
+            s = rows[y]
+            for x in range(W):
+                start[y, x] = s
+                s += width[y, x]
     return offset, width, start, rows[H], widest.max() if H else 0
 
 

@@ -128,3 +128,30 @@ def spread_rows(i, n):
     cells of its upper half)."""
     h = (n + 1) // 2
     return 2 * i if i < h else 2 * (i - h) + 1
+
+
+#: rows of a band of the row-parallel kernels' shares (:func:`band_pair_rows`): the riverbed ownership's bands at
+#: its default window of 9 px (guidance._owners_kernel)
+BAND_ROWS = 8
+
+
+@njit(cache=True, inline="always")
+def band_pairs(H):
+    """How many pairs of bands of :data:`BAND_ROWS` rows ``H`` rows hold (the last may be short): the iterations of a
+    row-parallel kernel's ``prange`` over :func:`band_pair_rows`."""
+    return (H + 2 * BAND_ROWS - 1) // (2 * BAND_ROWS)
+
+
+@njit(cache=True, inline="always")
+def band_pair_rows(i, m, H):
+    """Rows ``[r0, r1)`` of iteration ``i`` of a ``prange(m)`` over the ``m = band_pairs(H)`` pairs of bands, in
+    :func:`spread_rows`' order: with two threads, the first takes the even pairs and the second the odd ones.
+
+    Every row-parallel kernel of a match shares its rows out this way, so that a thread reads and writes, stage after
+    stage, the rows it wrote before. Where the VM placed its two vCPUs on cores far apart (a cache line's round trip
+    between two threads about 500 ns instead of 100, benchmarks/core_latency.py), every line written by one thread
+    and taken by the other crosses between them, and kernels with other shares (contiguous halves, every other row,
+    blocks of equal work) made the 4-path match of the speed pair 4-6 ms slower there (docs/tubes.md)."""
+    p = spread_rows(i, m)
+    r0 = p * 2 * BAND_ROWS
+    return r0, min(H, r0 + 2 * BAND_ROWS)
