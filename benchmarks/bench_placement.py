@@ -84,8 +84,10 @@ def main():
             print(f"round {len(rounds)}: probes {before:.0f} / {after:.0f} ns, OpenCV 3WAY {cv['SGBM_3WAY']:.4f} s, "
                   + ", ".join(f"{k} {v:.4f} s" for k, v in rb.items()), file=sys.stderr, flush=True)
     print(f"\n### riverbed and OpenCV by vCPU placement ({len(rounds)} rounds, {args.minutes:g} min)\n")
-    print("| placement (round trip) | rounds | OpenCV HH s | OpenCV 3WAY s | riverbed | seconds | vs HH | vs 3WAY |")
-    print("|---|---:|---:|---:|---|---:|---:|---:|")
+    before = f"commit {args.before}, 4 paths, --fusion none" if args.before else None
+    print("| placement (round trip) | rounds | OpenCV HH s | OpenCV 3WAY s | riverbed | seconds | vs HH | vs 3WAY |"
+          + (f" vs commit {args.before} |" if before else ""))
+    print("|---|---:|---:|---:|---|---:|---:|---:|" + ("---:|" if before else ""))
     for label, keep in ((f"near (< {args.near:g} ns)", lambda a, b: a < args.near and b < args.near),
                         (f"far (> {args.far:g} ns)", lambda a, b: a > args.far and b > args.far),
                         ("changed during the round", None)):
@@ -93,14 +95,17 @@ def main():
             k(r[0], r[1]) for k in (lambda a, b: a < args.near and b < args.near,
                                     lambda a, b: a > args.far and b > args.far)))]
         if not sel:
-            print(f"| {label} | 0 | | | | | | |")
+            print(f"| {label} | 0 | | | | | | |" + (" |" if before else ""))
             continue
         hh = np.array([r[2]["HH"] for r in sel])
         w3 = np.array([r[2]["SGBM_3WAY"] for r in sel])
         for name in variants:
             s = np.array([r[3][name] for r in sel])
+            vs = ""
+            if before:  # the median of each round's ratio to the older commit's 4-path match
+                vs = f" {np.median(s / np.array([r[3][before] for r in sel])):.2f} |" if "4 paths" in name else " |"
             print(f"| {label} | {len(sel)} | {np.median(hh):.3f} | {np.median(w3):.4f} | {name} | {np.median(s):.4f} | "
-                  f"{np.median(s / hh):.2f} | {np.median(s / w3):.2f} |")
+                  f"{np.median(s / hh):.2f} | {np.median(s / w3):.2f} |" + vs)
 
 
 if __name__ == "__main__":
