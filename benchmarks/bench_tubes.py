@@ -19,7 +19,8 @@ Usage: python benchmarks/bench_tubes.py [DATA_DIR] [--skip-speed] [--skip-covera
    MODE_SGBM_3WAY and MODE_SGBM (what ``StereoSGBM_create`` gives by default) at the same nominal range (warm calls
    in a process of its own that imports only OpenCV, as a user's program runs it: ``opencv_timer.py``), on the
    740 x 500 / 80-disparity speed pair and on the aerial pair padded to 1024 x 1024 (144 disparities). Ratios are
-   medians of each round's ratio.
+   medians of each round's ratio. Each round starts with a probe of where the VM put its two vCPUs
+   (``bench_placement.py``), listed under the table.
 """
 
 import argparse
@@ -42,6 +43,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_match import opencv_grey_files, opencv_times_apart  # noqa: E402
+from bench_placement import probe  # noqa: E402
 from datasets import DEV_SCENES, middlebury, speed_pair, speed_scene  # noqa: E402
 
 from riverbed_cli.io.disparity import read_disparity, write_disparity  # noqa: E402
@@ -255,6 +257,7 @@ def speed(data_dir, repeat):
     print("| pair | method | seconds (--json) | wall s | warm s | mean tube width | vs OpenCV HH | vs OpenCV 3WAY | "
           "vs OpenCV SGBM | warm vs HH | warm vs 3WAY |")
     print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    placements = []
     for label, left, right, sparse, d_max in cases:
         opencv = {mode: [] for mode in OPENCV_MODES}
         with tempfile.TemporaryDirectory() as tmp:
@@ -271,13 +274,16 @@ def speed(data_dir, repeat):
             warm = {name: [] for name, *_ in VARIANTS}
             for _, _, kw, *_ in VARIANTS:
                 match_pair(left, right, sparse, 0, d_max, **kw)  # this process's kernels loaded
+            probes = []
             for _ in range(repeat):
+                probes.append(probe())  # where the VM put its two vCPUs this round (bench_placement.py)
                 # OpenCV apart: in this process riverbed's memory settings (riverbed_cli.cli) made HH 1.5-1.8x faster
                 for mode, times in opencv_times_apart(grey, 0, d_max, OPENCV_MODES).items():
                     opencv[mode] += times
                 for name, extra, kw, *more in VARIANTS:
                     runs[name].append(run_cli(base + extra, {**env, **(more[0] if more else {})}))
                     warm[name].append(match_pair(left, right, sparse, 0, d_max, **kw).info["seconds"])
+            placements.append((label, probes))
             refs = {mode: np.array(times) for mode, times in opencv.items()}
             hhs, w3s, sgs = (refs[m] for m in OPENCV_MODES)
             for name, *_ in VARIANTS:
@@ -295,6 +301,10 @@ def speed(data_dir, repeat):
             vs = " | ".join(f"{float(np.median(t / refs[m])):.2f}" for m in OPENCV_MODES)
             print(f"| {label} | OpenCV {title} | {np.median(t):.3f} | | {np.median(t):.3f} | {d_max + 1} | {vs} | | |",
                   flush=True)
+    print("\nThe two vCPUs' cache-line round trip before each round (core_latency.py; about 100 ns where they share "
+          "their caches, 500 ns far apart, where riverbed's fresh matches are slower and OpenCV's are not):")
+    for label, probes in placements:
+        print(f"* {label}: " + ", ".join(f"{p:.0f}" for p in probes) + " ns")
 
 
 def beside(data_dir, repeat):
