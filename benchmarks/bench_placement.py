@@ -15,7 +15,6 @@ sources, as ``bench_startup.py`` does), so that a change is compared in the same
 """
 
 import argparse
-import json
 import os
 import subprocess
 import sys
@@ -28,7 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_match import opencv_grey_files, opencv_times_apart  # noqa: E402
-from bench_startup import export  # noqa: E402
+from bench_startup import export, run  # noqa: E402
 from datasets import speed_pair  # noqa: E402
 
 from riverbed_cli.io.disparity import write_disparity  # noqa: E402
@@ -44,12 +43,11 @@ def probe():
     return float(p.stdout)
 
 
-def run_cli(args, pythonpath=ROOT):
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    env["PYTHONPATH"] = str(pythonpath)
-    p = subprocess.run([sys.executable, "-m", "riverbed_cli", "match", *args, "--json", "--overwrite"], env=env,
-                       capture_output=True, text=True, check=True, cwd=str(pythonpath))
-    return json.loads(p.stdout)
+def placement(first, last, near, far):
+    """A round's placement from its two probes (ns): near, far, or changed (the probes disagree)."""
+    if first < near and last < near:
+        return "near"
+    return "far" if first > far and last > far else "changed"
 
 
 def main():
@@ -64,8 +62,9 @@ def main():
     rounds = []
     with tempfile.TemporaryDirectory() as tmp, tempfile.TemporaryDirectory() as old:
         variants = {"4 paths, --fusion none": (FOUR, ROOT), "default (8 paths, fused)": ([], ROOT)}
-        if args.before:
-            variants[f"commit {args.before}, 4 paths, --fusion none"] = (FOUR, export(args.before, old))
+        older = f"commit {args.before}, 4 paths, --fusion none" if args.before else None
+        if older:
+            variants[older] = (FOUR, export(args.before, old))
         for n, img in (("l.png", left), ("r.png", right)):
             cv2.imwrite(os.path.join(tmp, n), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
         grey = opencv_grey_files(left, right, tmp)
@@ -73,37 +72,33 @@ def main():
         base = [os.path.join(tmp, "l.png"), os.path.join(tmp, "r.png"), "--sparse", os.path.join(tmp, "s.tif"),
                 "--min-disp", "0", "--max-disp", "79", "--tile", "0", "-o", os.path.join(tmp, "d.tif")]
         for extra, path in variants.values():
-            run_cli(base + extra, path)  # each copy's Numba cache filled (or checked) once
+            run(path, base + extra, {})  # each copy's Numba cache filled (or checked) once
         end = time.monotonic() + 60 * args.minutes
         while time.monotonic() < end:
-            before = probe()
+            first = probe()
             cv = {m: float(np.median(t)) for m, t in opencv_times_apart(grey, 0, 79, ("HH", "SGBM_3WAY"), 3).items()}
-            rb = {name: run_cli(base + extra, path)["seconds"] for name, (extra, path) in variants.items()}
-            after = probe()
-            rounds.append((before, after, cv, rb))
-            print(f"round {len(rounds)}: probes {before:.0f} / {after:.0f} ns, OpenCV 3WAY {cv['SGBM_3WAY']:.4f} s, "
+            rb = {name: run(path, base + extra, {})[1] for name, (extra, path) in variants.items()}
+            last = probe()
+            rounds.append((placement(first, last, args.near, args.far), cv, rb))
+            print(f"round {len(rounds)}: probes {first:.0f} / {last:.0f} ns, OpenCV 3WAY {cv['SGBM_3WAY']:.4f} s, "
                   + ", ".join(f"{k} {v:.4f} s" for k, v in rb.items()), file=sys.stderr, flush=True)
     print(f"\n### riverbed and OpenCV by vCPU placement ({len(rounds)} rounds, {args.minutes:g} min)\n")
-    before = f"commit {args.before}, 4 paths, --fusion none" if args.before else None
     print("| placement (round trip) | rounds | OpenCV HH s | OpenCV 3WAY s | riverbed | seconds | vs HH | vs 3WAY |"
-          + (f" vs commit {args.before} |" if before else ""))
-    print("|---|---:|---:|---:|---|---:|---:|---:|" + ("---:|" if before else ""))
-    for label, keep in ((f"near (< {args.near:g} ns)", lambda a, b: a < args.near and b < args.near),
-                        (f"far (> {args.far:g} ns)", lambda a, b: a > args.far and b > args.far),
-                        ("changed during the round", None)):
-        sel = [r for r in rounds if (keep(r[0], r[1]) if keep else not any(
-            k(r[0], r[1]) for k in (lambda a, b: a < args.near and b < args.near,
-                                    lambda a, b: a > args.far and b > args.far)))]
+          + (f" vs commit {args.before} |" if older else ""))
+    print("|---|---:|---:|---:|---|---:|---:|---:|" + ("---:|" if older else ""))
+    for kind, label in (("near", f"near (< {args.near:g} ns)"), ("far", f"far (> {args.far:g} ns)"),
+                        ("changed", "changed during the round")):
+        sel = [r for r in rounds if r[0] == kind]
         if not sel:
-            print(f"| {label} | 0 | | | | | | |" + (" |" if before else ""))
+            print(f"| {label} | 0 | | | | | | |" + (" |" if older else ""))
             continue
-        hh = np.array([r[2]["HH"] for r in sel])
-        w3 = np.array([r[2]["SGBM_3WAY"] for r in sel])
+        hh = np.array([r[1]["HH"] for r in sel])
+        w3 = np.array([r[1]["SGBM_3WAY"] for r in sel])
         for name in variants:
-            s = np.array([r[3][name] for r in sel])
+            s = np.array([r[2][name] for r in sel])
             vs = ""
-            if before:  # the median of each round's ratio to the older commit's 4-path match
-                vs = f" {np.median(s / np.array([r[3][before] for r in sel])):.2f} |" if "4 paths" in name else " |"
+            if older:  # the median of each round's ratio to the older commit's 4-path match
+                vs = f" {np.median(s / np.array([r[2][older] for r in sel])):.2f} |" if "4 paths" in name else " |"
             print(f"| {label} | {len(sel)} | {np.median(hh):.3f} | {np.median(w3):.4f} | {name} | {np.median(s):.4f} | "
                   f"{np.median(s / hh):.2f} | {np.median(s / w3):.2f} |" + vs)
 
