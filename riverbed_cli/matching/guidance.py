@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
-from .volume import BAND_ROWS, band_pair_rows, band_pairs, spread_rows, volume_layout
+from .volume import band_pair_rows, band_pairs, volume_layout
 from ..geometry.coverage import lidar_points, lidar_share, lidar_share_of_points, pixels_where  # noqa: F401  (re-exported)
 from ..geometry.interpolation import first_at_least
 from .lanes import LANES
@@ -55,10 +55,11 @@ def auto_window(share, target=4.0, smallest=5, largest=25):
 
 
 @njit(cache=True, inline="always")
-def _claim(j, rows, cols, planes, H, W, C, half, spatial, sw, b, e_lo, e_hi, owner, dissim, dd):
-    # Offer LiDAR point j's window to its pixels; a pixel keeps the most similar point (ties: lower index), so the
-    # result does not depend on the order in which points are offered. Works on the exponent e of eq. 2
-    # (W = 1 - exp(-e), increasing in e): no exp in the loop; pixels with e outside [e_lo, e_hi] are not homogeneous.
+def _claim(j, rows, cols, planes, H, W, C, half, spatial, sw, b, e_lo, e_hi, owner, dissim, dd, ya, yb):
+    # Offer LiDAR point j's window to its pixels in rows ya to yb - 1; a pixel keeps the most similar point (ties:
+    # lower index), so the result does not depend on the order in which points are offered. Works on the exponent e
+    # of eq. 2 (W = 1 - exp(-e), increasing in e): no exp in the loop; pixels with e outside [e_lo, e_hi] are not
+    # homogeneous.
     # planes: the guide channel by channel (C, H, W), owner and dissim (H, W), all flat; a window row goes LANES
     # pixels at a time (lanes.lanes_colour, lanes.lanes_claim): Numba's own loops over these short rows did not
     # vectorise (docs/tubes.md). A LiDAR pixel (dissim 0) is never taken: e > e_lo >= 0 there.
@@ -66,7 +67,7 @@ def _claim(j, rows, cols, planes, H, W, C, half, spatial, sw, b, e_lo, e_hi, own
     c0 = cols[j]
     ca = max(0, c0 - half)
     n = min(W, c0 + half + 1) - ca
-    for r in range(max(0, r0 - half), min(H, r0 + half + 1)):
+    for r in range(max(ya, r0 - half), min(yb, r0 + half + 1)):
         for i0 in range(0, n, LANES):
             c = ca + i0
             whole = c + LANES <= W  # the chunk inside the row: whole-vector loads and stores
@@ -108,10 +109,11 @@ def spatial_terms(half, a):
 
 @njit(cache=True, parallel=True)
 def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
-    # rows are sorted (row-major order of the points). The image is cut into horizontal bands at least 2 * half rows
-    # high: the windows of points two bands apart share no pixel, so the even bands are offered in parallel, then the
-    # odd ones (the result does not depend on the order, _claim). Bands whose inner points went in parallel and the
-    # points near their edges in sequence after (a fifth of them) took 3-6 % longer.
+    # rows are sorted (row-major order of the points). Each thread offers the points to the pixels of its own rows
+    # only (volume.band_pair_rows, as every row-parallel kernel of the match), so no pixel is written by both
+    # threads; the result does not depend on the order (_claim). The bands of at least 2 * half rows offered even
+    # ones first, then odd ones, wrote half of each other's rows: where the VM's two vCPUs do not share their caches,
+    # the ownership took 1.8 ms more (docs/tubes.md).
     H, W, C = guide.shape
     planes = np.empty((C, H, W), np.float32)
     owner = np.empty((H, W), dtype=np.int32)
@@ -137,19 +139,13 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
     else:
         e_lo, e_hi = 0.0, -math.log(gamma)
     spatial, sw = spatial_terms(half, a)
-    # bands of hb >= 2 * half rows (the last may be short), a multiple of volume.BAND_ROWS: at the default window
-    # the pairs of bands are the other kernels' shares of rows
-    hb = max(1, (2 * half + BAND_ROWS - 1) // BAND_ROWS) * BAND_ROWS
-    nb = (H + hb - 1) // hb
-    m = (nb + 1) // 2  # pairs of bands
-    for phase in range(2):
-        for kk in prange(m):
-            k = 2 * spread_rows(kk, m) + phase  # the pair's first or second band
-            if k >= nb:
-                continue
-            dd = np.empty(LANES, np.float64)
-            for j in range(first_at_least(rows, k * hb), first_at_least(rows, min(H, (k + 1) * hb))):
-                _claim(j, rows, cols, pflat, H, W, C, half, spatial, sw, b, e_lo, e_hi, oflat, dflat, dd)
+    # each thread offers its own rows, from every point whose window reaches them: no pixel is written by both
+    # threads (points near a share's edge are offered by both, each to its own rows)
+    for i in prange(nr):
+        r0, r1 = band_pair_rows(i, nr, H)
+        dd = np.empty(LANES, np.float64)
+        for j in range(first_at_least(rows, r0 - half), first_at_least(rows, r1 + half)):
+            _claim(j, rows, cols, pflat, H, W, C, half, spatial, sw, b, e_lo, e_hi, oflat, dflat, dd, r0, r1)
     # exponent -> W (0 stays 0 at LiDAR pixels, inf stays inf where there is no owner): by a polynomial where it
     # gives libm's bits for sure (it vectorises), else by libm (a rare tie, the literal reading's far e)
     w = np.empty((H, W), np.float32)
