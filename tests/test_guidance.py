@@ -209,7 +209,7 @@ def owners_reference(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0.3
 @pytest.mark.parametrize("window,channels", [(5, 1), (9, 3), (21, 3), (25, 1), (35, 2)])
 def test_ownership_matches_brute_force(window, channels):
     rng = np.random.default_rng(window)
-    H, W = 57, 41  # tall enough for several parallel bands at the small windows
+    H, W = 57, 41  # four of the threads' shares of rows (volume.band_pair_rows): windows reach across their edges
     guide = rng.integers(0, 40, (H, W, channels)).astype(np.float32)
     sparse = np.where(rng.random((H, W)) < 0.04, rng.uniform(0, 30, (H, W)), np.nan).astype(np.float32)
     owner, dis = homogeneous_owners(sparse, guide, window)

@@ -130,8 +130,9 @@ def spread_rows(i, n):
     return 2 * i if i < h else 2 * (i - h) + 1
 
 
-#: rows of a band of the row-parallel kernels' shares (:func:`band_pair_rows`): the riverbed ownership's bands at
-#: its default window of 9 px (guidance._owners_kernel)
+#: rows of a band of the row-parallel kernels' shares (:func:`band_pair_rows`; 32 pairs of 16 rows on the 500-row
+#: speed pair). Chosen as the riverbed ownership's bands at its default window, when the ownership still went by
+#: bands (before the twentieth session); not measured against other sizes since
 BAND_ROWS = 8
 
 
