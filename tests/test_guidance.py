@@ -264,20 +264,23 @@ def walls_reference(F, dm, w, lidar_pixel, k, c, band, form, scale, fbar, cap, d
     return np.array(out)
 
 
+# the walls are computed in float32 (lanes_guidance.lanes_walls), the band's edges relative to d_min: as close to
+# eq. 6 at disparities in the thousands (satellite pairs) as near 0
+@pytest.mark.parametrize("d_min", [0, 4093])
 @pytest.mark.parametrize("form", ["additive", "product"])
-def test_riverbed_walls_equal_eq6_value_by_value(form):
+def test_riverbed_walls_equal_eq6_value_by_value(form, d_min):
     """Every modulated cost of every owned pixel against a direct evaluation of eq. 6 (to the uint16 rounding)."""
     rng = np.random.default_rng(11)
     H, W, D = 11, 13, 40
     cost = rng.integers(0, 63, (H, W, D)).astype(np.uint8)
     sparse = np.full((H, W), np.nan, np.float32)
-    sparse[3, 4], sparse[7, 9] = 12.3, 27.8
+    sparse[3, 4], sparse[7, 9] = d_min + 12.3, d_min + 27.8
     guide = rng.uniform(100, 110, (H, W)).astype(np.float32)
     k, c, band, scale, fbar, cap = 10.0, 1.5, 3.0, 4, 20.0, 6000
     owner, dis = homogeneous_owners(sparse, guide, 7)
-    out = riverbed_modulate(cost, sparse, guide, 0, 7, k=k, c=c, band=band, form=form, cost_scale=scale, cap=cap,
+    out = riverbed_modulate(cost, sparse, guide, d_min, 7, k=k, c=c, band=band, form=form, cost_scale=scale, cap=cap,
                             fbar=fbar)
-    values = [12.3, 27.8]
+    values = [float(sparse[3, 4]), float(sparse[7, 9])]
     n = 0
     for y in range(H):
         for x in range(W):
@@ -285,7 +288,7 @@ def test_riverbed_walls_equal_eq6_value_by_value(form):
                 np.testing.assert_array_equal(out[y, x], cost[y, x].astype(np.uint16) * scale)  # untouched
                 continue
             ref = walls_reference(cost[y, x], values[owner[y, x]], float(dis[y, x]), dis[y, x] == 0, k, c, band,
-                                  form, scale, fbar, cap)
+                                  form, scale, fbar, cap, d_min)
             np.testing.assert_allclose(out[y, x], ref, atol=1.0)  # rounded to the nearest stored unit
             n += 1
     assert n > 20  # owned pixels were checked

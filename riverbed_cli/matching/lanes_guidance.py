@@ -2,10 +2,10 @@
 :mod:`.lanes`).
 
 The guidance's walls (:func:`lanes_walls`, :func:`lanes_flat`) work on ``LANES`` disparities of one pixel's tube in
-float64 (float32 where the walls are flat, as the scalar code did). Their ``_whole`` forms read and write all lanes
-(those past the tube written back unchanged), for chunks inside a block of pixels one thread modulates; the masked
-forms neither read nor write the lanes past a tube, for chunks that reach into another thread's block. Measured on
-the captured inputs of the dev pairs: the modulation 2-2.3x faster than its scalar loops, the same bits
+float32 (float64 until the twenty-first session: 1.5x the time, for costs within one unit). Their ``_whole`` forms
+read and write all lanes (those past the tube written back unchanged), for chunks inside a block of pixels one thread
+modulates; the masked forms neither read nor write the lanes past a tube, for chunks that reach into another thread's
+block. Measured on the captured inputs of the dev pairs: the modulation 2-2.3x faster than its scalar loops
 (docs/tubes.md).
 
 The ownership's claims (:func:`lanes_claim` and its variants) work on ``LANES`` pixels of a window row in float64,
@@ -21,7 +21,7 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-from .vector_ir import (F32, F64, I16, I32, I64, LANES, V16, VF32, VF64, VI32, elem_bytes, masked_load,
+from .vector_ir import (F32, F64, I16, I32, I64, LANES, V16, VF32, VF64, VI32, elem_bytes, fma, masked_load,
                         masked_store, splat, valid, vector_ptr)
 
 
@@ -39,8 +39,9 @@ def _flat_wall(builder, q16, a1, g1, fcap):
     return builder.fptoui(_fmin(builder, flat, splat(builder, fcap, vf32)), q16.type)
 
 
-#: exp(-x) by the 32nd power of a degree-9 Taylor polynomial of exp(-x / 32): relative error under 4e-7 for
-#: 0 <= x <= 22 (where the walls are not flat: t < 6.5 c + 1 px); no call, so it vectorises (Numba has no SVML here)
+#: exp(-x) by the 32nd power of a degree-9 Taylor polynomial of exp(-x / 32) (Horner's steps fused: one rounding
+#: each): relative error under 1e-6 in float32 for 0 <= x <= 22 (where the walls are not flat: t < 6.5 c + 1 px); no
+#: call, so it vectorises (Numba has no SVML here)
 _TAYLOR = [1.0 / f for f in (362880.0, 40320.0, 5040.0, 720.0, 120.0, 24.0, 6.0, 2.0, 1.0, 1.0)]
 _NEG_EXP_MAX = 40.0  # x is clipped here: lanes farther out are flat and take the flat value
 
@@ -50,7 +51,7 @@ def _neg_exp(builder, x):
     y = builder.fmul(x, ir.Constant(x.type, [-1.0 / 32.0] * n))
     p = ir.Constant(x.type, [_TAYLOR[0]] * n)
     for c in _TAYLOR[1:]:
-        p = builder.fadd(builder.fmul(p, y), ir.Constant(x.type, [c] * n))
+        p = fma(builder, p, y, ir.Constant(x.type, [c] * n))
     for _ in range(5):
         p = builder.fmul(p, p)
     return p
@@ -70,9 +71,11 @@ def _store_lanes(builder, value, old, ptr, mask, masked):
 
 
 def _walls_intrinsic(masked, n=LANES):
-    # n lanes (LANES, or LANES // 2 for tubes that narrow: half the polynomial's work, lane by lane the same)
-    v16, vi64, vf64 = ir.VectorType(I16, n), ir.VectorType(I64, n), ir.VectorType(F64, n)
-    lane_index = ir.Constant(vi64, list(range(n)))
+    # n lanes (LANES, or LANES // 2 for tubes that narrow: half the polynomial's work, lane by lane the same). In
+    # float32, the band's edges taken relative to dmin in float64 first (the lanes' t as exact at disparity 10000 as
+    # at 10): float64 took 1.5x as long on the speed pair's modulation (docs/tubes.md)
+    v16, vi32, vf = ir.VectorType(I16, n), ir.VectorType(I32, n), ir.VectorType(F32, n)
+    lane_index = ir.Constant(vi32, list(range(n)))
 
     def lanes_walls(typingctx, arr, ai, i0, dmin, right, left, lo, hi, alpha, beta, gamma, a1, g1, inv2c2, cap, fcap,
                     lanes):
@@ -81,26 +84,29 @@ def _walls_intrinsic(masked, n=LANES):
         def codegen(context, builder, signature, args):
             arr_, ai_, i0_, dmin_, right_, left_, lo_, hi_, alpha_, beta_, gamma_, a1_, g1_, k_, cap_, fcap_, lanes_ = (
                 args)
-            mask = builder.icmp_signed("<", lane_index, splat(builder, lanes_, vi64))
+
+            def f32(v):  # a float64 scalar argument, rounded to float32 and splat
+                return splat(builder, builder.fptrunc(v, F32), vf)
+
+            mask = builder.icmp_signed("<", lane_index, splat(builder, lanes_, vi32))
             ptr = builder.bitcast(vector_ptr(context, builder, signature.args[0], arr_, ai_), v16.as_pointer())
             q16 = _load_lanes(builder, ptr, mask, v16, masked)
-            idx = builder.add(splat(builder, i0_, vi64), lane_index)
-            d = builder.sitofp(builder.add(idx, splat(builder, dmin_, vi64)), vf64)
-            tr = builder.fsub(d, splat(builder, right_, vf64))
-            tl = builder.fsub(splat(builder, left_, vf64), d)
+            idx = builder.add(splat(builder, i0_, vi32), lane_index)  # i: disparity dmin + i
+            base = builder.sitofp(dmin_, F64)
+            d = builder.sitofp(idx, vf)
+            tr = builder.fsub(d, f32(builder.fsub(right_, base)))
+            tl = builder.fsub(f32(builder.fsub(left_, base)), d)
             t = builder.select(builder.fcmp_ordered(">", tl, tr), tl, tr)
-            zero = ir.Constant(vf64, [0.0] * n)
+            zero = ir.Constant(vf, [0.0] * n)
             t = builder.select(builder.fcmp_ordered(">", t, zero), t, zero)
-            x = _fmin(builder, builder.fmul(builder.fmul(t, t), splat(builder, k_, vf64)),
-                      ir.Constant(vf64, [_NEG_EXP_MAX] * n))
-            g = builder.fsub(ir.Constant(vf64, [1.0] * n), _neg_exp(builder, x))
-            q = builder.uitofp(q16, vf64)
-            height = builder.fadd(splat(builder, alpha_, vf64), builder.fmul(splat(builder, beta_, vf64), g))
-            wall = builder.fadd(builder.fadd(builder.fmul(height, q), builder.fmul(splat(builder, gamma_, vf64), g)),
-                                ir.Constant(vf64, [0.5] * n))
-            wall = builder.fptoui(_fmin(builder, wall, splat(builder, cap_, vf64)), v16)
-            flat = builder.or_(builder.icmp_signed("<", idx, splat(builder, lo_, vi64)),
-                               builder.icmp_signed(">=", idx, splat(builder, hi_, vi64)))
+            x = _fmin(builder, builder.fmul(builder.fmul(t, t), f32(k_)), ir.Constant(vf, [_NEG_EXP_MAX] * n))
+            g = builder.fsub(ir.Constant(vf, [1.0] * n), _neg_exp(builder, x))
+            q = builder.uitofp(q16, vf)
+            height = fma(builder, f32(beta_), g, f32(alpha_))
+            wall = fma(builder, height, q, fma(builder, f32(gamma_), g, ir.Constant(vf, [0.5] * n)))
+            wall = builder.fptoui(_fmin(builder, wall, f32(cap_)), v16)
+            flat = builder.or_(builder.icmp_signed("<", idx, splat(builder, lo_, vi32)),
+                               builder.icmp_signed(">=", idx, splat(builder, hi_, vi32)))
             out = builder.select(flat, _flat_wall(builder, q16, a1_, g1_, fcap_), wall)
             _store_lanes(builder, out, q16, ptr, mask, masked)
             return context.get_dummy_value()
@@ -132,8 +138,9 @@ _WALLS_DOC = """The riverbed modulation of ``LANES`` disparities of a pixel's tu
     Lane ``i`` (``i0 + lane``, disparity ``d = dmin + i``) of ``q = arr[ai + lane]`` (uint16): where ``i < lo`` or
     ``i >= hi`` (the walls are flat) ``min(a1 * q + g1, fcap)`` in float32; elsewhere, with ``t = max(d - right,
     left - d, 0)`` the distance past the band ``[left, right]`` and the wall height ``g = 1 - exp(-t^2 inv2c2)``,
-    ``min((alpha + beta g) q + gamma g + 0.5, cap)`` in float64; truncated to uint16 in place, for the first
-    ``lanes`` lanes. {reads}
+    ``min((alpha + beta g) q + gamma g + 0.5, cap)`` in float32 with fused multiply-adds (``right`` and ``left``
+    taken relative to ``dmin`` in float64 first); truncated to uint16 in place, for the first ``lanes`` lanes
+    (``i0``, ``lo``, ``hi`` and ``lanes`` fit int32). {reads}
     """
 _FLAT_DOC = """``arr[ai + lane] = min(a1 * q + g1, fcap)`` (float32, truncated to uint16) for the first ``lanes``
     lanes: a chunk of a tube where the walls are flat (:func:`lanes_walls` there, without the wall). {reads}

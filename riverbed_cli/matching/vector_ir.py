@@ -102,3 +102,10 @@ def reduce_min(builder, v, signed=True):
 def declared(builder, name, ret, argtys):
     fn = builder.module.globals.get(name)
     return fn if fn is not None else ir.Function(builder.module, ir.FunctionType(ret, argtys), name=name)
+
+
+def fma(builder, a, b, c):
+    """``a * b + c`` lane by lane, rounded once (``llvm.fma``; one instruction where the CPU has FMA)."""
+    vty = a.type
+    fn = declared(builder, f"llvm.fma.v{vty.count}{elem_name(vty)}", vty, [vty, vty, vty])
+    return builder.call(fn, [a, b, c])
