@@ -258,7 +258,7 @@ def homogeneous_owners(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0
 
 
 @njit(cache=True, inline="always")
-def _modulate_pixel(flat, base, D, d_min, dm, w, limit, k, band, form, scale, fbar, inv2c2, tfar, fcap, fcap64):
+def _modulate_pixel(flat, base, D, d_min, dm, w, limit, k, band, form, scale, fbar, inv2c2, tfar, fcap):
     # one guided pixel's D costs from flat[base] (disparity d_min first): its LiDAR point's disparity dm, its weight w
     # (0 at a LiDAR pixel); chunks ending before limit are read and written whole
     lidar_pixel = w == 0.0
@@ -274,7 +274,7 @@ def _modulate_pixel(flat, base, D, d_min, dm, w, limit, k, band, form, scale, fb
     g1 = np.float32(gamma + 0.5)  # + 0.5: truncating a positive value then rounds
     if D <= LANES // 2 and base + LANES // 2 <= limit:  # most tubes: half the lanes, walls or flat alike
         lanes_walls_half_whole(flat, base, 0, d_min, dm + half, dm - half, lo, hi, alpha, beta, gamma, a1, g1,
-                               inv2c2, fcap64, fcap, D)
+                               inv2c2, fcap, D)
         return
     # LANES disparities at a time, the wall's Gaussian by a polynomial (lanes.lanes_walls): the scalar loops
     # with a multiplicative recurrence for the Gaussians took 2-2.3x as long for the same bits on the dev pairs
@@ -287,10 +287,10 @@ def _modulate_pixel(flat, base, D, d_min, dm, w, limit, k, band, form, scale, fb
                 lanes_flat(flat, base + i0, a1, g1, fcap, D - i0)
         elif whole:
             lanes_walls_whole(flat, base + i0, i0, d_min, dm + half, dm - half, lo, hi, alpha, beta, gamma,
-                              a1, g1, inv2c2, fcap64, fcap, D - i0)
+                              a1, g1, inv2c2, fcap, D - i0)
         else:
             lanes_walls(flat, base + i0, i0, d_min, dm + half, dm - half, lo, hi, alpha, beta, gamma, a1, g1,
-                        inv2c2, fcap64, fcap, D - i0)
+                        inv2c2, fcap, D - i0)
 
 
 @njit(cache=True, parallel=True)
@@ -303,7 +303,6 @@ def _modulate_kernel(flat, W, D0, owner, dissim, values, d_min0, k, c, band, for
     inv2c2 = 1.0 / (2.0 * c * c)
     tfar = 6.5 * c  # past this, 1 - exp(-t^2 / 2c^2) == 1 to 1e-9: the wall is flat and needs no exp
     fcap = np.float32(cap)
-    fcap64 = np.float64(cap)
     tube = tstart.shape[0] > 0
     H = owner.shape[0]
     # The rows' shares of every row-parallel kernel of the match (volume.band_pair_rows), each pair in order (no list
@@ -328,7 +327,7 @@ def _modulate_kernel(flat, W, D0, owner, dissim, values, d_min0, k, c, band, for
                 else:
                     base, D, d_min = (y * W + x) * D0, D0, d_min0  # index 0 of this pixel is disparity d_min
                 _modulate_pixel(flat, base, D, d_min, values[o], np.float64(dissim[y, x]), limit, k, band, form,
-                                scale, fbar, inv2c2, tfar, fcap, fcap64)
+                                scale, fbar, inv2c2, tfar, fcap)
 
 
 def check_volume(cost, sparse, tubes=None):

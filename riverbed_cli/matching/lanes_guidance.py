@@ -2,7 +2,7 @@
 :mod:`.lanes`).
 
 The guidance's walls (:func:`lanes_walls`, :func:`lanes_flat`) work on ``LANES`` disparities of one pixel's tube in
-float32 (float64 until the twenty-first session: 1.5x the time, for costs within one unit). Their ``_whole`` forms
+float32 (float64 until the twenty-first session: 1.6x the time, for costs within one unit). Their ``_whole`` forms
 read and write all lanes (those past the tube written back unchanged), for chunks inside a block of pixels one thread
 modulates; the masked forms neither read nor write the lanes past a tube, for chunks that reach into another thread's
 block. Measured on the captured inputs of the dev pairs: the modulation 2-2.3x faster than its scalar loops
@@ -73,17 +73,15 @@ def _store_lanes(builder, value, old, ptr, mask, masked):
 def _walls_intrinsic(masked, n=LANES):
     # n lanes (LANES, or LANES // 2 for tubes that narrow: half the polynomial's work, lane by lane the same). In
     # float32, the band's edges taken relative to dmin in float64 first (the lanes' t as exact at disparity 10000 as
-    # at 10): float64 took 1.5x as long on the speed pair's modulation (docs/tubes.md)
+    # at 10): float64 took 1.6x as long on the speed pair's modulation (docs/tubes.md)
     v16, vi32, vf = ir.VectorType(I16, n), ir.VectorType(I32, n), ir.VectorType(F32, n)
     lane_index = ir.Constant(vi32, list(range(n)))
 
-    def lanes_walls(typingctx, arr, ai, i0, dmin, right, left, lo, hi, alpha, beta, gamma, a1, g1, inv2c2, cap, fcap,
-                    lanes):
-        sig = types.void(arr, ai, i0, dmin, right, left, lo, hi, alpha, beta, gamma, a1, g1, inv2c2, cap, fcap, lanes)
+    def lanes_walls(typingctx, arr, ai, i0, dmin, right, left, lo, hi, alpha, beta, gamma, a1, g1, inv2c2, fcap, lanes):
+        sig = types.void(arr, ai, i0, dmin, right, left, lo, hi, alpha, beta, gamma, a1, g1, inv2c2, fcap, lanes)
 
         def codegen(context, builder, signature, args):
-            arr_, ai_, i0_, dmin_, right_, left_, lo_, hi_, alpha_, beta_, gamma_, a1_, g1_, k_, cap_, fcap_, lanes_ = (
-                args)
+            arr_, ai_, i0_, dmin_, right_, left_, lo_, hi_, alpha_, beta_, gamma_, a1_, g1_, k_, fcap_, lanes_ = args
 
             def f32(v):  # a float64 scalar argument, rounded to float32 and splat
                 return splat(builder, builder.fptrunc(v, F32), vf)
@@ -104,7 +102,7 @@ def _walls_intrinsic(masked, n=LANES):
             q = builder.uitofp(q16, vf)
             height = fma(builder, f32(beta_), g, f32(alpha_))
             wall = fma(builder, height, q, fma(builder, f32(gamma_), g, ir.Constant(vf, [0.5] * n)))
-            wall = builder.fptoui(_fmin(builder, wall, f32(cap_)), v16)
+            wall = builder.fptoui(_fmin(builder, wall, splat(builder, fcap_, vf)), v16)
             flat = builder.or_(builder.icmp_signed("<", idx, splat(builder, lo_, vi32)),
                                builder.icmp_signed(">=", idx, splat(builder, hi_, vi32)))
             out = builder.select(flat, _flat_wall(builder, q16, a1_, g1_, fcap_), wall)
@@ -138,7 +136,7 @@ _WALLS_DOC = """The riverbed modulation of ``LANES`` disparities of a pixel's tu
     Lane ``i`` (``i0 + lane``, disparity ``d = dmin + i``) of ``q = arr[ai + lane]`` (uint16): where ``i < lo`` or
     ``i >= hi`` (the walls are flat) ``min(a1 * q + g1, fcap)`` in float32; elsewhere, with ``t = max(d - right,
     left - d, 0)`` the distance past the band ``[left, right]`` and the wall height ``g = 1 - exp(-t^2 inv2c2)``,
-    ``min((alpha + beta g) q + gamma g + 0.5, cap)`` in float32 with fused multiply-adds (``right`` and ``left``
+    ``min((alpha + beta g) q + gamma g + 0.5, fcap)`` in float32 with fused multiply-adds (``right`` and ``left``
     taken relative to ``dmin`` in float64 first); truncated to uint16 in place, for the first ``lanes`` lanes
     (``i0``, ``lo``, ``hi`` and ``lanes`` fit int32). {reads}
     """
