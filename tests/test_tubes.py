@@ -247,6 +247,45 @@ def test_tube_layout_from_cells_equals_the_layout_of_the_tubes(share, outside, s
     assert (got.size, got.max_width) == (want.size, want.max_width)
 
 
+@pytest.mark.parametrize("seed", range(12))
+def test_tube_rule_on_cells_equals_its_statement(seed):
+    # cell_tubes against the rule as docs/tubes.md states it, cell by cell: at the first level whose window of
+    # (2 r_k + 1)^2 cells holds LiDAR inside the range (else beyond it), [floor(min - m_k), ceil(max + m_k)] in
+    # float32 (the extrema are float32, the margin rounded to float32), clipped to the range; else the range
+    from riverbed_cli.matching.tubes import cell_tubes
+
+    rng = np.random.default_rng(seed)
+    ch, cw = rng.integers(3, 30, 2)
+    d_min, d_max = int(rng.integers(-20, 5)), int(rng.integers(30, 60))
+    spacing, reach, margin, level_margin, cell, levels = float(rng.uniform(2, 12)), 1.5, 2.0, 3.3, 4, 3
+
+    def extrema(p, lo, hi):
+        v = rng.uniform(lo, hi, (ch, cw)).astype(np.float32)
+        near = rng.random((ch, cw)) < 0.5  # one float32 step off a whole pixel: where float32 and float64 part
+        v[near] = np.nextafter(np.round(v[near]), np.where(rng.random(near.sum()) < 0.5, -np.inf, np.inf),
+                               dtype=np.float32)
+        hit = rng.random((ch, cw)) < p
+        top = v + np.where(rng.random((ch, cw)) < 0.5, np.float32(0), np.float32(1.5))
+        return np.where(hit, v, np.inf).astype(np.float32), np.where(hit, top, -np.inf).astype(np.float32)
+
+    inside, beyond = extrema(0.05, d_min, d_max - 2), extrema(0.05, d_max + 1, d_max + 30)
+    lo, hi = cell_tubes(*inside, d_min, d_max, spacing, reach=reach, margin=margin, levels=levels,
+                        level_margin=level_margin, cell=cell, outside=beyond)
+    for i in range(ch):
+        for j in range(cw):
+            want = (d_min, d_max)
+            for k in range(levels):
+                r = max(1, int(np.ceil(reach * spacing * 2 ** k / cell)))
+                m = np.float32(margin + k * level_margin)
+                win = np.s_[max(0, i - r):i + r + 1, max(0, j - r):j + r + 1]
+                src = next((s for s in (inside, beyond) if np.isfinite(s[0][win]).any()), None)
+                if src is not None:
+                    want = (int(np.floor(src[0][win].min() - m)), int(np.ceil(src[1][win].max() + m)))
+                    want = tuple(min(max(v, d_min), d_max) for v in want)
+                    break
+            assert (lo[i, j], hi[i, j]) == want, (i, j)
+
+
 def test_tube_rule_hand_made_cases():
     H, W = 120, 160
     sparse = np.full((H, W), np.nan, np.float32)
