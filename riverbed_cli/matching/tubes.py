@@ -372,38 +372,14 @@ def _cell_tubes(cmin, cmax, d_min, d_max, spacing, reach, margin, levels, level_
         r = max(1, int(math.ceil(reach * spacing * 2 ** k / cell)))
         m = margin + k * level_margin
         for emin, emax in sources:
-            left = _adopt_level(*_window_extrema(emin, emax, r), np.float32(m), done, tlo, thi)
-        if not left:
+            wlo, whi = _window_extrema(emin, emax, r)
+            new = ~done & np.isfinite(wlo)
+            tlo[new] = np.floor(wlo[new] - m)
+            thi[new] = np.ceil(whi[new] + m)
+            done |= new
+        if done.all():
             break
-    _clip_ends(tlo, thi, d_min, d_max)
-    return tlo, thi, done
-
-
-@njit(cache=True)
-def _adopt_level(wlo, whi, m, done, tlo, thi):
-    # the cells not yet done whose window holds LiDAR take its extrema widened by m (float32 arithmetic, as NumPy
-    # does float32 arrays with a Python float: the same ends as before this was a kernel); returns the cells left.
-    # One pass over the cells instead of NumPy's boolean masks: the rule on the speed pair's cells 0.285 -> 0.204 ms
-    left = 0
-    for i in range(done.shape[0]):
-        for j in range(done.shape[1]):
-            if done[i, j]:
-                continue
-            if np.isfinite(wlo[i, j]):
-                tlo[i, j] = np.int64(np.floor(wlo[i, j] - m))
-                thi[i, j] = np.int64(np.ceil(whi[i, j] + m))
-                done[i, j] = True
-            else:
-                left += 1
-    return left
-
-
-@njit(cache=True)
-def _clip_ends(tlo, thi, d_min, d_max):
-    for i in range(tlo.shape[0]):
-        for j in range(tlo.shape[1]):
-            tlo[i, j] = min(max(tlo[i, j], d_min), d_max)
-            thi[i, j] = min(max(thi[i, j], d_min), d_max)
+    return np.clip(tlo, d_min, d_max), np.clip(thi, d_min, d_max), done
 
 
 def cell_widths_from_points(rows, cols, values, shape, d_min, d_max, share, tube):
