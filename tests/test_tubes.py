@@ -7,7 +7,7 @@ import pytest
 from riverbed_cli.matching import census, diffusion, disparity, guidance, riverbed_plus, sgm
 from riverbed_cli.matching.guidance import lidar_share
 from riverbed_cli.matching.pipeline import match_pair
-from riverbed_cli.matching.tubes import lidar_tube_layout, lidar_tubes
+from riverbed_cli.matching.tubes import cell_tubes, lidar_tube_layout, lidar_tubes
 from riverbed_cli.matching.volume import BAND_ROWS, TubeLayout, band_pair_rows, band_pairs
 from tube_volumes import gather
 
@@ -252,8 +252,6 @@ def test_tube_rule_on_cells_equals_its_statement(seed):
     # cell_tubes against the rule as docs/tubes.md states it, cell by cell: at the first level whose window of
     # (2 r_k + 1)^2 cells holds LiDAR inside the range (else beyond it), [floor(min - m_k), ceil(max + m_k)] in
     # float32 (the extrema are float32, the margin rounded to float32), clipped to the range; else the range
-    from riverbed_cli.matching.tubes import cell_tubes
-
     rng = np.random.default_rng(seed)
     ch, cw = rng.integers(3, 30, 2)
     d_min, d_max = int(rng.integers(-20, 5)), int(rng.integers(30, 60))
