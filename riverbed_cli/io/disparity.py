@@ -17,8 +17,8 @@ import numpy as np
 import rasterio
 
 from ..errors import RiverbedError
-from .atomic import atomic_output
-from .images import write_png_file
+from .atomic import atomic_output, c_stderr_silenced
+from .images import check_complete, write_png_file
 from .paths import require_file
 
 _PNG_MAX = 65535 / 256  # largest disparity a KITTI 16-bit PNG holds
@@ -145,6 +145,7 @@ def _read_pfm(path):
 
 
 def _read_png(path, scale):
+    check_complete(path)  # a truncated PNG is refused before libpng reads it
     try:
         raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     except cv2.error:
@@ -321,7 +322,7 @@ def _write_tif(path, disp, overwrite, tags):
     with atomic_output(path, overwrite) as tmp, warnings.catch_warnings():
         warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
         try:
-            with rasterio.open(tmp, "w", **profile) as ds:
+            with c_stderr_silenced(), rasterio.open(tmp, "w", **profile) as ds:
                 ds.write(bands)
                 if tags:
                     ds.update_tags(**{str(k): str(v) for k, v in tags.items()})

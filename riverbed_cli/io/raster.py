@@ -8,7 +8,7 @@ import rasterio.shutil
 from rasterio.io import MemoryFile
 
 from ..errors import RiverbedError
-from .atomic import atomic_output
+from .atomic import atomic_output, c_stderr_silenced
 
 #: Default creation options: a cloud-optimised GeoTIFF (tiled, compressed, internal overviews).
 DEFAULT_CREATION_OPTIONS = {"COMPRESS": "DEFLATE", "BLOCKSIZE": "256", "OVERVIEWS": "AUTO", "BIGTIFF": "IF_SAFER"}
@@ -73,7 +73,7 @@ def write_geotiff(path, bands, transform, crs=None, nodata=None, creation_option
                             ds.set_band_description(i, desc)
                     if tags:
                         ds.update_tags(**{str(k): str(v) for k, v in tags.items()})
-                with mem.open() as src:
+                with mem.open() as src, c_stderr_silenced():
                     rasterio.shutil.copy(src, tmp, driver="COG", **co)
         except (rasterio.errors.RasterioError, ValueError) as e:
             raise RiverbedError(f"cannot write GeoTIFF ({e})", path) from None

@@ -9,6 +9,7 @@ import rasterio
 from rasterio.windows import Window
 
 from ..errors import RiverbedError
+from .atomic import c_stderr_silenced
 from .disparity import TIFF_COMPRESSION, disparity_format, read_disparity
 from .images import TIFF_MAGIC, effective_bits, read_image
 from .paths import require_file
@@ -42,11 +43,20 @@ class WindowedRaster:
         x0, x1, _ = cols.indices(W)
         win = Window(x0, y0, max(0, x1 - x0), max(0, y1 - y0))
         if self.kind == "disparity":
-            a = self._ds.read(self.band, window=win, masked=True).astype(np.float32).filled(np.nan)
+            a = self._read(self.band, win, masked=True).astype(np.float32).filled(np.nan)
             a[~np.isfinite(a)] = np.nan
             return a
-        a = self._ds.read(list(range(1, self.bands + 1)), window=win)
+        a = self._read(list(range(1, self.bands + 1)), win)
         return a[0] if self.bands == 1 else np.moveaxis(a, 0, -1)
+
+    def _read(self, bands, window, masked=False):
+        # GDAL raises on a truncated or corrupt strip or tile with a message that names no file
+        try:
+            return self._ds.read(bands, window=window, masked=masked)
+        except MemoryError:
+            raise
+        except Exception:  # noqa: BLE001 - GDAL drivers raise many types; any of them means "cannot read"
+            raise RiverbedError("cannot read raster data (corrupt or truncated file)", self.path) from None
 
     def row_blocks(self, rows=512):
         for y in range(0, self.shape[0], rows):
@@ -158,13 +168,15 @@ class TiffSink:
         rows, cols = key
         y0, y1, _ = rows.indices(self.shape[0])
         x0, x1, _ = cols.indices(self.shape[1])
-        self._ds.write(np.asarray(block, np.float32), 1, window=Window(x0, y0, x1 - x0, y1 - y0))
+        with c_stderr_silenced():  # a failed write is found when the file is checked (io/atomic.py)
+            self._ds.write(np.asarray(block, np.float32), 1, window=Window(x0, y0, x1 - x0, y1 - y0))
 
     def update_tags(self, **tags):
         self._ds.update_tags(**{str(k): str(v) for k, v in tags.items()})
 
     def close(self):
-        self._ds.close()
+        with c_stderr_silenced():  # the last blocks are compressed and written here
+            self._ds.close()
 
     def __enter__(self):
         return self
