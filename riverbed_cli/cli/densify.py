@@ -33,7 +33,7 @@ def densify_cmd(sparse, output, method, image, sparse_scale, as_json, overwrite)
     """
     skip_refresh_on_cache_loads()  # Numba's cached kernels load without its compiler's start-up
     disparity_format(output)
-    check_output(output, overwrite)
+    check_output(output, overwrite, inputs=[sparse, image])
     if method == "guided" and not image:
         raise RiverbedError("--method guided needs --image LEFT")
     t0 = time.perf_counter()

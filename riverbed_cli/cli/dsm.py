@@ -7,7 +7,7 @@ import numpy as np
 
 from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
-from ..io.atomic import check_output
+from ..io.atomic import check_outputs, output_group
 from ..io.disparity import read_disparity
 from ..io.images import read_image
 from ..io.lidar import lidar_info, resolve_crs
@@ -90,14 +90,12 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
     # Every check that needs no input read comes first: a bad option never costs the work, nor leaves a file.
     if not output.lower().endswith((".tif", ".tiff")):
         raise RiverbedError("DSM output must be a .tif file", output)
-    check_output(output, overwrite)
     if points_out:
         check_pointcloud_path(points_out)
-        check_output(points_out, overwrite)
-    if hillshade_png:
-        if not hillshade_png.lower().endswith(".png"):
-            raise RiverbedError("hillshade must be a .png file", hillshade_png)
-        check_output(hillshade_png, overwrite)
+    if hillshade_png and not hillshade_png.lower().endswith(".png"):
+        raise RiverbedError("hillshade must be a .png file", hillshade_png)
+    check_outputs([output, points_out, hillshade_png], overwrite,
+                  inputs=[*disp_pair, *clouds, registration, *confidences])
     if bounds is not None:
         bounds = check_bounds(bounds)
     if fill_holes < 0:
@@ -170,19 +168,20 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
     if not np.isnan(nodata):
         dsm = np.where(np.isnan(dsm), np.float32(nodata), dsm)
     bands = [dsm] if not fill_holes else [dsm, result.filled.astype(np.float32)]
-    write_geotiff(output, np.stack(bands), result.grid.transform, crs, nodata, co, overwrite,
-                  band_descriptions=["height", "filled"][: len(bands)],
-                  tags={"riverbed_aggregation": agg, "riverbed_merge_rule": "lidar wins where both exist",
-                        **({"riverbed_heights": "ellipsoidal (WGS 84, m)"} if any(rpc) else {})})
-    if points_out:
-        xyz = np.concatenate([b[0] for b in blocks]) if blocks else np.zeros((0, 3))
-        rgbs = [b[1] for b in blocks]
-        rgb = np.concatenate(rgbs) if blocks and all(r is not None for r in rgbs) else None
-        write_points(points_out, xyz, rgb, crs, overwrite=overwrite)
-    if hillshade_png:
-        res = result.grid.resolution
-        write_picture(hillshade_png, hillshade_picture(hillshade(result.dsm, res), result.dsm, res),
-                      overwrite=overwrite)
+    with output_group():  # the DSM, its points and its hillshade appear together or not at all
+        write_geotiff(output, np.stack(bands), result.grid.transform, crs, nodata, co, overwrite,
+                      band_descriptions=["height", "filled"][: len(bands)],
+                      tags={"riverbed_aggregation": agg, "riverbed_merge_rule": "lidar wins where both exist",
+                            **({"riverbed_heights": "ellipsoidal (WGS 84, m)"} if any(rpc) else {})})
+        if points_out:
+            xyz = np.concatenate([b[0] for b in blocks]) if blocks else np.zeros((0, 3))
+            rgbs = [b[1] for b in blocks]
+            rgb = np.concatenate(rgbs) if blocks and all(r is not None for r in rgbs) else None
+            write_points(points_out, xyz, rgb, crs, overwrite=overwrite)
+        if hillshade_png:
+            res = result.grid.resolution
+            write_picture(hillshade_png, hillshade_picture(hillshade(result.dsm, res), result.dsm, res),
+                          overwrite=overwrite)
     summary = {"output": str(output), **result.stats, "crs": crs if crs is None or len(str(crs)) < 40 else "wkt",
                "seconds": round(time.perf_counter() - t0, 3)}
     if as_json:

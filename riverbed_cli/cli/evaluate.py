@@ -70,7 +70,7 @@ def evaluate_cmd(disp, gt, dsm_mode, thresholds, exclude, max_disp, gt_scale, di
         # Refuse before the work, not after it.
         if not error_png.lower().endswith(".png"):
             raise RiverbedError("error map must be a .png file", error_png)
-        check_output(error_png, overwrite)
+        check_output(error_png, overwrite, inputs=[disp, gt, exclude])
     if dsm_mode:
         return _evaluate_dsm(disp, gt, thresholds, as_json, error_png, overwrite)
 

@@ -15,10 +15,10 @@ from .options import input_path, json_opt, output_opt, overwrite_opt, print_json
 log = logging.getLogger(__name__)
 
 
-def _check_pair_output(output, overwrite):
+def _check_pair_output(output, overwrite, inputs=()):
     if Path(output).suffix.lower() not in (".yaml", ".yml", ".json"):
         raise RiverbedError("pair file must end in .yaml, .yml or .json", output)
-    check_output(output, overwrite)
+    check_output(output, overwrite, inputs)
 
 
 def _report(output, pair, as_json):
@@ -51,7 +51,7 @@ def middlebury_cmd(calib, output, left, right, scale, as_json, overwrite):
 
     The left camera frame is the world, in metres (the file's baseline is in mm).
     """
-    _check_pair_output(output, overwrite)
+    _check_pair_output(output, overwrite, [calib, left, right])
     folder = Path(calib).parent
     pair = middlebury_pair(calib, scale=scale, left=Path(left or folder / "im0.png").absolute(),
                            right=Path(right or folder / "im1.png").absolute())
@@ -75,7 +75,7 @@ def kitti_cmd(calib, output, left, right, as_json, overwrite):
     P_left/P_right are P2/P3; the registration R0_rect @ Tr_velo_to_cam maps Velodyne points to the rectified
     camera-0 frame, which is the world (metres).
     """
-    _check_pair_output(output, overwrite)
+    _check_pair_output(output, overwrite, [calib, left, right])
     size = {}
     if left:
         h, w = read_image(left).shape[:2]

@@ -96,7 +96,7 @@ def project_cmd(cloud, pair, output, registration, classes, drop_classes, outlie
     """
     skip_refresh_on_cache_loads()  # Numba's cached kernels load without its compiler's start-up
     disparity_format(output)
-    check_output(output, overwrite)
+    check_output(output, overwrite, inputs=[cloud, pair, registration])
     geometry = load_pairfile(pair, accept_rpc=True, command="riverbed project")
     if getattr(geometry, "kind", None) == "rpc" and registration:
         raise RiverbedError("--registration does not apply to an RPC pair file (the cloud's CRS places it)", pair)

@@ -57,7 +57,7 @@ def range_map_cmd(disparity, output, window, margin, like, min_disp, max_disp, d
     """
     if not output.lower().endswith((".tif", ".tiff")):
         raise RiverbedError("range map must be written to a .tif file", output)
-    check_output(output, overwrite)
+    check_output(output, overwrite, inputs=[disparity, like])
     if min_disp is not None and max_disp is not None and min_disp > max_disp:
         raise RiverbedError(f"--min-disp {min_disp} is above --max-disp {max_disp}")
     t0 = time.perf_counter()

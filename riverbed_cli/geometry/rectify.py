@@ -303,7 +303,8 @@ def rectify_files(left_image, left_orientation, right_image, right_orientation, 
     """
     t0 = time.perf_counter()
     outdir = Path(outdir)
-    check_output_folder(outdir, OUTPUTS, overwrite)
+    check_output_folder(outdir, OUTPUTS, overwrite,
+                        inputs=[left_image, left_orientation, right_image, right_orientation])
     limit = MAX_PIXELS if max_pixels is None else max_pixels
     images, orients = [], []
     for img_path, or_path in ((left_image, left_orientation), (right_image, right_orientation)):

@@ -49,7 +49,7 @@ import yaml
 from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
 
 from ..errors import RiverbedError
-from ..io.atomic import atomic_output, check_output_folder
+from ..io.atomic import atomic_output, c_stderr_silenced, check_output_folder
 from ..io.images import MAX_PIXELS
 from ..io.paths import require_file
 from .cameras import as_matrix, parse_number
@@ -326,7 +326,7 @@ def _grey(img):
 
 def _write_tiff(path, img):
     bands = img[np.newaxis] if img.ndim == 2 else np.moveaxis(img, -1, 0)
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), c_stderr_silenced():  # a failed write is found when it is checked (io/atomic)
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
         with rasterio.open(path, "w", driver="GTiff", width=bands.shape[2], height=bands.shape[1],
                            count=bands.shape[0], dtype=bands.dtype, compress="deflate") as ds:
@@ -433,7 +433,7 @@ def rectify_rpc_files(left_image, left_rpc, right_image, right_rpc, outdir, roi=
     """
     t0 = time.perf_counter()
     outdir = Path(outdir)
-    check_output_folder(outdir, OUTPUTS, overwrite)
+    check_output_folder(outdir, OUTPUTS, overwrite, inputs=[left_image, left_rpc, right_image, right_rpc, dem])
     if lidar is not None and not isinstance(lidar, (str, os.PathLike)) and not len(lidar):
         lidar = None
     if sum(v is not None for v in (dem, heights, lidar)) != 1:

@@ -87,7 +87,7 @@ def check_output(path, overwrite=False, inputs=()):
     """
     path = Path(path)
     for source in inputs:
-        if source is not None and same_file(path, source):
+        if isinstance(source, (str, os.PathLike)) and same_file(path, source):
             raise RiverbedError(f"is also an input of this run ({source}); riverbed never writes over its input",
                                 path)
     if path.is_dir():
@@ -112,9 +112,10 @@ def check_outputs(outputs, overwrite=False, inputs=()):
         check_output(path, overwrite, inputs)
 
 
-def check_output_folder(outdir, names=(), overwrite=False):
+def check_output_folder(outdir, names=(), overwrite=False, inputs=()):
     """Raise unless ``outdir`` is an existing folder or a new name inside an existing one, and (when it exists)
-    claim each of the output ``names`` inside it (:func:`check_output`); returns its parent."""
+    claim each of the output ``names`` inside it (:func:`check_output`, none of them one of ``inputs``); returns its
+    parent."""
     outdir = Path(outdir)
     parent = _folder(outdir)
     if not parent.is_dir():
@@ -123,7 +124,7 @@ def check_output_folder(outdir, names=(), overwrite=False):
         raise RiverbedError("exists and is not a folder", outdir)
     if outdir.is_dir():
         for name in names:
-            check_output(outdir / name, overwrite)
+            check_output(outdir / name, overwrite, inputs)
     return parent
 
 
@@ -249,43 +250,54 @@ def atomic_output(path, overwrite=False):
     Claims ``path`` (:func:`check_output`) unless this process has. On any exception the temporary file is
     removed, ``path`` is left as it was, and an ``OSError`` (a full disk, a file-size limit) or a
     :class:`RiverbedError` naming the temporary file is raised as a one-line :class:`RiverbedError` naming
-    ``path``. Nested blocks rename when the outermost one ends, in the order they were written.
+    ``path``. Inside an :func:`output_group` (or another ``atomic_output`` block) the rename waits for its end.
     """
     path = Path(path)
     if _key(path) not in _claims:
         check_output(path, overwrite)
     claim = _claims[_key(path)]
     claim.depth += 1
-    _nesting.depth += 1
-    outermost = _nesting.depth == 1
     try:
-        try:
-            yield claim.tmp
-            _finish(claim)
+        with output_group():
+            try:
+                yield claim.tmp
+                _finish(claim)
+            except RiverbedError as e:
+                if e.path is not None and e.path == str(claim.tmp):
+                    raise RiverbedError(str(e)[len(e.path) + 2:], path) from None
+                raise
+            except OSError as e:
+                raise RiverbedError(f"cannot write ({_reason(e)})", path) from None
             _nesting.written.append((claim, overwrite))
-            if outermost:
-                for written, replace in _nesting.written:
-                    _rename(written, replace)
-        except RiverbedError as e:
-            if e.path is not None and e.path == str(claim.tmp):
-                raise RiverbedError(str(e)[len(e.path) + 2:], path) from None
-            raise
-        except OSError as e:
-            raise RiverbedError(f"cannot write ({_reason(e)})", path) from None
     finally:
         claim.depth -= 1
+        if _nesting.depth == 0:
+            release_claims([path])  # failed before it was written: its temporary file removed
+
+
+@contextlib.contextmanager
+def output_group():
+    """Outputs written together: every :func:`atomic_output` block inside writes and checks its file, and all are
+    renamed into place, one after the other, when the group ends without an error; on an error none is."""
+    _nesting.depth += 1
+    try:
+        yield
+        if _nesting.depth == 1:
+            for claim, overwrite in _nesting.written:
+                _rename(claim, overwrite)
+    finally:
         _nesting.depth -= 1
-        if outermost:
+        if _nesting.depth == 0:
             written, _nesting.written = _nesting.written, []
-            release_claims([c.path for c, _ in written] + [path])
+            release_claims([c.path for c, _ in written])
 
 
 class _Nesting(threading.local):
-    """The open :func:`atomic_output` blocks of this thread, and the outputs written inside the outermost one."""
+    """The open :func:`output_group` blocks of this thread, and the outputs written inside the outermost one."""
 
     def __init__(self):
         self.depth = 0
-        self.written = []  # (claim, overwrite), renamed when the outermost block ends
+        self.written = []  # (claim, overwrite), renamed when the outermost group ends
 
 
 _nesting = _Nesting()

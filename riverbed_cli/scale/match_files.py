@@ -11,7 +11,7 @@ import os
 import numpy as np
 
 from ..errors import RiverbedError
-from ..io.atomic import atomic_output, check_output
+from ..io.atomic import atomic_output, check_outputs, releases_claims
 from ..io.disparity import disparity_format, read_disparity, write_disparity
 from ..io.images import check_pair, read_image
 from ..io.windowed import TiffSink, WindowedRaster, is_tiff, open_range_map, sparse_points_any
@@ -98,6 +98,7 @@ def _heap_estimate(H, W, rng, widths, plan, overlap):
     return match_heap_bytes(pixels, width)
 
 
+@releases_claims
 def match_files(left, right, output, config, sparse=None, sparse_scale=None, min_disp=None, max_disp=None,
                 max_pixels=None, tile="auto", overlap=128, lidar_range=True, color_png=None, overwrite=False,
                 progress=None, range_map=None, confidence=None):
@@ -112,15 +113,12 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     Returns the ``--json`` summary (a dict).
     """
     disparity_format(output)  # refuse what cannot be written, or would clobber, before any work
-    check_output(output, overwrite)
-    if color_png:
-        if not color_png.lower().endswith(".png"):
-            raise RiverbedError("colour preview must be a .png file", color_png)
-        check_output(color_png, overwrite)
-    if confidence:
-        if not confidence.lower().endswith((".tif", ".tiff")):
-            raise RiverbedError("confidence must be written to a .tif file", confidence)
-        check_output(confidence, overwrite)
+    if color_png and not color_png.lower().endswith(".png"):
+        raise RiverbedError("colour preview must be a .png file", color_png)
+    if confidence and not confidence.lower().endswith((".tif", ".tiff")):
+        raise RiverbedError("confidence must be written to a .tif file", confidence)
+    # claimed (locked against another run) until written; never one of the inputs, nor two outputs in one file
+    check_outputs([output, color_png, confidence], overwrite, inputs=[left, right, sparse, range_map])
     guide = get_guide(config.guide)
     if guide.needs_sparse and not sparse:
         raise RiverbedError(f"--guide {config.guide} needs --sparse")
