@@ -9,6 +9,7 @@ Conventions
   data in a 16-bit container keeps its contrast instead of being squeezed into 0..16.
 """
 
+import os
 import struct
 import warnings
 from pathlib import Path
@@ -23,8 +24,12 @@ from rasterio.enums import ColorInterp
 
 from ..errors import RiverbedError
 from ..settings import MAX_PIXELS  # noqa: F401  (the default pixel limit; --max-pixels raises it)
+from .paths import require_file
 
 _UNREADABLE = "cannot read image (not a format OpenCV or rasterio reads)"
+_CORRUPT = "cannot read image data (corrupt or truncated file)"
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+JPEG_SOI, JPEG_EOI = b"\xff\xd8\xff", b"\xff\xd9"
 #: The first four bytes of a TIFF or BigTIFF file.
 TIFF_MAGIC = (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
 
@@ -34,8 +39,11 @@ def read_image(path, max_pixels=MAX_PIXELS):
 
     OpenCV reads most formats (``IMREAD_UNCHANGED``: no EXIF rotation, no depth conversion); files it cannot
     decode are read with rasterio (e.g. JPEG 2000, ERDAS .img), bands becoming channels. TIFF is read with
-    rasterio first (OpenCV would mix a multi-band GeoTIFF down to grey) and with OpenCV if rasterio fails or
-    it is a palette image.
+    rasterio first (OpenCV would mix a multi-band GeoTIFF down to grey) and with OpenCV if rasterio cannot open
+    it or it is a palette image. A truncated or corrupt file is an error, never an image with missing rows: PNG
+    and JPEG are checked for their end (:func:`check_complete`) and are never handed to rasterio when OpenCV
+    refuses them (GDAL fills what it cannot decode with zeros); a TIFF whose strips or tiles rasterio cannot
+    read is refused.
 
     Parameters
     ----------
@@ -54,19 +62,17 @@ def read_image(path, max_pixels=MAX_PIXELS):
     Raises
     ------
     RiverbedError
-        Missing or unreadable file, unsupported sample type (float, signed), or too many pixels.
+        Missing, non-regular, unreadable, truncated or corrupt file, unsupported sample type (float, signed), or
+        too many pixels.
     """
-    path = Path(path)
-    if not path.exists():
-        raise RiverbedError("file not found", path)
-    if not path.is_file():
-        raise RiverbedError("not a file", path)
+    path = require_file(path)
     with open(path, "rb") as f:
         head = f.read(24)
-    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+    if head[:8] == PNG_SIGNATURE and head[12:16] == b"IHDR":
         # Cheap size check before decoding.
         width, height = struct.unpack(">II", head[16:24])
         check_pixels(path, height, width, max_pixels)
+    check_complete(path, head)
 
     img = None
     if head[:4] in TIFF_MAGIC:
@@ -81,11 +87,67 @@ def read_image(path, max_pixels=MAX_PIXELS):
         if img is not None:
             img = _from_opencv(img)
     if img is None:
+        kind = _opencv_kind(head)
+        if kind:
+            raise RiverbedError(f"cannot decode {kind} (corrupt or truncated data)", path)
         img = _read_rasterio(path, max_pixels, required=True)
     check_pixels(path, img.shape[0], img.shape[1], max_pixels)
     if img.dtype not in (np.uint8, np.uint16):
         raise RiverbedError(f"unsupported image sample type {img.dtype} (need 8- or 16-bit unsigned)", path)
     return np.ascontiguousarray(img)
+
+
+def _opencv_kind(head):
+    """``"PNG"`` or ``"JPEG"`` when the file's first bytes say so, else None."""
+    if head[:8] == PNG_SIGNATURE:
+        return "PNG"
+    if head[:3] == JPEG_SOI:
+        return "JPEG"
+    return None
+
+
+def check_complete(path, head=None):
+    """Raise :class:`RiverbedError` if a PNG or JPEG file is cut short; other files pass unchecked.
+
+    Decoders fill what a truncated file lacks (libjpeg with grey, GDAL's PNG driver with zeros) or fail with a
+    message of their own on stderr; this looks at the file's structure only, without decoding. PNG: the chain
+    of chunk headers (length, type) must reach an ``IEND`` chunk inside the file. JPEG: the file must end with
+    the end-of-image marker ``FFD9`` (trailing NUL or whitespace padding allowed).
+
+    Parameters
+    ----------
+    path : path-like
+        The file (a regular file).
+    head : bytes, optional
+        Its first bytes, if already read (at least 8).
+    """
+    path = Path(path)
+    with open(path, "rb") as f:
+        if head is None:
+            head = f.read(8)
+        kind = _opencv_kind(head)
+        if kind is None:
+            return
+        size = os.fstat(f.fileno()).st_size
+        if kind == "PNG" and not _png_reaches_iend(f, size):
+            raise RiverbedError("truncated PNG (its chunks end before an IEND chunk)", path)
+        if kind == "JPEG":
+            f.seek(max(0, size - 4096))
+            if not f.read().rstrip(b"\x00\t\n\r ").endswith(JPEG_EOI):
+                raise RiverbedError("truncated JPEG (no end-of-image marker FFD9 at its end)", path)
+
+
+def _png_reaches_iend(f, size):
+    # Chunks are 4-byte length, 4-byte type, data, 4-byte CRC; following the lengths costs one small read per
+    # chunk (a few dozen for a megapixel image).
+    pos = 8
+    while pos + 12 <= size:
+        f.seek(pos)
+        length, ctype = struct.unpack(">I4s", f.read(8))
+        pos += 12 + length
+        if ctype == b"IEND":
+            return pos <= size
+    return False
 
 
 def check_pixels(path, height, width, max_pixels):
@@ -111,23 +173,33 @@ def _from_opencv(img):
 
 
 def _read_rasterio(path, max_pixels, required):
-    """Bands as channels; None (if not ``required``) when rasterio cannot read it or it is a palette image."""
+    """Bands as channels; None (if not ``required``) when rasterio cannot open it or it is a palette image.
+
+    A file rasterio opens but cannot read (a TIFF with truncated strips or tiles) is an error either way: OpenCV
+    would fail on it too, with lines of its own on stderr.
+    """
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
-            with rasterio.open(path) as ds:
-                if not required and ds.colorinterp[0] == ColorInterp.palette:
-                    return None  # OpenCV applies the colour table; rasterio would give the indices
-                check_pixels(path, ds.height, ds.width, max_pixels)
-                # 1 band: grey; 2: grey + alpha; 3: RGB; 4+: RGB + alpha/NIR/...
-                bands = [1] if ds.count < 3 else [1, 2, 3]
-                data = ds.read(bands)
-    except (RiverbedError, MemoryError):
+            ds = rasterio.open(path)
+    except MemoryError:
         raise
     except Exception:  # noqa: BLE001 - GDAL drivers raise many types; any of them means "cannot read"
         if not required:
             return None
         raise RiverbedError(_UNREADABLE, path) from None
+    with ds:
+        if not required and ds.colorinterp[0] == ColorInterp.palette:
+            return None  # OpenCV applies the colour table; rasterio would give the indices
+        check_pixels(path, ds.height, ds.width, max_pixels)
+        # 1 band: grey; 2: grey + alpha; 3: RGB; 4+: RGB + alpha/NIR/...
+        bands = [1] if ds.count < 3 else [1, 2, 3]
+        try:
+            data = ds.read(bands)
+        except MemoryError:
+            raise
+        except Exception:  # noqa: BLE001 - as above
+            raise RiverbedError(_CORRUPT, path) from None
     if data.shape[0] == 1:
         return data[0]
     return np.moveaxis(data, 0, -1)
@@ -367,11 +439,14 @@ def write_png_file(path, img):
     img = np.asarray(img)
     out = cv2.cvtColor(img, cv2.COLOR_RGB2BGR) if img.ndim == 3 else img
     try:
-        ok = cv2.imwrite(str(path), out)
+        ok, data = cv2.imencode(".png", out)
     except cv2.error:
         ok = False
     if not ok:
-        raise RiverbedError("cannot write PNG", path)
+        raise RiverbedError("cannot write PNG (the encoder refused the image)", path)
+    # encoded in memory and written by Python, whose writes raise on a full disk (OpenCV's return no error)
+    with open(path, "wb") as f:
+        f.write(data.tobytes())
 
 
 def header_size(path):
