@@ -12,13 +12,12 @@ Conventions
 import warnings
 from pathlib import Path
 
-import cv2
 import numpy as np
 import rasterio
 
 from ..errors import RiverbedError
 from .atomic import atomic_output, c_stderr_silenced
-from .images import check_complete, write_png_file
+from .images import check_complete, imread_quiet, write_png_file
 from .paths import require_file
 
 _PNG_MAX = 65535 / 256  # largest disparity a KITTI 16-bit PNG holds
@@ -146,10 +145,7 @@ def _read_pfm(path):
 
 def _read_png(path, scale):
     check_complete(path)  # a truncated PNG is refused before libpng reads it
-    try:
-        raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    except cv2.error:
-        raw = None
+    raw = imread_quiet(path)
     if raw is None:
         raise RiverbedError("cannot read PNG disparity (not a PNG OpenCV reads)", path)
     if raw.ndim != 2:

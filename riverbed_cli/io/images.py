@@ -24,6 +24,7 @@ from rasterio.enums import ColorInterp
 
 from ..errors import RiverbedError
 from ..settings import MAX_PIXELS  # noqa: F401  (the default pixel limit; --max-pixels raises it)
+from .atomic import c_stderr_silenced
 from .paths import require_file
 
 _UNREADABLE = "cannot read image (not a format OpenCV or rasterio reads)"
@@ -80,10 +81,7 @@ def read_image(path, max_pixels=MAX_PIXELS):
         # GeoTIFF) down to one grey channel, and rasterio checks the size before reading the pixels.
         img = _read_rasterio(path, max_pixels, required=False)
     if img is None:
-        try:
-            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        except cv2.error:
-            img = None
+        img = imread_quiet(path)
         if img is not None:
             img = _from_opencv(img)
     if img is None:
@@ -95,6 +93,16 @@ def read_image(path, max_pixels=MAX_PIXELS):
     if img.dtype not in (np.uint8, np.uint16):
         raise RiverbedError(f"unsupported image sample type {img.dtype} (need 8- or 16-bit unsigned)", path)
     return np.ascontiguousarray(img)
+
+
+def imread_quiet(path):
+    """``cv2.imread(path, IMREAD_UNCHANGED)``, None when OpenCV cannot decode the file; what libpng, libjpeg or
+    libtiff print on stderr about a corrupt file is discarded (the caller reports it in one line)."""
+    try:
+        with c_stderr_silenced():
+            return cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    except cv2.error:
+        return None
 
 
 def _opencv_kind(head):
