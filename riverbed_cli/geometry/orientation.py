@@ -45,7 +45,7 @@ from pyproj.exceptions import CRSError
 
 from ..errors import RiverbedError
 from ..io.atomic import atomic_output
-from ..io.textfiles import parse_yaml, read_text
+from ..io.textfiles import load_text_data
 from .cameras import as_matrix, parse_number
 
 #: Orientation files larger than this are refused before parsing.
@@ -147,7 +147,7 @@ class FrameOrientation:
 
 
 def _read_yaml(path):
-    return parse_yaml(read_text(path, "orientation file", MAX_BYTES), Path(path))
+    return load_text_data(Path(path), "orientation file", MAX_BYTES, fmt="yaml")[0]
 
 
 def _mapping(data, key, allowed, path):

@@ -18,8 +18,9 @@ A pair file with an ``rpc:`` key is an *RPC pair* (``riverbed rectify --rpc``; i
 ``riverbed project``, ``dsm`` and ``block`` do); a caller that needs a pinhole pair refuses it in one line.
 
 Both formats go through :func:`load_pairfile`: ``.json`` files (or text starting with ``{``) with :mod:`json`,
-everything else with ``yaml.safe_load`` (never the unsafe loader: pair files come from strangers). Errors are
-one line naming the file and the key. See :mod:`riverbed_cli.geometry.cameras` for the rectified-pair rule.
+everything else with ``yaml.safe_load`` (never the unsafe loader: pair files come from strangers), both within
+the size, nesting and alias bounds of :mod:`riverbed_cli.io.textfiles`. Errors are one line naming the file and the
+key. See :mod:`riverbed_cli.geometry.cameras` for the rectified-pair rule.
 """
 
 import json
@@ -33,7 +34,7 @@ from pyproj.exceptions import CRSError
 
 from ..errors import RiverbedError
 from ..io.atomic import atomic_output
-from ..io.textfiles import parse_yaml, read_text
+from ..io.textfiles import load_text_data
 from .cameras import PairGeometry, as_matrix, check_registration
 from .rpc_pair import relative_path, rpc_pair_from_dict
 
@@ -45,14 +46,8 @@ RPC_REFUSERS = "this use"
 
 
 def _parse(path, what):
-    path = Path(path)
-    text = read_text(path, what, MAX_BYTES)
-    if path.suffix.lower() == ".json" or text.lstrip().startswith("{"):
-        try:
-            return json.loads(text), text
-        except json.JSONDecodeError as e:
-            raise RiverbedError(f"invalid JSON at line {e.lineno}, column {e.colno}: {e.msg}", path) from None
-    return parse_yaml(text, path), text
+    # JSON for a .json name or text starting with "{", YAML otherwise; sizes, nesting and aliases bounded
+    return load_text_data(Path(path), what, MAX_BYTES)
 
 
 def _check_crs(crs, path):

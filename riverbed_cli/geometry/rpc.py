@@ -26,7 +26,6 @@ Conventions (riverbed's everywhere, and the RPC00B standard's):
   (errors of 1e-2 px and more) and are not used, so ``project(localize(col, row, h), h) == (col, row)``.
 """
 
-import json
 import shutil
 import tempfile
 import warnings
@@ -42,6 +41,7 @@ from rasterio.rpc import RPC
 
 from ..errors import RiverbedError
 from ..io.paths import require_file
+from ..io.textfiles import parse_json
 
 #: RPC files larger than this are refused before parsing (WorldView-1's XML, the largest sample, is 0.7 MB).
 MAX_RPC_BYTES = 20_000_000
@@ -384,10 +384,7 @@ def _read_shareloc(path, what):
 
 
 def _read_json(path, text):
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise RiverbedError(f"invalid JSON at line {e.lineno}, column {e.colno}: {e.msg}", path) from None
+    data = parse_json(text, path)
     if isinstance(data, dict) and isinstance(data.get("rpc"), dict):
         data = data["rpc"]
     if not isinstance(data, dict):
@@ -417,8 +414,10 @@ def read_rpc(path):
         head = f.read(4096)
     text = None
     if size <= MAX_RPC_BYTES and b"\x00" not in head:
+        with path.open("rb") as f:
+            raw = f.read(MAX_RPC_BYTES + 1)  # bounded even if the file grew since its size was read
         try:
-            text = path.read_bytes().decode("utf-8-sig")
+            text = raw.decode("utf-8-sig") if len(raw) <= MAX_RPC_BYTES else None
         except UnicodeDecodeError:
             text = None
     if text is None:

@@ -12,7 +12,7 @@ from ...geometry.rectify import check_alpha, parse_size
 from ...geometry.rpc_dem import dem_vertical
 from ...geometry.rpc_pair import MIN_ROI_PX, check_roi, parse_heights, parse_roi
 from ...io.images import header_size
-from ...io.textfiles import parse_yaml, read_text
+from ...io.textfiles import load_text_data
 from ...settings import SettingError, show
 from .settings import default_settings, settings_spec
 
@@ -56,7 +56,7 @@ class Manifest:
 
 
 def _read_manifest(path):
-    return parse_yaml(read_text(path, "block manifest", MANIFEST_MAX_BYTES), path)
+    return load_text_data(path, "block manifest", MANIFEST_MAX_BYTES, fmt="yaml")[0]
 
 
 def _settings(raw, where, spec, path, base, block_wide):
