@@ -75,12 +75,7 @@ def benchmark_cmd(dataset, layout, outdir, matchers, guides, ranges, fusions, sh
     resumes; --check makes it a regression gate for CI."""
     skip_refresh_on_cache_loads()  # Numba's cached kernels load without its compiler's start-up
     out = Path(outdir)
-    exp = None
-    if expected:
-        try:
-            exp = json.loads(Path(expected).read_text())
-        except (OSError, json.JSONDecodeError) as e:
-            raise RiverbedError(f"cannot read expectations ({e})", expected) from None
+    exp = bm.read_expectations(expected) if expected else None
     scene_list = bm.load_dataset(dataset, layout, gt_scale, [s for s in scenes.split(",") if s])
     ms = _names(matchers, "matchers", MATCHERS)
     gs = _names(guides, "guides", GUIDES)

@@ -9,6 +9,7 @@ method, so methods differ only in matching.
 import csv
 import hashlib
 import json
+import logging
 import math
 import time
 from dataclasses import dataclass
@@ -21,6 +22,7 @@ import numpy as np
 from ..errors import RiverbedError
 from ..io.disparity import read_disparity
 from ..io.images import read_image
+from ..io.textfiles import load_text_data
 from ..matching.pipeline import match_pair
 from .densify import densify
 from .evaluate import evaluate_disparity
@@ -28,6 +30,8 @@ from .simulate import simulate_lidar
 
 matplotlib.use("Agg")  # headless: figures are only written to files
 import matplotlib.pyplot as plt  # noqa: E402  (pyplot after the backend is chosen)
+
+log = logging.getLogger(__name__)
 
 METRICS = ("bad1", "bad2", "bad3", "avg", "rmse", "density", "d1", "n")
 # Middlebury file name patterns: (left, right, ground truth, default GT scale for 8-bit PNG)
@@ -104,6 +108,38 @@ def _cache_name(key):
     return hashlib.sha1(f"{v}|{key}".encode()).hexdigest()[:16] + ".json"
 
 
+#: Cache files larger than this are not read (one case's row is a few hundred bytes).
+CACHE_MAX_BYTES = 100_000
+#: What a cached row must hold to be used: the fields the tables read.
+ROW_FIELDS = ("key", "scene", "matcher", "guide", "window", "window_set", "share", "seed", *METRICS, "seconds")
+
+
+def _number(x):
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def cached_row(path, key):
+    """The cached result row of case ``key`` in ``path``, or None with a warning when the file cannot be used
+    (truncated, not JSON, not a row of this case): the case is then run again and the file replaced, so one bad
+    cache file never stops a benchmark."""
+    try:
+        row, _ = load_text_data(path, "benchmark cache file", CACHE_MAX_BYTES, fmt="json")
+    except RiverbedError as e:
+        problem = str(e)
+    else:
+        missing = [k for k in ROW_FIELDS if k not in row] if isinstance(row, dict) else None
+        if missing is None:
+            problem = f"{path}: not a benchmark result row (a JSON {type(row).__name__})"
+        elif missing:
+            problem = f"{path}: incomplete benchmark result row (no {missing[0]})"
+        elif row["key"] != key or not all(_number(row[m]) for m in METRICS):
+            problem = f"{path}: not the result row of case {key}"
+        else:
+            return row
+    log.warning("ignoring a cached case: %s; running it again", problem)
+    return None
+
+
 def lidar_sample(gt, share, seed, share_of="image"):
     """The benchmark's LiDAR: ``share`` of the image's pixels (``share_of="image"``) or of its GT pixels
     (``"gt"``, the density a sensor gives), sampled from the GT."""
@@ -149,8 +185,8 @@ def run_benchmark(scenes, matchers=("sgm",), guides=("none", "gauss", "riverbed"
                 for guide, window in cases:
                     key = case_key(sc.name, matcher, guide, share, window, seed) + ("|gt" if share_of == "gt" else "")
                     f = cache / _cache_name(key) if cache else None
-                    if f is not None and f.is_file():
-                        row = json.loads(f.read_text())
+                    row = cached_row(f, key) if f is not None and f.is_file() else None
+                    if row is not None:
                         row["cached"] = True
                     else:
                         # a guide label GUIDE[@MODE][:FUSION] runs GUIDE with --range MODE and --fusion FUSION
@@ -336,6 +372,54 @@ def expectations(rows, relative=RELATIVE, floors=None):
     floors = {**FLOORS, **(floors or {})}
     return {"tolerance": {"relative": relative, "floor": floors},
             "cases": [{"key": r["key"], **{k: r[k] for k in floors}} for r in rows]}
+
+
+#: Expectation files larger than this are refused before parsing.
+EXPECTATIONS_MAX_BYTES = 20_000_000
+
+
+def read_expectations(path):
+    """An EXPECTED.json document (:func:`expectations`) read and checked, so that :func:`check` cannot fail on it;
+    :class:`RiverbedError` naming the file for anything else (oversized, not UTF-8, invalid or too deeply nested
+    JSON, another shape).
+
+    The tolerance is ``{"relative": r, "floor": {metric: x}}`` or, in older files, ``{metric: x}``; ``cases`` is a
+    list of ``{"key": str, metric: number, ...}``. Metrics are those of :data:`METRICS`.
+    """
+    data, _ = load_text_data(path, "benchmark expectations file", EXPECTATIONS_MAX_BYTES, fmt="json")
+
+    def refuse(problem):
+        raise RiverbedError(f"not a benchmark expectations file ({problem})", path)
+
+    if not isinstance(data, dict):
+        refuse(f"a JSON {_json_kind(data)}, expected an object with tolerance and cases")
+    tol = data.get("tolerance", {})
+    if not isinstance(tol, dict):
+        refuse("tolerance: expected an object")
+    limits = tol
+    if "relative" in tol:
+        if not _number(tol["relative"]):
+            refuse("tolerance.relative: expected a number")
+        limits = tol.get("floor")
+        if not isinstance(limits, dict):
+            refuse("tolerance.floor: expected an object of metric: number")
+    for metric, value in limits.items():
+        if metric not in METRICS or not _number(value):
+            refuse(f"tolerance: '{metric}' is not a metric with a number (metrics: {', '.join(METRICS)})")
+    cases = data.get("cases", [])
+    if not isinstance(cases, list):
+        refuse("cases: expected a list")
+    for i, case in enumerate(cases):
+        if not isinstance(case, dict) or not isinstance(case.get("key"), str):
+            refuse(f"cases[{i}]: expected an object with a key string")
+        bad = [m for m in limits if m in case and not _number(case[m])]
+        if bad:
+            refuse(f"cases[{i}].{bad[0]}: expected a number")
+    return data
+
+
+def _json_kind(value):
+    return {list: "list", str: "string", bool: "boolean", type(None): "null"}.get(type(value), "number")
 
 
 def _limit(value, metric, tol):
