@@ -253,12 +253,16 @@ def atomic_output(path, overwrite=False):
     ``path``. Inside an :func:`output_group` (or another ``atomic_output`` block) the rename waits for its end.
     """
     path = Path(path)
+    if _key(path) in _held_temps():  # a writer handed an open block's temporary file: it is written there
+        yield path
+        return
     if _key(path) not in _claims:
         check_output(path, overwrite)
     claim = _claims[_key(path)]
     claim.depth += 1
     try:
         with output_group():
+            _nesting.opened.append(claim)
             try:
                 yield claim.tmp
                 _finish(claim)
@@ -272,7 +276,7 @@ def atomic_output(path, overwrite=False):
     finally:
         claim.depth -= 1
         if _nesting.depth == 0:
-            release_claims([path])  # failed before it was written: its temporary file removed
+            release_claims([path])  # renamed, or failed: its temporary file removed
 
 
 @contextlib.contextmanager
@@ -288,8 +292,8 @@ def output_group():
     finally:
         _nesting.depth -= 1
         if _nesting.depth == 0:
-            written, _nesting.written = _nesting.written, []
-            release_claims([c.path for c, _ in written])
+            opened, _nesting.opened, _nesting.written = _nesting.opened, [], []
+            release_claims([c.path for c in opened])  # the unfinished ones' temporary files removed
 
 
 class _Nesting(threading.local):
@@ -297,7 +301,8 @@ class _Nesting(threading.local):
 
     def __init__(self):
         self.depth = 0
-        self.written = []  # (claim, overwrite), renamed when the outermost group ends
+        self.opened = []  # claims of the atomic_output blocks opened in the outermost group
+        self.written = []  # (claim, overwrite) of those written, renamed when the outermost group ends
 
 
 _nesting = _Nesting()
@@ -357,6 +362,41 @@ def _reason(e):
     if e.errno == errno.EFBIG:
         return "file too large for the file-size limit or the file system"
     return e.strerror or str(e)
+
+
+#: the lock file of a folder a run writes as a whole (``riverbed block``'s output folder)
+FOLDER_LOCK = ".riverbed.lock"
+_folder_locks = {}  # absolute folder -> file descriptor of its locked lock file (this process)
+
+
+def lock_folder(folder):
+    """Lock the output ``folder`` for this process (a ``fcntl.flock`` on ``folder/.riverbed.lock``) until
+    :func:`unlock_folder` or the process ends; a :class:`RiverbedError` naming it when another run holds it.
+    Locking a folder this process holds again does nothing."""
+    key = _key(folder)
+    with _lock:
+        if key in _folder_locks:
+            return
+        try:
+            fd = os.open(Path(folder) / FOLDER_LOCK, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        except OSError as e:
+            raise RiverbedError(f"cannot lock the output folder ({e.strerror or e})", folder) from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            raise RiverbedError("in use by another riverbed run (it is writing into this folder); wait for that "
+                                "run or choose another output folder", folder) from None
+        _folder_locks[key] = fd
+
+
+def unlock_folder(folder):
+    """Release :func:`lock_folder`'s lock on ``folder`` (the lock file stays: removing it would race a waiting
+    run)."""
+    with _lock:
+        fd = _folder_locks.pop(_key(folder), None)
+    if fd is not None:
+        os.close(fd)
 
 
 _quiet = {"depth": 0, "saved": None}

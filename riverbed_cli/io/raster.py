@@ -5,6 +5,7 @@ import warnings
 import numpy as np
 import rasterio
 import rasterio.shutil
+from rasterio._err import CPLE_BaseError
 from rasterio.io import MemoryFile
 
 from ..errors import RiverbedError
@@ -73,7 +74,11 @@ def write_geotiff(path, bands, transform, crs=None, nodata=None, creation_option
                             ds.set_band_description(i, desc)
                     if tags:
                         ds.update_tags(**{str(k): str(v) for k, v in tags.items()})
-                with mem.open() as src, c_stderr_silenced():
-                    rasterio.shutil.copy(src, tmp, driver="COG", **co)
-        except (rasterio.errors.RasterioError, ValueError) as e:
+                # the COG laid out in memory too, and written by Python, whose writes raise on a full disk
+                with mem.open() as src, MemoryFile() as cog, c_stderr_silenced():
+                    rasterio.shutil.copy(src, cog.name, driver="COG", **co)
+                    encoded = cog.getbuffer()
+        except (rasterio.errors.RasterioError, CPLE_BaseError, ValueError) as e:
             raise RiverbedError(f"cannot write GeoTIFF ({e})", path) from None
+        with open(tmp, "wb") as f:
+            f.write(encoded)

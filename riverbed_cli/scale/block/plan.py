@@ -17,7 +17,7 @@ from pathlib import Path
 from ...errors import RiverbedError
 from ...geometry.rectify import rectify_files
 from ...geometry.rpc_pair import rectify_rpc_files
-from ...io.atomic import atomic_output
+from ...io.atomic import FOLDER_LOCK, atomic_output, lock_folder
 from ...io.images import header_size, read_image
 from ...geometry.pairfile import load_pairfile
 from .manifest import RAW_KEYS, RPC_KEYS, Manifest, load_manifest
@@ -219,6 +219,9 @@ def prepare_outdir(outdir, manifest_path, overwrite=False):
     if out.exists():
         if not out.is_dir():
             raise RiverbedError("output exists and is not a folder", out)
+        # one block run per folder: a second would remove the first's work files (released by run_block, or when
+        # the process ends)
+        lock_folder(out)
         if marker.is_file():
             try:
                 record = json.loads(marker.read_text(encoding="utf-8"))
@@ -228,7 +231,7 @@ def prepare_outdir(outdir, manifest_path, overwrite=False):
             if owner != str(manifest_path) and not overwrite:
                 raise RiverbedError(f"holds the block of another manifest ({owner}); pass --overwrite to reuse "
                                     "it", out)
-        elif any(out.iterdir()) and not overwrite:
+        elif any(p.name != FOLDER_LOCK for p in out.iterdir()) and not overwrite:
             raise RiverbedError("output folder is not empty and holds no block; pass --overwrite to write into "
                                 "it", out)
     else:
@@ -236,6 +239,7 @@ def prepare_outdir(outdir, manifest_path, overwrite=False):
         if not parent.is_dir():
             raise RiverbedError(f"output folder {parent} does not exist", out)
         out.mkdir()
+        lock_folder(out)
     if not isinstance(record, dict) or record.get("manifest") != str(manifest_path):
         record = {}
     record.update({"riverbed": "block", "manifest": str(manifest_path)})

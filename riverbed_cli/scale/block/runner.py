@@ -13,6 +13,7 @@ from pathlib import Path
 import numba
 
 from ...errors import RiverbedError
+from ...io.atomic import unlock_folder
 from .merge import merge_dsm, merge_heights, merge_settings
 from .plan import DONE, MARKER, MERGED, WORK, clean_temps, sha256_file, write_json
 from .stages import PairFailure, finish_stage, n_tasks, project_stage, tile_stage
@@ -177,6 +178,7 @@ def run_block(plan, workers=None, threads_per_worker=1, scheduler=None, retries=
             client.close()
         if cluster is not None:
             cluster.close()
+        unlock_folder(plan.outdir)  # locked by plan_block
     pairs = [entries[j.name] for j in plan.jobs]
     cleaned = sorted(Path(p).relative_to(plan.outdir).as_posix() for p in plan.cleaned)
     return BlockResult(plan.outdir, pairs, merged, mode, time.perf_counter() - t0, startup, plan.seconds, info,
