@@ -56,7 +56,8 @@ class WindowedRaster:
         except MemoryError:
             raise
         except Exception:  # noqa: BLE001 - GDAL drivers raise many types; any of them means "cannot read"
-            raise RiverbedError("cannot read raster data (corrupt or truncated file)", self.path) from None
+            what = "image" if self.kind == "image" else "raster"
+            raise RiverbedError(f"cannot read {what} data (corrupt or truncated file)", self.path) from None
 
     def row_blocks(self, rows=512):
         for y in range(0, self.shape[0], rows):
