@@ -3,10 +3,12 @@ only when they run (or their ``--help`` is asked for): ``riverbed --help`` loads
 ``rio`` loads its commands from entry points."""
 
 import importlib
+import sys
 
 import click
 
-from ..errors import RiverbedError
+from ..errors import RiverbedError, one_line
+from ..io.atomic import release_claims
 from ..scale import collector
 from .options import setup_logging
 
@@ -15,7 +17,41 @@ class UserError(click.ClickException):
     """A one-line error for the user: ``riverbed: error: <message>``, exit code 1."""
 
     def show(self, file=None):
-        click.echo(f"riverbed: error: {self.format_message()}", err=True)
+        # one printable line whatever the message quotes (a file's text may hold escape codes or newlines)
+        click.echo(f"riverbed: error: {one_line(self.format_message())}", err=True)
+
+
+class Interrupted(click.ClickException):
+    """Ctrl-C: ``riverbed: interrupted`` and exit code 130 (128 + SIGINT), as a shell reports it."""
+
+    exit_code = 130
+
+    def __init__(self):
+        super().__init__("interrupted")
+
+    def show(self, file=None):
+        click.echo("riverbed: interrupted", err=True)
+
+
+def usage_error(e):
+    """A click usage error (unknown option, missing argument, bad choice) as a :class:`UserError`: one line naming
+    the command's help, exit code 1 (click prints three lines and exits 2). A bare ``riverbed`` keeps its help."""
+    if isinstance(e, getattr(click.exceptions, "NoArgsIsHelpError", ())):
+        return e  # bare `riverbed`: its help, as click shows it
+    path = e.ctx.command_path if e.ctx is not None else "riverbed"
+    return UserError(f"{e.format_message()} (see {path} --help)")
+
+
+def interrupted_by_user(e):
+    """True for a KeyboardInterrupt, or an error raised because of one (a Numba kernel interrupted by Ctrl-C
+    surfaces as a SystemError whose context is the KeyboardInterrupt)."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
 
 
 #: name -> (module under riverbed_cli.cli, command object, one line for ``riverbed --help``)
@@ -61,9 +97,25 @@ class RiverbedGroup(click.Group):
         with formatter.section("Commands"):
             formatter.write_dl([(name, line) for name, (_, _, line) in COMMANDS.items()])
 
+    def make_context(self, info_name, args, parent=None, **extra):
+        try:  # the group's own options (riverbed --bogus)
+            return super().make_context(info_name, args, parent=parent, **extra)
+        except click.UsageError as e:
+            raise usage_error(e) from None
+        except KeyboardInterrupt:
+            raise Interrupted() from None
+
     def invoke(self, ctx):
         try:
             return super().invoke(ctx)
+        except click.UsageError as e:  # a subcommand's options and arguments
+            raise usage_error(e) from None
+        except KeyboardInterrupt:
+            raise Interrupted() from None
+        except SystemError as e:
+            if interrupted_by_user(e):
+                raise Interrupted() from None
+            raise
         except RiverbedError as e:
             raise UserError(str(e)) from None
         except MemoryError:
@@ -71,6 +123,8 @@ class RiverbedGroup(click.Group):
         except OSError as e:
             where = f"{e.filename}: " if getattr(e, "filename", None) else ""
             raise UserError(f"{where}{e.strerror or e}") from None
+        finally:
+            release_claims()  # the outputs this command claimed and did not write: temporaries removed, unlocked
 
 
 @click.group(cls=RiverbedGroup, context_settings={"help_option_names": ["-h", "--help"]})
@@ -88,6 +142,10 @@ def cli(verbose, quiet):
 def main(args=None):
     """The ``riverbed`` program (the console script, ``python -m riverbed_cli``): :func:`cli` in a process of its own,
     with the garbage collector set for a short-lived process (:mod:`~riverbed_cli.scale.collector`). Exits."""
-    with collector.program():
-        collector.pause_for_start_up()  # until the command's modules (and riverbed match's kernels) are loaded
-        cli.main(args=args, prog_name="riverbed")
+    try:
+        with collector.program():
+            collector.pause_for_start_up()  # until the command's modules (and riverbed match's kernels) are loaded
+            cli.main(args=args, prog_name="riverbed")
+    except KeyboardInterrupt:  # Ctrl-C outside a command's run (while its modules load)
+        Interrupted().show()
+        sys.exit(Interrupted.exit_code)
