@@ -102,6 +102,15 @@ def odd_window(v):
     return int(v)
 
 
+def odd_window_upto(hi):
+    """A positive odd integer up to ``hi`` (a window side in px)."""
+    def check(v):
+        if not _is_int(v) or v < 1 or v % 2 == 0 or v > hi:
+            raise SettingError(f"expected an odd integer from 1 to {hi}, got {show(v)}")
+        return int(v)
+    return check
+
+
 def parse_census_window(spec):
     """Parse ``"9x7"`` (width x height, both odd, at most 65 cells) or ``(9, 7)`` into ``(width, height)``.
 

@@ -26,7 +26,7 @@ from ..settings import (
     choice,
     integer,
     number,
-    odd_window,
+    odd_window_upto,
     show,
 )
 
@@ -45,6 +45,9 @@ LIDAR_KINDS = ("auto", "planes", "linear")
 #: fusions of the matched disparity with the LiDAR (``matching/fusion.py``); ``auto`` is not one of them: it picks
 FUSION_NAMES = ("none", "confidence")
 FUSION_CHOICES = ("auto",) + FUSION_NAMES
+
+#: largest riverbed window side (px): the auto window lies in [5, 25]; a window of 100001 px ran out of memory
+MAX_WINDOW = 101
 
 # Defaults of the run settings (tiling, range, input size), shared by match_tiled and the command line.
 TILE_DEFAULT = "auto"
@@ -276,7 +279,7 @@ _GUIDANCE_HELP = {
     "literal_eq3": "Homogeneous pixels by eq. 3 as printed (W > gamma), only to reproduce that reading.",
 }
 _GUIDANCE_CHECKS = {"k": number(0), "c": _POS, "form": choice(FORMS), "wall_scale": auto_or(_POS, "a positive number"),
-                    "window": auto_or(odd_window, "an odd positive integer"), "window_target": _POS,
+                    "window": auto_or(odd_window_upto(MAX_WINDOW), f"an odd integer from 1 to {MAX_WINDOW}"), "window_target": _POS,
                     "sigma_xy": _POS, "sigma_i": _POS, "gamma": number(0), "band": number(0),
                     "literal_eq3": boolean}
 _GUIDANCE_APPLIES = {"k": "gauss, riverbed, riverbed+", "c": "gauss, riverbed, riverbed+",

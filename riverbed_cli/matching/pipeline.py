@@ -70,32 +70,98 @@ class _After:
         pass
 
 
-def disparity_range_from_sparse(sparse, margin=None):
+#: disparities (LiDAR, range maps) beyond this many image widths are no disparity of the pair but a corrupt value
+#: (a stray +-1e30): refused, naming the file, rather than searched or copied
+ABSURD_WIDTHS = 4
+
+
+def check_disparity_values(values, width, what="sparse map"):
+    """:class:`RiverbedError` when a finite value of ``values`` (any array, NaN ignored) lies beyond
+    ``+-ABSURD_WIDTHS * width`` px: ``what`` (a map of an image ``width`` px wide) is corrupt."""
+    limit = ABSURD_WIDTHS * max(int(width), 1)
+    values = np.asarray(values)
+    with np.errstate(invalid="ignore"):
+        bad = np.abs(values) > limit  # False for NaN
+    n = int(np.count_nonzero(bad))
+    if n:
+        example = float(values[bad].flat[0])
+        raise RiverbedError(f"{what} holds {n} disparit{'y' if n == 1 else 'ies'} beyond +-{limit} px (e.g. "
+                            f"{example:g}; {ABSURD_WIDTHS} times the image width of {width} px): a corrupt value, "
+                            "not a disparity of this pair")
+
+
+#: fewest LiDAR points a LiDAR-guided match takes: fewer cannot give the scene a slope, and a single point made a
+#: flat map (the fusion's interpolation of one point is a constant, and it outweighed the stereo everywhere)
+MIN_LIDAR_POINTS = 3
+
+
+def lidar_points_needed(config):
+    """The fewest LiDAR points a match with ``config`` takes: 0 when the LiDAR neither guides nor is fused (it
+    only gives the range), :data:`MIN_LIDAR_POINTS`, and with the confidence fusion its leave-one-out plane fit's
+    ``fusion_neighbours + 1``."""
+    guide = get_guide(config.guide)
+    fusion = resolve_fusion(config, guide, True)
+    if not guide.needs_sparse and fusion == "none":
+        return 0
+    return max(MIN_LIDAR_POINTS, config.fuse.neighbours + 1 if fusion != "none" else 0)
+
+
+def check_lidar_count(n, config):
+    """:class:`RiverbedError` when ``n`` LiDAR points are too few for a match with ``config``
+    (:func:`lidar_points_needed`)."""
+    needed = lidar_points_needed(config)
+    if n < needed:
+        raise RiverbedError(f"sparse map has {n} LiDAR point{'' if n == 1 else 's'}; a LiDAR-guided match needs at "
+                            f"least {needed} (or match without --sparse)")
+
+
+def clamp_to_width(d_min, d_max, width):
+    """``(d_min, d_max)`` cut to what a pair ``width`` px wide can match, ``|d| <= width - 1`` (a pixel's match at a
+    larger disparity lies outside the other image, and the volume would grow for nothing), with a warning when it
+    cuts; :class:`RiverbedError` when no disparity of the range is left."""
+    top = max(int(width) - 1, 0)
+    if d_min > top or d_max < -top:
+        raise RiverbedError(f"disparity range [{d_min}, {d_max}] lies beyond what images {width} px wide can match "
+                            f"(|d| <= {top})")
+    lo, hi = max(d_min, -top), min(d_max, top)
+    if (lo, hi) != (d_min, d_max):
+        log.warning("disparity range [%d, %d] clamped to [%d, %d]: the images are %d px wide", d_min, d_max, lo, hi,
+                    width)
+    return lo, hi
+
+
+def disparity_range_from_sparse(sparse, margin=None, width=None):
     """Inclusive integer range ``(d_min, d_max)`` covering the sparse disparities plus a margin.
 
     The margin (px) defaults to ``max(8, 15 % of the LiDAR span)``: LiDAR misses parts of the scene (occlusions,
-    dark surfaces) whose disparities may lie a little beyond what it saw.
+    dark surfaces) whose disparities may lie a little beyond what it saw. With ``width`` (the images', px),
+    disparities beyond ``ABSURD_WIDTHS`` widths are refused (:func:`check_disparity_values`).
     """
     vals = sparse[np.isfinite(sparse)]
     if vals.size == 0:
         raise RiverbedError("sparse map has no valid disparities")
+    if width is not None:
+        check_disparity_values(vals, width)
     lo, hi = float(vals.min()), float(vals.max())
     if margin is None:
         margin = max(8.0, 0.15 * (hi - lo))
     return int(math.floor(lo - margin)), int(math.ceil(hi + margin))
 
 
-def resolve_disparity_range(d_min, d_max, sparse_values):
-    """``(d_min, d_max)`` as ints, the missing ends derived from the sparse disparities (any array, NaN ignored)."""
+def resolve_disparity_range(d_min, d_max, sparse_values, width=None):
+    """``(d_min, d_max)`` as ints, the missing ends derived from the sparse disparities (any array, NaN ignored);
+    with ``width`` (the images', px) clamped to what they can match (:func:`clamp_to_width`)."""
     if d_min is None or d_max is None:
         if sparse_values is None:
             raise RiverbedError("give the disparity range (--min-disp/--max-disp) or a sparse map to derive it from")
-        lo, hi = disparity_range_from_sparse(sparse_values)
+        lo, hi = disparity_range_from_sparse(sparse_values, width=width)
         d_min = lo if d_min is None else d_min
         d_max = hi if d_max is None else d_max
     d_min, d_max = int(d_min), int(d_max)
     if d_max < d_min:
         raise RiverbedError(f"empty disparity range: --min-disp {d_min} > --max-disp {d_max}")
+    if width is not None:
+        d_min, d_max = clamp_to_width(d_min, d_max, width)
     return d_min, d_max
 
 
@@ -120,6 +186,8 @@ def prepare_lidar(sparse, shape, d_min, d_max):
     n, n_in = int(per_row[:, 0].sum()), int(per_row[:, 1].sum())
     if n == 0:
         raise RiverbedError("sparse map has no valid disparities")
+    if n_in < n:  # the values outside the range: dropped below, unless corrupt
+        check_disparity_values(sparse[np.isfinite(sparse)], shape[1])
     check_inside(n_in, n, d_min, d_max, lambda: sparse[np.isfinite(sparse)])
     out = cut if n_in < n else sparse
     points = _points_of_rows(out, per_row)
@@ -371,7 +439,7 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
                             f"{right.shape[1]}x{right.shape[0]}")
     if guide.needs_sparse and sparse is None:
         raise RiverbedError(f"guide '{guide.name}' needs a sparse LiDAR map (--sparse)")
-    d_min, d_max = resolve_disparity_range(d_min, d_max, sparse)
+    d_min, d_max = resolve_disparity_range(d_min, d_max, sparse, width=left.shape[1])
 
     t_all = time.perf_counter()
     stages = {}
@@ -382,6 +450,7 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
         lidar = np.asarray(sparse, dtype=np.float32)
         # the LiDAR's pixels found once: for its share, the guide and the fusion's LiDAR side
         sparse, points, share, share_all = prepare_lidar(lidar, shape, d_min, d_max)
+        check_lidar_count(len(points[0]), config)
     fuser = get_fusion(resolve_fusion(config, guide, sparse is not None))
     # The fusion's LiDAR side (its Delaunay triangulation is single-threaded OpenCV) needs no stereo: it runs beside
     # the matcher, on the core the matcher's serial parts leave idle; on large images (the tiles of a large pair)

@@ -16,7 +16,8 @@ from ..io.disparity import disparity_format, read_disparity, write_disparity
 from ..io.images import check_pair, read_image
 from ..io.windowed import TiffSink, WindowedRaster, is_tiff, open_range_map, sparse_points_any
 from ..matching.fusion import lidar_kind
-from ..matching.pipeline import disparity_range_from_sparse, match_pair, resolve_fusion, warm_up
+from ..matching.pipeline import (ABSURD_WIDTHS, check_disparity_values, check_lidar_count, clamp_to_width,
+                                 disparity_range_from_sparse, match_pair, resolve_fusion, warm_up)
 from ..matching.registry import get_guide
 from ..products.visualize import disparity_picture, write_picture
 from ..matching.guidance import lidar_share_of_points
@@ -60,7 +61,13 @@ def open_inputs(left, right, sparse, sparse_scale, max_pixels):
         if sparse_scale is None and os.path.isfile(sparse) and is_tiff(sparse):
             sparse_src = WindowedRaster(sparse, "disparity")
         else:
-            sparse_src = read_disparity(sparse, scale=sparse_scale)
+            try:
+                sparse_src = read_disparity(sparse, scale=sparse_scale)
+            except RiverbedError as e:  # the reader names evaluate's option
+                if "--gt-scale" not in str(e):
+                    raise
+                raise RiverbedError(str(e)[len(f"{e.path}: "):].replace("--gt-scale", "--sparse-scale"),
+                                    e.path) from None
         H, W = srcs[0].shape[:2]
         if sparse_src.shape[:2] != (H, W):
             raise RiverbedError(f"sparse map is {sparse_src.shape[1]}x{sparse_src.shape[0]} but the images are "
@@ -72,7 +79,7 @@ def open_inputs(left, right, sparse, sparse_scale, max_pixels):
 CONFIDENCE_TAG = "probability that the disparity is within 1 px of the truth"
 
 
-def _range_for_plan(vals, min_disp, max_disp):
+def _range_for_plan(vals, min_disp, max_disp, width):
     """The global range the tiling is planned for (the matcher resolves it again the same way); ``vals``: the
     LiDAR disparities (or None)."""
     if min_disp is not None and max_disp is not None:
@@ -80,7 +87,23 @@ def _range_for_plan(vals, min_disp, max_disp):
     if vals.size == 0:
         return None  # match_pair reports the empty map
     lo, hi = disparity_range_from_sparse(vals)
-    return (lo if min_disp is None else min_disp), (hi if max_disp is None else max_disp)
+    lo, hi = (lo if min_disp is None else min_disp), (hi if max_disp is None else max_disp)
+    return clamp_to_width(lo, hi, width) if lo <= hi else (lo, hi)
+
+
+def _clamp_given(min_disp, max_disp, width):
+    # --min-disp / --max-disp cut to what the images can match (pipeline.clamp_to_width), with one warning here
+    # rather than one from each tile; an end not given is derived (and cut) later
+    if min_disp is not None and max_disp is not None:
+        return (min_disp, max_disp) if min_disp > max_disp else clamp_to_width(min_disp, max_disp, width)
+    top = max(width - 1, 0)
+    if max_disp is not None and max_disp > top:
+        log.warning("--max-disp %d clamped to %d: the images are %d px wide", max_disp, top, width)
+        max_disp = top
+    if min_disp is not None and min_disp < -top:
+        log.warning("--min-disp %d clamped to %d: the images are %d px wide", min_disp, -top, width)
+        min_disp = -top
+    return min_disp, max_disp
 
 
 def _heap_estimate(H, W, rng, widths, plan, overlap):
@@ -128,21 +151,31 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
                             "--sparse)", confidence)
     if fusion == "none":  # no LiDAR side beside the matcher: its idle workers may spin (scale/workers.py)
         spin_between_regions()
+    tile = check_tile_option(tile, overlap)
+    # the inputs before the range: a broken image is reported as such, not as a range to give
+    left_src, right_src, sparse_src = open_inputs(left, right, sparse, sparse_scale, max_pixels)
+    H, W = left_src.shape[:2]
     if (min_disp is None or max_disp is None) and not sparse and not range_map:
         if max_disp is None:
             raise RiverbedError("give --max-disp (and --min-disp) or --sparse to derive the disparity range from")
         min_disp = 0
-    tile = check_tile_option(tile, overlap)
-    left_src, right_src, sparse_src = open_inputs(left, right, sparse, sparse_scale, max_pixels)
-    H, W = left_src.shape[:2]
+    min_disp, max_disp = _clamp_given(min_disp, max_disp, W)
+    if guide.uses_window and config.guidance.window != "auto" and config.guidance.window > min(H, W):
+        raise RiverbedError(f"--window {config.guidance.window} is larger than the image ({W}x{H} px)")
     rmap = scan = None
     if range_map:
         rmap = open_range_map(range_map)  # read by windows: a tiled match reads each tile's
         try:  # before any work
             scan = scan_range_map(rmap, (H, W))  # the one read that checks the map and plans the tiles
+            if scan.known:  # a +-1e9 is a corrupt map, not a range to search
+                lo, hi = scan.span()
+                if max(abs(lo), abs(hi)) > ABSURD_WIDTHS * W:
+                    raise RiverbedError(f"range map values span [{lo:g}, {hi:g}] px, out of range for images {W} px "
+                                        f"wide (at most +-{ABSURD_WIDTHS * W} px, {ABSURD_WIDTHS} times the width)")
             if (max_disp is None or min_disp is None) and scan.known:
                 min_disp = scan.span()[0] if min_disp is None else min_disp
                 max_disp = scan.span()[1] if max_disp is None else max_disp
+                min_disp, max_disp = clamp_to_width(min_disp, max_disp, W)
             scan.check(min_disp, max_disp)
         except RiverbedError as e:
             raise RiverbedError(str(e), range_map) from None
@@ -150,7 +183,13 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     # for the widest LiDAR range; the LiDAR points are read once for both
     plan = widths = None
     points = sparse_points_any(sparse_src) if sparse_src is not None else None
-    rng = _range_for_plan(points[2] if points else None, min_disp, max_disp)
+    if points is not None:
+        try:
+            check_disparity_values(points[2], W)
+            check_lidar_count(len(points[0]), config)
+        except RiverbedError as e:
+            raise RiverbedError(str(e), sparse) from None
+    rng = _range_for_plan(points[2] if points else None, min_disp, max_disp, W)
     if rng is not None:
         if rmap is not None:
             widths = (scan.widths(rng[0], rng[1]), scan.cell)

@@ -24,8 +24,9 @@ from ..io.images import to_guide
 from ..io.windowed import bounded_raster_cache, image_bits, sparse_points_any
 from ..matching.config import OVERLAP_DEFAULT, TILE_DEFAULT
 from ..matching.guidance import lidar_share, lidar_share_of_points
-from ..matching.pipeline import (check_inside, check_range_map_shape, check_range_summary, fill_tube_holes,
-                                 make_config, match_pair, range_map_ends, resolve_disparity_range, resolve_range)
+from ..matching.pipeline import (check_disparity_values, check_inside, check_lidar_count, check_range_map_shape,
+                                 check_range_summary, fill_tube_holes, lidar_points_needed, make_config, match_pair,
+                                 range_map_ends, resolve_disparity_range, resolve_range)
 from ..matching.registry import get_guide, get_matcher
 from ..matching.tubes import cell_widths_from_points, lidar_tubes_window, range_map_summary
 from ..matching.results import MatchResult, TiledMatchInfo
@@ -341,6 +342,13 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
     a = max(0, t.x0 - overlap - (t.d_max - t.d_min))
     b = min(W, t.x1 + overlap)
     off = min(t.d_min, a) if t.d_min >= 0 else max(t.d_min, b - W)
+    # the tile's range in the crop, cut to what the crop can match (|d| < its width: beyond, every pixel's match
+    # lies outside the right crop)
+    cw = b - a
+    lo_c, hi_c = max(t.d_min - off, 1 - cw), min(t.d_max - off, cw - 1)
+    if lo_c > hi_c:  # no pixel of the tile can match a disparity of its range
+        block = np.full((t.y1 - t.y0, t.x1 - t.x0), np.nan, np.float32)
+        return (block, 0, {}, None) + ((block.copy(),) if confidence else ())
     lc = np.asarray(left[ya:yb, a:b])
     rc = np.asarray(right[ya:yb, a - off:b - off])
     if bits > 8:
@@ -350,8 +358,9 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
     if sparse is not None:
         sc = np.asarray(sparse[ya:yb, a:b], np.float32) - np.float32(off)
         # LiDAR outside the tile's range cannot guide it (match_pair would warn about every tile)
-        sc = np.where((sc >= t.d_min - off) & (sc <= t.d_max - off), sc, np.float32(np.nan))
-        if get_guide(params.guide).needs_sparse and not np.isfinite(sc).any():
+        sc = np.where((sc >= lo_c) & (sc <= hi_c), sc, np.float32(np.nan))
+        # a tile with too few LiDAR points to guide it is matched as one with none
+        if get_guide(params.guide).needs_sparse and np.count_nonzero(np.isfinite(sc)) < lidar_points_needed(params):
             sc = None
     kw = {} if sc is not None or not get_guide(params.guide).needs_sparse else {"guide": "none"}
     p = params.replace(**kw) if kw else params
@@ -359,22 +368,22 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
     full_map, range_map = range_map, None
     if mode == "tube" and full_map is not None:
         ends = range_map_ends(full_map[0][ya:yb, a:b], full_map[1][ya:yb, a:b], t.d_min, t.d_max)
-        range_map = tuple(np.clip(e, t.d_min, t.d_max) - off for e in ends)
+        range_map = tuple(np.clip(e - off, lo_c, hi_c) for e in ends)
     elif mode == "tube" and sparse is not None:
         g_lo, g_hi = global_range if global_range is not None else (t.d_min, t.d_max)
         share = tube_share if tube_share is not None else lidar_share(sc)
         coarse = p.tube.holes == "coarse"
         lo, hi, *hole = lidar_tubes_window(sparse, ya, yb, a, b, g_lo, g_hi, share, asdict(p.tube), coarse)
-        lo = np.clip(lo, t.d_min, t.d_max) - off
-        hi = np.clip(hi, t.d_min, t.d_max) - off
+        lo = np.clip(lo - off, lo_c, hi_c)
+        hi = np.clip(hi - off, lo_c, hi_c)
         if coarse:
             # the holes take the coarse match of the tile's own crop over the tile's range (a tile that is the
             # whole image: the untiled match's)
-            lo, hi = fill_tube_holes(lc, rc, lo, hi, hole[0], t.d_min - off, t.d_max - off, p)
+            lo, hi = fill_tube_holes(lc, rc, lo, hi, hole[0], lo_c, hi_c, p)
         range_map = (lo, hi)
     # the fusion's LiDAR side in this thread: a thread's malloc arena would keep its freed memory from tile to tile
     # (10 MP: 1233-1267 MiB peak against 1193-1201)
-    res = match_pair(lc, rc, sc, t.d_min - off, t.d_max - off, p, range_map=range_map, beside=False)
+    res = match_pair(lc, rc, sc, lo_c, hi_c, p, range_map=range_map, beside=False)
     block = res.disparity[t.y0 - ya:t.y1 - ya, t.x0 - a:t.x1 - a] + np.float32(off)
     tubes = res.info.get("tubes")
     n = int(lc.shape[0] * lc.shape[1] * (tubes["mean_width"] if tubes else (t.d_max - t.d_min + 1)))
@@ -432,7 +441,10 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
             if span is not None:
                 d_min = span[0] if d_min is None else d_min
                 d_max = span[1] if d_max is None else d_max
-        d_min, d_max = resolve_disparity_range(d_min, d_max, pv if sparse is not None else None)
+        if sparse is not None:
+            check_disparity_values(pv, W)
+            check_lidar_count(pv.size, p)
+        d_min, d_max = resolve_disparity_range(d_min, d_max, pv if sparse is not None else None, width=W)
         if scan is not None:
             scan.check(d_min, d_max)
         if overlap < 0:

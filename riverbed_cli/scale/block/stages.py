@@ -162,7 +162,7 @@ def project_stage(job):
     guide = get_guide(p.guide)
     pr, pc, pv = sparse_points_any(sparse)
     share = lidar_share_of_points(pr, pc, (H, W))
-    d_min, d_max = resolve_disparity_range(s["min_disp"], s["max_disp"], pv)
+    d_min, d_max = resolve_disparity_range(s["min_disp"], s["max_disp"], pv, width=W)
 
     rmap, dsm_stats = None, {}
     if job.range_map:
