@@ -8,10 +8,12 @@ import click
 from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
 from ..io.atomic import check_output
-from ..io.disparity import disparity_format, read_disparity, write_disparity
+from ..io.disparity import disparity_format, write_disparity
 from ..io.images import read_image
+from ..matching.pipeline import check_disparity_values
 from ..products.densify import METHODS, densify
-from .options import input_path, json_opt, output_opt, overwrite_opt, print_json
+from .options import (check_raster_pixels, input_path, json_opt, output_opt, overwrite_opt, print_json,
+                      read_disparity_named)
 
 log = logging.getLogger(__name__)
 
@@ -37,7 +39,12 @@ def densify_cmd(sparse, output, method, image, sparse_scale, as_json, overwrite)
     if method == "guided" and not image:
         raise RiverbedError("--method guided needs --image LEFT")
     t0 = time.perf_counter()
-    sp = read_disparity(sparse, scale=sparse_scale)
+    check_raster_pixels(sparse, "sparse map")
+    sp = read_disparity_named(sparse, sparse_scale, "--sparse-scale")
+    try:  # a corrupt value (+-1e30) would be copied into the output
+        check_disparity_values(sp, sp.shape[1])
+    except RiverbedError as e:
+        raise RiverbedError(str(e), sparse) from None
     img = read_image(image) if image else None
     if img is not None and img.shape[:2] != sp.shape:
         raise RiverbedError(f"image is {img.shape[1]}x{img.shape[0]} but the sparse map is {sp.shape[1]}x"

@@ -2,6 +2,7 @@
 
 import json
 import logging
+import os
 import sys
 
 import click
@@ -143,3 +144,30 @@ def parsed_value(parser, option):
         except ValueError as e:
             raise RiverbedError(f"{option}: {e}") from None
     return callback
+
+
+def read_disparity_named(path, scale, option):
+    """:func:`~riverbed_cli.io.disparity.read_disparity` for a command whose scale option is ``option``: the
+    reader's messages name ``--gt-scale`` (evaluate's), which that command does not have."""
+    from ..io.disparity import read_disparity
+
+    try:
+        return read_disparity(path, scale=scale)
+    except RiverbedError as e:
+        if "--gt-scale" not in str(e) or option == "--gt-scale":
+            raise
+        message = str(e)[len(f"{e.path}: "):] if e.path else str(e)
+        raise RiverbedError(message.replace("--gt-scale", option), e.path) from None
+
+
+def check_raster_pixels(path, what="raster", max_pixels=None):
+    """:class:`RiverbedError` when the header of the raster ``path`` claims more than ``max_pixels`` pixels (a
+    damaged or forged header would otherwise be read into an "out of memory"); rasters GDAL cannot open pass (their
+    reader reports them)."""
+    from ..io.images import header_size
+    from ..settings import MAX_PIXELS
+
+    limit = MAX_PIXELS if max_pixels is None else max_pixels
+    size = header_size(path) if os.path.isfile(path) else None
+    if size is not None and size[0] * size[1] > limit:
+        raise RiverbedError(f"{what} is {size[0]}x{size[1]} px, more than {limit} pixels (a damaged header?)", path)

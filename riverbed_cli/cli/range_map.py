@@ -2,6 +2,7 @@
 previous run, or a coarser one)."""
 
 import logging
+import math
 import time
 
 import click
@@ -9,10 +10,12 @@ import numpy as np
 
 from ..errors import RiverbedError
 from ..io.atomic import check_output
-from ..io.disparity import read_disparity, write_range_map
+from ..io.disparity import write_range_map
 from ..io.images import header_size, read_image
+from ..matching.pipeline import check_disparity_values
 from ..matching.tubes import MAX_RANGE_WINDOW, ranges_from_disparity, spacing_window
-from .options import input_path, json_opt, output_opt, overwrite_opt, parsed_value, print_json
+from .options import (check_raster_pixels, input_path, json_opt, output_opt, overwrite_opt, parsed_value,
+                      print_json, read_disparity_named)
 
 log = logging.getLogger(__name__)
 
@@ -30,6 +33,17 @@ def _window(text):
     return value
 
 
+def _margin(text):
+    # --margin: a finite number >= 0 (FloatRange lets nan and inf through)
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"expected a number >= 0, got '{text}'") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise ValueError(f"expected a finite number >= 0, got '{text}'")
+    return value
+
+
 @click.command("range-map")
 @click.argument("disparity", type=input_path())
 @output_opt
@@ -37,7 +51,7 @@ def _window(text):
               help="Half side (px of DISPARITY, 0-256) of the window whose disparities bound each pixel's range; "
                    "'auto': the mean spacing of DISPARITY's values, rounded up (a sparse map: one projected by "
                    "`riverbed project` from a coarse DSM).")
-@click.option("--margin", type=click.FloatRange(0), default=4.0, show_default=True,
+@click.option("--margin", default="4.0", callback=parsed_value(_margin, "--margin"), show_default=True,
               help="Disparity (px of the image to match) added on both sides of the window's min and max (for a "
                    "run at half resolution: --window 4 --margin 8, as the tube holes' coarse match).")
 @click.option("--like", "like", type=input_path(), default=None,
@@ -61,7 +75,12 @@ def range_map_cmd(disparity, output, window, margin, like, min_disp, max_disp, d
     if min_disp is not None and max_disp is not None and min_disp > max_disp:
         raise RiverbedError(f"--min-disp {min_disp} is above --max-disp {max_disp}")
     t0 = time.perf_counter()
-    disp = read_disparity(disparity, scale=disp_scale)
+    check_raster_pixels(disparity, "disparity map")
+    disp = read_disparity_named(disparity, disp_scale, "--scale")
+    try:  # a corrupt value (+-1e30) would become ranges no match can search
+        check_disparity_values(disp, disp.shape[1], "disparity map")
+    except RiverbedError as e:
+        raise RiverbedError(str(e), disparity) from None
     shape = None
     if like:
         size = header_size(like)  # the header only; an image GDAL cannot open is read the usual way
