@@ -466,7 +466,7 @@ def bad_dsm_case(tmp_path, name):
     if name == "hillshade not png":
         return [d, p, *o, "--hillshade", out / "hs.jpg"], f"{out / 'hs.jpg'}: hillshade must be a .png file"
     if name == "negative fill":
-        return [d, p, *o, "--fill-holes", "-1"], "--fill-holes must be 0 or more cells, got -1"
+        return [d, p, *o, "--fill-holes", "-1"], "--fill-holes must be from 0 to 256 cells, got -1"
     if name == "nodata 0 with fill":
         return [d, p, *o, "--fill-holes", "3", "--nodata", "0"], \
             "--nodata 0 is a value of the 'filled' band (0 or 1) that --fill-holes writes; choose another (e.g. -9999)"

@@ -15,8 +15,8 @@ from ..geometry.pairfile import load_pairfile, load_registration
 from ..geometry.rpc_geometry import output_crs
 from ..io.pointcloud import check_pointcloud_path, write_points
 from ..io.raster import parse_creation_options, write_geotiff
-from ..products.dsm import (AGGREGATIONS, build_dsm, check_bounds, check_creation_options, check_min_confidence,
-                             hillshade, read_confidence)
+from ..products.dsm import (AGGREGATIONS, build_dsm, check_bounds, check_creation_options, check_fill_holes,
+                            check_min_confidence, hillshade, read_confidence)
 from ..products.visualize import hillshade_picture, write_picture
 from .options import json_opt, overwrite_opt, print_json, progress_bar
 
@@ -98,8 +98,7 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
                   inputs=[*disp_pair, *clouds, registration, *confidences])
     if bounds is not None:
         bounds = check_bounds(bounds)
-    if fill_holes < 0:
-        raise RiverbedError(f"--fill-holes must be 0 or more cells, got {fill_holes}")
+    check_fill_holes(fill_holes)
     if fill_holes and nodata in (0.0, 1.0):
         raise RiverbedError(f"--nodata {nodata:g} is a value of the 'filled' band (0 or 1) that --fill-holes writes; "
                             "choose another (e.g. -9999)")

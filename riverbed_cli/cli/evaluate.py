@@ -112,6 +112,8 @@ def _evaluate_dsm(dsm_path, ref_path, thresholds, as_json, error_png, overwrite)
         ts = tuple(float(t) for t in thresholds.split(",") if t.strip())
     except ValueError:
         raise RiverbedError(f"--thresholds '{thresholds}' is not a comma-separated list of numbers") from None
+    if not ts or not all(math.isfinite(t) and t > 0 for t in ts):
+        raise RiverbedError(f"--thresholds '{thresholds}': each threshold must be a finite number > 0")
     dsm, ref, res = read_dsm_on_grid(dsm_path, ref_path)
     metrics = compare_dsm(dsm, ref, ts, resolution=res)
     if error_png is not None:

@@ -210,6 +210,18 @@ def rasterize(x, y, z, grid, agg="max"):
     return acc.result()
 
 
+#: widest gap ``--fill-holes`` fills (cells): GDAL's interpolation searches that far from every empty cell, and a
+#: million ran for minutes; a gap wider than this is no hole in a surface but a part the pairs did not see
+MAX_FILL_CELLS = 256
+
+
+def check_fill_holes(max_size):
+    """``--fill-holes`` as an int from 0 to :data:`MAX_FILL_CELLS`, or :class:`RiverbedError`."""
+    if not 0 <= max_size <= MAX_FILL_CELLS:
+        raise RiverbedError(f"--fill-holes must be from 0 to {MAX_FILL_CELLS} cells, got {max_size}")
+    return int(max_size)
+
+
 def fill_holes(dsm, max_size):
     """Fill enclosed gaps of a DSM no wider than ``max_size`` cells.
 
@@ -223,6 +235,7 @@ def fill_holes(dsm, max_size):
     mask : (H, W) uint8
         1 where a cell was filled, 0 elsewhere.
     """
+    check_fill_holes(max_size)
     dsm = np.asarray(dsm, np.float32)
     empty = np.isnan(dsm)
     mask = np.zeros(dsm.shape, np.uint8)
