@@ -173,9 +173,12 @@ class RPCModel:
                 coeffs = tuple(float(v) for v in (raw.split() if isinstance(raw, str) else raw))
             except (ValueError, TypeError):
                 raise RiverbedError(f"{key.upper()}: not a list of numbers", source or None) from None
-            if len(coeffs) != 20 or not np.all(np.isfinite(coeffs)):
-                raise RiverbedError(f"{key.upper()}: expected 20 finite coefficients, got {len(coeffs)}",
-                                    source or None)
+            if len(coeffs) != 20:
+                raise RiverbedError(f"{key.upper()}: expected 20 coefficients, got {len(coeffs)}", source or None)
+            if not np.all(np.isfinite(coeffs)):
+                bad = int(np.count_nonzero(~np.isfinite(coeffs)))
+                raise RiverbedError(f"{key.upper()}: {bad} of the 20 coefficients {'is' if bad == 1 else 'are'} not "
+                                    "finite", source or None)
             fields[key] = coeffs
         if fields["line_den_coeff"][0] == 0 or fields["samp_den_coeff"][0] == 0:
             raise RiverbedError("RPC denominator with a zero constant term", source or None)

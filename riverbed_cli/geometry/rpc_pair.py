@@ -86,6 +86,11 @@ def parse_roi(text):
     return tuple(vals)
 
 
+#: plausible terrestrial heights (m, ellipsoidal or above a geoid): the Dead Sea shore (-430 m) and a geoid
+#: undulation below, Everest (8849 m) and the undulation above; +-1e9 made the RPC inversion singular
+MIN_HEIGHT, MAX_HEIGHT = -1000.0, 10000.0
+
+
 def parse_heights(text):
     """``"LO,HI"`` -> ``(lo, hi)`` floats (m), ``lo < hi``, finite; ``ValueError`` with a one-line message."""
     parts = str(text).split(",")
@@ -94,6 +99,9 @@ def parse_heights(text):
         raise ValueError(f"expected LO,HI (two finite heights, m), got '{text}'")
     if not vals[0] < vals[1]:
         raise ValueError(f"LO must be below HI, got '{text}'")
+    if vals[0] < MIN_HEIGHT or vals[1] > MAX_HEIGHT:
+        raise ValueError(f"heights must lie from {MIN_HEIGHT:g} to {MAX_HEIGHT:g} m (the terrestrial range), got "
+                         f"'{text}'")
     return vals[0], vals[1]
 
 
