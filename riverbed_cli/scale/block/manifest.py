@@ -32,6 +32,8 @@ RPC_OPTIONS = ("roi", "dem", "heights", "vertical", "pointing")
 BLOCK_KEYS = ("resolution", "crs", "agg")
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
 _GLOB = re.compile(r"[*?\[]")
+#: most files a cloud glob may match
+MAX_GLOB_FILES = 10_000
 
 
 @dataclass
@@ -85,7 +87,18 @@ def _clouds(value, where, path, base):
     for item in items:
         full = base / item
         if _GLOB.search(item):
-            hits = sorted(Path(p) for p in glob.glob(str(full), recursive=True) if Path(p).is_file())
+            # a glob walks folders: it stays inside the manifest's folder, and its matches are bounded
+            if Path(item).is_absolute() or ".." in Path(item).parts:
+                raise RiverbedError(f"{where}.cloud: the glob '{item}' must stay inside the manifest's folder (no "
+                                    "absolute path, no '..'); name files outside it one by one", path)
+            hits = []
+            for p in glob.iglob(str(full), recursive=True):
+                if Path(p).is_file():
+                    hits.append(Path(p))
+                    if len(hits) > MAX_GLOB_FILES:
+                        raise RiverbedError(f"{where}.cloud: '{item}' matches more than {MAX_GLOB_FILES} files",
+                                            path)
+            hits.sort()
             if not hits:
                 raise RiverbedError(f"{where}.cloud: '{item}' matches no file", path)
             found += hits
