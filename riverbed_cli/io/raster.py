@@ -77,8 +77,7 @@ def write_geotiff(path, bands, transform, crs=None, nodata=None, creation_option
                 # the COG laid out in memory too, and written by Python, whose writes raise on a full disk
                 with mem.open() as src, MemoryFile() as cog, c_stderr_silenced():
                     rasterio.shutil.copy(src, cog.name, driver="COG", **co)
-                    encoded = cog.getbuffer()
+                    with open(tmp, "wb") as f:
+                        f.write(cog.getbuffer())
         except (rasterio.errors.RasterioError, CPLE_BaseError, ValueError) as e:
             raise RiverbedError(f"cannot write GeoTIFF ({e})", path) from None
-        with open(tmp, "wb") as f:
-            f.write(encoded)

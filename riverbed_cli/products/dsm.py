@@ -432,6 +432,9 @@ def check_creation_options(options, bands=1, nodata=float("nan")):
                           Affine(1.0, 0.0, 0.0, 0.0, -1.0, 144.0), None, nodata, {**co, "BLOCKSIZE": "128"})
     except RiverbedError as e:
         failure = str(e)[len(e.path) + 2:] if e.path else str(e)
+        wrapped = "cannot write GeoTIFF ("
+        if failure.startswith(wrapped) and failure.endswith(")"):  # GDAL's own message is the one to show
+            failure = failure[len(wrapped):-1]
     except Exception as e:  # noqa: BLE001 - GDAL raises its own error types (CPLE_*), not only RasterioError
         failure = str(e)
     finally:
