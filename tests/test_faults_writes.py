@@ -315,3 +315,34 @@ def test_temporary_names_are_fixed_by_the_output_and_match_the_cleaners_pattern(
     assert t == temporary_name(tmp_path / "disparity.tif") != temporary_name(tmp_path / "disparity2.tif")
     assert re.fullmatch(r"\.disparity\.[0-9a-f]{8}\.tmp\.tif", t.name) and TEMP_NAME.match(t.name)
     assert np.all([TEMP_NAME.match(temporary_name(tmp_path / n).name) for n in ("a", "b.laz", "x" * 300 + ".png")])
+
+
+def test_a_block_whose_writes_fail_reports_each_pair_in_one_line_and_leaves_no_temporary(tmp_path):
+    manifest = tmp_path / "m.yaml"
+    manifest.write_text(f"pairs:\n  - {{pair: {BLOCK / 'pair.yaml'}, cloud: {BLOCK / 'lidar.laz'}, name: s}}\n")
+    out = tmp_path / "out"
+    r = riverbed("block", manifest, "-o", out, "--workers", "0", fsize=4096)
+    assert r.returncode == 1
+    assert r.stderr.splitlines() == [
+        f"riverbed: error: pair s failed in project: {out}/pairs/s/sparse.tif: {INCOMPLETE}",
+        "riverbed: error: merged DSM: no pair finished: no merged DSM"]
+    assert temporaries(tmp_path) == []
+
+
+def test_a_staging_folder_names_the_final_files_and_replaces_a_killed_runs(tmp_path):
+    from riverbed_cli.io.atomic import staging_folder
+
+    out = tmp_path / "sample"
+    stale, live = tmp_path / ".sample.abcd1234.tmp", tmp_path / ".sample.live0000.tmp"
+    stale.mkdir()
+    live.mkdir()
+    lock_folder(live)  # a run still writing there
+    try:
+        with pytest.raises(RiverbedError) as e:
+            with staging_folder(out) as tmp:
+                assert tmp.parent == tmp_path and tmp.name.startswith(".sample.")
+                raise RiverbedError("cannot write (no space left on the device)", tmp / "left.png")
+        assert str(e.value) == f"{out / 'left.png'}: cannot write (no space left on the device)"
+        assert sorted(p.name for p in tmp_path.iterdir()) == [live.name]
+    finally:
+        unlock_folder(live)

@@ -399,6 +399,53 @@ def unlock_folder(folder):
         os.close(fd)
 
 
+@contextlib.contextmanager
+def staging_folder(outdir):
+    """A new hidden folder beside ``outdir`` (``.NAME.XXXXXXXX.tmp``) to write a set of outputs into before they are
+    moved into ``outdir`` together; removed at the end, whatever happens. A :class:`RiverbedError` naming a file in
+    it is raised naming that file in ``outdir`` instead. Staging folders a killed run left beside ``outdir`` are
+    removed first (each is locked, :func:`lock_folder`, while its run lives)."""
+    import shutil
+    import tempfile
+
+    outdir = Path(outdir)
+    parent = _folder(outdir)
+    pattern = re.compile(rf"^\.{re.escape(outdir.name)}\.[a-z0-9_]{{8}}\.tmp$")
+    with contextlib.suppress(OSError):
+        for entry in os.scandir(parent):
+            if pattern.match(entry.name) and entry.is_dir(follow_symlinks=False) and _unlocked(entry.path):
+                shutil.rmtree(entry.path, ignore_errors=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{outdir.name}.", suffix=".tmp", dir=parent))
+    try:
+        lock_folder(tmp)
+        try:
+            yield tmp
+        except RiverbedError as e:
+            if e.path is not None and Path(e.path).is_relative_to(tmp):
+                raise RiverbedError(str(e)[len(e.path) + 2:], outdir / Path(e.path).relative_to(tmp)) from None
+            raise
+    finally:
+        unlock_folder(tmp)
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _unlocked(folder):
+    """True when no process holds ``folder``'s :func:`lock_folder` lock (or it has none)."""
+    try:
+        fd = os.open(Path(folder) / FOLDER_LOCK, os.O_RDONLY | os.O_CLOEXEC)
+    except FileNotFoundError:
+        return True
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return True
+    except OSError:
+        return False
+    finally:
+        os.close(fd)
+
+
 _quiet = {"depth": 0, "saved": None}
 _quiet_lock = threading.Lock()
 

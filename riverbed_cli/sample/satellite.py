@@ -43,8 +43,6 @@ Geometry
 import json
 import math
 import os
-import shutil
-import tempfile
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -57,7 +55,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import RiverbedError
 from ..geometry.rpc_rectify import apply_h
-from ..io.atomic import check_output_folder
+from ..io.atomic import check_output_folder, releases_claims, staging_folder
 from ..io.raster import write_geotiff
 from .layout import build_scene
 from .pushbroom import PushbroomCamera, cast_pixels, fit_camera_rpc, render_pushbroom
@@ -463,6 +461,7 @@ riverbed evaluate --dsm dsm.tif gt_dsm.tif
 """
 
 
+@releases_claims
 def write_satellite(sample, outdir, overwrite=False, command=None):
     """Write a satellite sample's files into ``outdir`` (created if missing), all or nothing.
 
@@ -470,11 +469,11 @@ def write_satellite(sample, outdir, overwrite=False, command=None):
     the sample in ``outdir`` is replaced only with ``overwrite``. Returns file name -> size in bytes.
     """
     outdir = Path(outdir)
-    parent = check_output_folder(outdir)
+    check_output_folder(outdir)
     _refuse_existing(outdir, overwrite)
     command = command or f"riverbed sample OUTDIR --satellite --size {sample.spec.name} --seed {sample.seed}"
-    tmp = Path(tempfile.mkdtemp(prefix=f".{outdir.name}.", suffix=".tmp", dir=parent))
-    try:
+    check_output_folder(outdir, SATELLITE_FILES, overwrite=True)  # locked against another run
+    with staging_folder(outdir) as tmp:  # written there, moved in once all exist
         for name, img, rpc in zip(("left.tif", "right.tif"), sample.images, sample.rpcs):
             write_rpc_image(tmp / name, img, rpc)
         tags = {"riverbed_ground_truth": "surface height at cell centres", "riverbed_heights":
@@ -492,8 +491,6 @@ def write_satellite(sample, outdir, overwrite=False, command=None):
             os.replace(tmp / name, outdir / name)
             sizes[name] = (outdir / name).stat().st_size
         return sizes
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _refuse_existing(outdir, overwrite):

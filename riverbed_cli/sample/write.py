@@ -6,8 +6,6 @@ import datetime
 import json
 import math
 import os
-import shutil
-import tempfile
 import time
 from pathlib import Path
 
@@ -18,7 +16,7 @@ import pyproj
 
 from ..errors import RiverbedError
 from ..geometry.rectify import orientation_dict, write_orientation
-from ..io.atomic import check_output_folder
+from ..io.atomic import check_output_folder, releases_claims, staging_folder
 from ..io.disparity import write_disparity
 from ..geometry.pairfile import write_pairfile
 from ..io.raster import write_geotiff
@@ -134,6 +132,7 @@ also return from the ground beneath (hidden from the cameras).
 """
 
 
+@releases_claims
 def write_block(block, outdir, overwrite=False, command=None):
     """Write a block's files into ``outdir`` (created if missing), all or nothing.
 
@@ -146,14 +145,14 @@ def write_block(block, outdir, overwrite=False, command=None):
         File name -> size in bytes.
     """
     outdir = Path(outdir)
-    parent = check_output_folder(outdir)
+    check_output_folder(outdir)
     if outdir.is_dir() and not overwrite:
         present = [f for f in FILES if (outdir / f).exists()]
         if present:
             raise RiverbedError(f"{present[0]} exists; pass --overwrite to replace the block", outdir)
     command = command or f"riverbed sample OUTDIR --size {block.spec.name} --seed {block.seed}"
-    tmp = Path(tempfile.mkdtemp(prefix=f".{outdir.name}.", suffix=".tmp", dir=parent))
-    try:
+    check_output_folder(outdir, [f for f in FILES if f != "raw"], overwrite=True)  # locked against another run
+    with staging_folder(outdir) as tmp:  # written there, moved in once all exist
         write_png(tmp / "left.png", block.left)
         write_png(tmp / "right.png", block.right)
         write_pairfile(tmp / "pair.yaml", block.pair(tmp),
@@ -178,8 +177,6 @@ def write_block(block, outdir, overwrite=False, command=None):
             sizes[name] = (outdir / name).stat().st_size
         sizes["raw"] = sum(p.stat().st_size for p in (outdir / "raw").iterdir())
         return sizes
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def raw_orientation(block, k):

@@ -178,6 +178,8 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
                 min_disp, max_disp = clamp_to_width(min_disp, max_disp, W)
             scan.check(min_disp, max_disp)
         except RiverbedError as e:
+            if e.path is not None:  # names its file already
+                raise
             raise RiverbedError(str(e), range_map) from None
     # the same tiling rule as blocks: untiled when the whole range (with tubes: their volume) fits, else tiles sized
     # for the widest LiDAR range; the LiDAR points are read once for both
