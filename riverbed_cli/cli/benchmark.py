@@ -7,6 +7,7 @@ import click
 
 from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
+from ..io.atomic import atomic_output, output_group
 from ..matching.config import FUSION_CHOICES, GUIDE_NAMES as GUIDES, MATCHER_NAMES as MATCHERS, RANGES
 from ..products.densify import METHODS as DENSIFY_METHODS
 from ..products import benchmark as bm
@@ -93,12 +94,14 @@ def benchmark_cmd(dataset, layout, outdir, matchers, guides, ranges, fusions, sh
     with progress_bar(total, desc="benchmark", unit="case") as bar:
         rows = bm.run_benchmark(scene_list, ms, gs, sh, ws, se, out / "cache", progress=bar.update, baselines=bl,
                                 share_of=share_of)
-    bm.write_tables(rows, out, share_of)
     fig = None
-    if ws:
-        fig = bm.figure5(rows, out / "figure5.png", figure_scene, ms[0])
-    if write_expected:
-        Path(write_expected).write_text(json.dumps(bm.expectations(rows), indent=1))
+    with output_group():  # the tables, the figure and the expectations appear together (io/atomic.py)
+        bm.write_tables(rows, out, share_of)
+        if ws:
+            fig = bm.figure5(rows, out / "figure5.png", figure_scene, ms[0])
+        if write_expected:
+            with atomic_output(write_expected, overwrite=True) as tmp:
+                tmp.write_text(json.dumps(bm.expectations(rows), indent=1))
     failures = bm.check(rows, exp) if exp is not None else []
     summary = {"cases": len(rows), "cached": sum(r["cached"] for r in rows), "results": str(out / "results.md"),
                "figure": str(fig) if fig else None, "regressions": failures,

@@ -20,6 +20,7 @@ import matplotlib
 import numpy as np
 
 from ..errors import RiverbedError
+from ..io.atomic import atomic_output, output_group
 from ..io.disparity import read_disparity
 from ..io.images import read_image
 from ..io.textfiles import load_text_data
@@ -289,12 +290,20 @@ def write_tables(rows, outdir, share_of="image"):
     """
     out = Path(outdir)
     keys = ["scene", "matcher", "guide", "window", "share", "seed", *METRICS, "seconds"]
-    with open(out / "results.csv", "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(keys)
-        for r in rows:
-            w.writerow([r[k] for k in keys])
-    (out / "results.json").write_text(json.dumps([{k: r[k] for k in keys} for r in rows], indent=1))
+    with output_group():  # the three tables appear together (io/atomic.py), replacing a previous run's
+        with atomic_output(out / "results.csv", overwrite=True) as tmp, open(tmp, "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(keys)
+            for r in rows:
+                w.writerow([r[k] for k in keys])
+        with atomic_output(out / "results.json", overwrite=True) as tmp:
+            tmp.write_text(json.dumps([{k: r[k] for k in keys} for r in rows], indent=1))
+        with atomic_output(out / "results.md", overwrite=True) as tmp:
+            tmp.write_text(_results_markdown(rows, share_of))
+    return out / "results.md"
+
+
+def _results_markdown(rows, share_of):
     of = "GT pixels" if share_of == "gt" else "image pixels"
     lines = [f"LiDAR shares are of the {of}; matcher `lidar` rows are LiDAR-only interpolations (no matching).", "",
              "| LiDAR | matcher | guide | bad1 % | bad2 % | bad3 % | avg px | rmse px |",
@@ -332,8 +341,7 @@ def write_tables(rows, outdir, share_of="image"):
         lines.append(f"| {r['scene']} | {r['share'] * 100:.2f} % | {r['seed']} | {r['matcher']} | {_label(r)} | "
                      f"{r['window'] or ''} | {r['bad1']:.2f} | {r['bad2']:.2f} | {r['bad3']:.2f} | {r['avg']:.2f} | "
                      f"{r['density']:.1f} |")
-    (out / "results.md").write_text("\n".join(lines) + "\n")
-    return out / "results.md"
+    return "\n".join(lines) + "\n"
 
 
 def figure5(rows, path, scene=None, matcher="sgm"):
@@ -356,7 +364,8 @@ def figure5(rows, path, scene=None, matcher="sgm"):
     ax.grid(alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path)
+    with atomic_output(path, overwrite=True) as tmp:
+        fig.savefig(tmp, format="png")
     plt.close(fig)
     return path
 
