@@ -30,8 +30,13 @@ import hashlib
 import logging
 import os
 import re
+import shutil
+import tempfile
 import threading
+import warnings
 from pathlib import Path
+
+import rasterio
 
 from ..errors import RiverbedError
 
@@ -43,6 +48,8 @@ _NAME_MAX = 255  # bytes in a file name on every common file system
 _SUFFIX_MAX = 16
 #: file suffixes GDAL writes (read back whole before they count as written)
 RASTER_SUFFIXES = (".tif", ".tiff")
+#: GDAL's block cache while a written raster is read back: each block is read once, so a small one costs no speed
+VERIFY_CACHE_BYTES = 16 * 2**20
 
 
 class _Claim:
@@ -405,9 +412,6 @@ def staging_folder(outdir):
     moved into ``outdir`` together; removed at the end, whatever happens. A :class:`RiverbedError` naming a file in
     it is raised naming that file in ``outdir`` instead. Staging folders a killed run left beside ``outdir`` are
     removed first (each is locked, :func:`lock_folder`, while its run lives)."""
-    import shutil
-    import tempfile
-
     outdir = Path(outdir)
     parent = _folder(outdir)
     pattern = re.compile(rf"^\.{re.escape(outdir.name)}\.[a-z0-9_]{{8}}\.tmp$")
@@ -485,14 +489,8 @@ def c_stderr_silenced():
 def verify_raster(tmp, path=None):
     """Read every block of the raster file ``tmp`` back; a :class:`RiverbedError` naming ``path`` when it cannot be
     read whole (GDAL reports a full disk or a file-size limit while closing a compressed file only on stderr)."""
-    import warnings
-
-    import rasterio
-
-    from .windowed import bounded_raster_cache
-
     try:
-        with bounded_raster_cache(), warnings.catch_warnings():
+        with rasterio.Env(GDAL_CACHEMAX=VERIFY_CACHE_BYTES), warnings.catch_warnings():
             warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
             with rasterio.open(tmp) as ds:
                 for band in range(1, ds.count + 1):

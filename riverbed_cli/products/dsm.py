@@ -408,11 +408,9 @@ class _GdalMessages(logging.Handler):
 
 
 def check_creation_options(options, bands=1, nodata=float("nan")):
-    """Refuse GDAL COG creation options that GDAL would not honour, before any work: ``BLOCKSIZE`` must be a
-    multiple of 16 from 128 to 4096 (other values hang or crash GDAL's COG driver), then a trial write of a small
-    float32 raster with the options (in 128 px tiles, so that it has an overview), whose GDAL warnings (an unknown
-    option or value, which GDAL would otherwise ignore) and errors become a one-line :class:`RiverbedError`
-    (``--co: <GDAL's message>``)."""
+    """Refuse GDAL COG creation options that GDAL would not honour, before any work: ``BLOCKSIZE`` a multiple of 16
+    from 128 to 4096 (others hang or crash GDAL's COG driver), then a trial write of a small float32 raster in 128 px
+    tiles (so it has an overview), whose GDAL warnings and errors become one line (``--co: <GDAL's message>``)."""
     co = {str(k).upper(): str(v) for k, v in (options or {}).items()}
     if not co:
         return
@@ -432,9 +430,7 @@ def check_creation_options(options, bands=1, nodata=float("nan")):
                           Affine(1.0, 0.0, 0.0, 0.0, -1.0, 144.0), None, nodata, {**co, "BLOCKSIZE": "128"})
     except RiverbedError as e:
         failure = str(e)[len(e.path) + 2:] if e.path else str(e)
-        wrapped = "cannot write GeoTIFF ("
-        if failure.startswith(wrapped) and failure.endswith(")"):  # GDAL's own message is the one to show
-            failure = failure[len(wrapped):-1]
+        failure = re.sub(r"^cannot write GeoTIFF \((.*)\)$", r"\1", failure)  # GDAL's own message is the one shown
     except Exception as e:  # noqa: BLE001 - GDAL raises its own error types (CPLE_*), not only RasterioError
         failure = str(e)
     finally:
