@@ -152,7 +152,7 @@ ERRORS = [
     ({"defaults": {"crs": "EPSG:99999999"}, "pairs": [GOOD]}, "defaults.crs: unknown CRS 'EPSG:99999999'"),
     ({"defaults": {"resolution": -1}, "pairs": [GOOD]},
      "defaults.resolution: expected a positive number (CRS units) or null, got -1"),
-    ({"pairs": [{**GOOD, "window": 4}]}, "pairs[0].window: expected 'auto' or an odd positive integer, got 4"),
+    ({"pairs": [{**GOOD, "window": 4}]}, "pairs[0].window: expected 'auto' or an odd integer from 1 to 101, got 4"),
     ({"pairs": [{**GOOD, "lr_check": "yes"}]}, "pairs[0].lr_check: expected true or false, got 'yes'"),
     ({"pairs": [{**GOOD, "census": "8x7"}]}, "pairs[0].census: census window 8x7: width and height must be odd"),
     ({"pairs": [{**GOOD, "resolution": 0.5}]}, "pairs[0].resolution: a block-wide setting; give it under defaults"),

@@ -109,6 +109,8 @@ def lidar_points_needed(config):
 def check_lidar_count(n, config):
     """:class:`RiverbedError` when ``n`` LiDAR points are too few for a match with ``config``
     (:func:`lidar_points_needed`)."""
+    if n == 0:
+        raise RiverbedError("sparse map has no valid disparities")
     needed = lidar_points_needed(config)
     if n < needed:
         raise RiverbedError(f"sparse map has {n} LiDAR point{'' if n == 1 else 's'}; a LiDAR-guided match needs at "
