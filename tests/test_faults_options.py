@@ -298,3 +298,40 @@ def test_ctrl_c_exits_130_and_leaves_no_file(tmp_path):
     assert p.returncode == 130, err
     assert err == "riverbed: interrupted\n"
     assert set(os.listdir(tmp_path)) == before
+
+
+# -- a stereo pair of one view twice ------------------------------------------------------------------------------------
+
+NO_BASELINE = ("the two views have no stereo baseline: the disparity changes by {} px per km of height (the same "
+               "image, or one viewing direction, twice?)")
+
+
+def test_rpc_rectify_of_one_image_twice_and_dsm_of_such_a_pair_are_refused(tmp_path):
+    """`rectify --rpc L L L L` exited 0 with a zero baseline, and `dsm` on the pair it wrote raised numpy's
+    LinAlgError: both are one line naming the file, and rectify writes nothing."""
+    import yaml
+
+    from test_rpc_cli import synthetic_pair  # tests/: a synthetic RPC pair
+
+    left, right, rpc = synthetic_pair(tmp_path / "in")
+    r = run("rectify", "--rpc", left, left, left, left, "-o", tmp_path / "same", "--heights", "470,530")
+    assert r.exit_code == 1
+    line = error_line(r)
+    assert line.startswith(f"riverbed: error: {left}: the two views have no stereo baseline: the disparity changes "
+                           "by ") and line.endswith(" px per km of height (the same image, or one viewing direction, "
+                                                    "twice?)")
+    assert not (tmp_path / "same").exists()
+    # a real pair's file, its right model replaced by the left one: what the old rectify wrote
+    r = run("rectify", "--rpc", left, left, right, rpc, "-o", tmp_path / "ok", "--heights", "470,530", "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.output)["disparity_per_metre"] > 1.0
+    data = yaml.safe_load((tmp_path / "ok" / "pair.yaml").read_text())
+    data["rpc"]["right"] = data["rpc"]["left"]
+    data["rectification"]["H_right"] = data["rectification"]["H_left"]
+    (tmp_path / "ok" / "same.yaml").write_text(yaml.safe_dump(data))
+    write_disparity(tmp_path / "d.tif", np.full((data["rectification"]["height"], data["rectification"]["width"]),
+                                                 2.0, np.float32))
+    r = run("dsm", tmp_path / "d.tif", tmp_path / "ok" / "same.yaml", "-o", tmp_path / "dsm.tif")
+    assert r.exit_code == 1
+    assert error_line(r) == f"riverbed: error: {tmp_path / 'ok' / 'same.yaml'}: " + NO_BASELINE.format("0.00")
+    assert not (tmp_path / "dsm.tif").exists()

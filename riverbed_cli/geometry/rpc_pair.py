@@ -229,6 +229,27 @@ def _pair_list(value, n, key, path, integer=False):
     return tuple(out)
 
 
+#: the least change of disparity with height (px per m) a stereo pair has: 1 px per km is no stereo (the same image,
+#: or one viewing direction, twice); real pairs have about 0.1 to 1 px per m
+MIN_DISPARITY_PER_METRE = 1e-3
+
+
+def check_baseline(rpc_left, rpc_right, rectification, path):
+    """Refuse a pair whose disparity does not change with height (:data:`MIN_DISPARITY_PER_METRE`) at the centre of
+    its left ROI: no height can be triangulated from it. ``path``: the file named in the message."""
+    x, y, w, h = rectification.roi
+    cx, cy = np.full(2, x + 0.5 * w), np.full(2, y + 0.5 * h)
+    heights = np.asarray(rectification.heights, np.float64)
+    with np.errstate(all="ignore"):
+        lon, lat = rpc_left.localize(cx, cy, heights)
+        u1, _ = apply_h(rectification.H_left, cx, cy)
+        u2, _ = apply_h(rectification.H_right, *rpc_right.project(lon, lat, heights))
+        slope = abs(float(np.diff(u1 - u2)[0] / np.diff(heights)[0]))
+    if not slope >= MIN_DISPARITY_PER_METRE:
+        raise RiverbedError(f"the two views have no stereo baseline: the disparity changes by {slope * 1000:.2f} px "
+                            "per km of height (the same image, or one viewing direction, twice?)", path)
+
+
 def rpc_pair_from_dict(data, path):
     """Validate the mapping of an RPC pair file (``path``: for messages and relative image paths) -> :class:`RPCPair`.
 
@@ -279,6 +300,7 @@ def rpc_pair_from_dict(data, path):
                                                          "heights", "roi")}
     rectification = RPCRectification(H_left=H["H_left"], H_right=H["H_right"], size=tuple(size),
                                      disparity=disparity, heights=heights, roi=roi, info=info)
+    check_baseline(models["left"], models["right"], rectification, path)
     images = {}
     for key in ("left", "right"):
         value = data.get(key)
@@ -472,6 +494,7 @@ def rectify_rpc_files(left_image, left_rpc, right_image, right_rpc, outdir, roi=
         raise RiverbedError(f"does not overlap the left image's ROI (its RPC sees the ROI's ground at {where}, "
                             f"outside this {W2}x{H2} image)", right_image)
     rect = rectify_rpc_pair(rpc_l, rpc_r, roi, hrange)
+    check_baseline(rpc_l, rpc_r, rect, right_image)
     out_w, out_h = rect.size
     if max_pixels is not None and out_w * out_h > max_pixels:
         raise RiverbedError(f"the rectified ROI would be {out_w}x{out_h} px, more than --max-pixels {max_pixels}")
