@@ -210,8 +210,8 @@ def rasterize(x, y, z, grid, agg="max"):
     return acc.result()
 
 
-#: widest gap ``--fill-holes`` fills (cells): GDAL's interpolation searches that far from every empty cell, and a
-#: million ran for minutes; a gap wider than this is no hole in a surface but a part the pairs did not see
+#: widest gap ``--fill-holes`` fills (cells): GDAL searches that far from every empty cell (a million ran for
+#: minutes), and a wider gap is no hole in a surface but a part the pairs did not see
 MAX_FILL_CELLS = 256
 
 
@@ -227,13 +227,8 @@ def fill_holes(dsm, max_size):
 
     A gap is a connected group of empty (NaN) cells that does not touch the raster border; it is filled when its
     largest inscribed distance to data is at most ``max_size / 2`` cells (so a gap up to ``max_size`` cells across),
-    by GDAL's inverse-distance interpolation (``rasterio.fill.fillnodata``).
-
-    Returns
-    -------
-    filled : (H, W) float32
-    mask : (H, W) uint8
-        1 where a cell was filled, 0 elsewhere.
+    by GDAL's inverse-distance interpolation (``rasterio.fill.fillnodata``). ``max_size`` at most
+    :data:`MAX_FILL_CELLS`. Returns the filled DSM (float32) and a uint8 mask, 1 where a cell was filled.
     """
     check_fill_holes(max_size)
     dsm = np.asarray(dsm, np.float32)
