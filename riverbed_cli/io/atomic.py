@@ -243,7 +243,19 @@ def remove_stale_temporaries(folder):
             os.close(fd)
     if removed:
         log.info("%s: removed %d temporary file(s) a stopped run left", folder, len(removed))
+        _removed.extend(os.path.join(folder, name) for name in removed)
     return removed
+
+
+_removed = []  # paths remove_stale_temporaries removed in this process, until taken by taken_temporaries
+
+
+def taken_temporaries():
+    """The paths of the killed runs' temporary files this process has removed since the last call (a block reports
+    them with its own clean-up)."""
+    out = list(_removed)
+    _removed.clear()
+    return out
 
 
 def _held_temps():
@@ -384,25 +396,37 @@ def lock_folder(folder):
     with _lock:
         if key in _folder_locks:
             return
-        try:
-            fd = os.open(Path(folder) / FOLDER_LOCK, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
-        except OSError as e:
-            raise RiverbedError(f"cannot lock the output folder ({e.strerror or e})", folder) from None
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
+        lock = Path(folder) / FOLDER_LOCK
+        for _ in range(3):
+            try:
+                fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+            except OSError as e:
+                raise RiverbedError(f"cannot lock the output folder ({e.strerror or e})", folder) from None
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                os.close(fd)
+                raise RiverbedError("in use by another riverbed run (it is writing into this folder); wait for "
+                                    "that run or choose another output folder", folder) from None
+            try:  # the run that held it may have removed the file between our open and lock: lock it anew
+                if os.stat(lock).st_ino == os.fstat(fd).st_ino:
+                    break
+            except FileNotFoundError:
+                pass
             os.close(fd)
-            raise RiverbedError("in use by another riverbed run (it is writing into this folder); wait for that "
-                                "run or choose another output folder", folder) from None
+        else:
+            raise RiverbedError("cannot lock the output folder", folder)
         _folder_locks[key] = fd
 
 
 def unlock_folder(folder):
-    """Release :func:`lock_folder`'s lock on ``folder`` (the lock file stays: removing it would race a waiting
-    run)."""
+    """Release :func:`lock_folder`'s lock on ``folder`` and remove its lock file (a killed run's stays, unlocked,
+    until the next run takes it)."""
     with _lock:
         fd = _folder_locks.pop(_key(folder), None)
     if fd is not None:
+        with contextlib.suppress(OSError):
+            os.unlink(Path(folder) / FOLDER_LOCK)  # while locked: a run that opened it meanwhile retries
         os.close(fd)
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 from ...errors import RiverbedError
 from ...geometry.rectify import rectify_files
 from ...geometry.rpc_pair import rectify_rpc_files
-from ...io.atomic import FOLDER_LOCK, atomic_output, lock_folder
+from ...io.atomic import FOLDER_LOCK, atomic_output, lock_folder, taken_temporaries
 from ...io.images import header_size, read_image
 from ...geometry.pairfile import load_pairfile
 from .manifest import RAW_KEYS, RPC_KEYS, Manifest, load_manifest
@@ -267,6 +267,7 @@ def plan_block(manifest, outdir, overwrite=False):
     if not isinstance(manifest, Manifest):
         manifest = load_manifest(manifest)
     outdir = Path(outdir).absolute()
+    taken_temporaries()  # from now on, the killed runs' temporaries removed are this block's to report
     prepare_outdir(outdir, manifest.path, overwrite)
     cleaned = clean_temps(outdir, (MERGED, MARKER))
     base = manifest.path.parent
@@ -322,6 +323,7 @@ def plan_block(manifest, outdir, overwrite=False):
         if record is not None:
             job.status, job.record = "skip", record
             cleaned += clean_pair_leftovers(job.folder, finished=True)
+    cleaned += [p for p in map(Path, taken_temporaries()) if p.is_relative_to(outdir)]  # removed when claiming
     if cleaned:
         log.info("removed %d leftovers of an interrupted run (temporary files, finished pairs' .work)", len(cleaned))
     return BlockPlan(manifest, outdir, jobs, time.perf_counter() - t0, cleaned)
