@@ -13,6 +13,7 @@ window, sub-pixel fit, median), and one frozen group per matcher or guide (:clas
 This module imports no Numba kernel (``riverbed match --help`` reads it).
 """
 
+import math
 from dataclasses import dataclass, field, fields, replace
 
 from ..errors import RiverbedError
@@ -174,6 +175,7 @@ class MatchConfig:
     median: int = 3
     range: str = "auto"  # disparity search range: auto (tube with LiDAR guidance, else full), tube, tile, full
     fusion: str = "auto"  # auto (confidence with LiDAR guidance, else none), confidence, none
+    lidar_offset: object = "auto"  # the LiDAR's disparity offset: auto (estimated), none, DD or "DX,DY,DD" (px)
     sgm: SGMConfig = field(default_factory=SGMConfig)
     guidance: GuidanceConfig = field(default_factory=GuidanceConfig)
     diffusion: DiffusionConfig = field(default_factory=DiffusionConfig)
@@ -350,6 +352,22 @@ _ADC_CHECKS = {"lambda_ad": _POS, "lambda_census": _POS, "scale": integer(1, 409
                "discontinuity": boolean, "edge_threshold": number(0), "guide_stage": choice(GUIDE_STAGES)}
 
 
+def lidar_offset(v):
+    """``'auto'``, ``'none'``, a finite number DD or the text ``'DX,DY,DD'`` (px; DX, DY at most 64 px)."""
+    if v in ("auto", "none"):
+        return v
+    if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
+        return float(v)
+    parts = str(v).split(",") if isinstance(v, str) else []
+    try:
+        nums = [float(p) for p in parts]
+    except ValueError:
+        nums = []
+    if len(nums) in (1, 3) and all(math.isfinite(n) for n in nums) and all(abs(n) <= 64 for n in nums[:-1]):
+        return nums[0] if len(nums) == 1 else ",".join(f"{n:g}" for n in nums)
+    raise SettingError(f"expected auto, none, DD or DX,DY,DD (px; DX and DY at most 64), got {show(v)}")
+
+
 def tile_size(v):
     """A tile side: ``'auto'``, ``0`` (never tile) or an integer >= 16 (px)."""
     if v == "auto" or v == 0 and not isinstance(v, bool):
@@ -380,6 +398,11 @@ MATCH_SETTINGS = (
             "Combine the matched disparity with the LiDAR's interpolation per pixel: confidence (docs/fusion.md), "
             "none (the matcher's output: the paper's method); auto: confidence with LiDAR guidance, else none.",
             "match", "fusion"),
+    Setting("lidar_offset", "auto", lidar_offset,
+            "The LiDAR's offset against the images (px, LiDAR minus images): auto (estimated from the images at the "
+            "LiDAR points, removed when at least 1 px; docs/lidar_faults.md), none (the LiDAR as it is: the paper's "
+            "method), DD (a disparity offset removed) or DX,DY,DD (the points also moved back by DX, DY px).",
+            "match", "lidar_offset"),
     # census + SGM
     *_group_rows("sgm", SGMConfig, "", "sgm", _SGM_HELP, {"paths": "choice-int", "outside_cost": "auto-int"},
                  _SGM_CHECKS),

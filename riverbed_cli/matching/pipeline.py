@@ -19,6 +19,7 @@ from ..errors import RiverbedError
 from . import fusion, guides, matchers  # noqa: F401  (importing them fills the registries)
 from ..geometry.coverage import lidar_share_of_row_ends
 from .config import MatchConfig
+from .lidar_offset import correct_lidar
 from .registry import get_fusion, get_guide, get_matcher
 from .results import MatchInfo, MatchResult
 from .tubes import HOLE_FACTOR, hole_bounds, lidar_tube_layout, lidar_tubes, range_map_summary, tube_stats
@@ -441,10 +442,19 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
                             f"{right.shape[1]}x{right.shape[0]}")
     if guide.needs_sparse and sparse is None:
         raise RiverbedError(f"guide '{guide.name}' needs a sparse LiDAR map (--sparse)")
-    d_min, d_max = resolve_disparity_range(d_min, d_max, sparse, width=left.shape[1])
-
     t_all = time.perf_counter()
     stages = {}
+    offset = None
+    if sparse is not None:  # the LiDAR's offset against the images, removed before it sets the range or guides
+        sparse = np.asarray(sparse, np.float32)
+        check_disparity_values(sparse, left.shape[1])
+        sparse, offset = correct_lidar(left, right, sparse, config.lidar_offset)
+        stages["lidar_offset"] = round(time.perf_counter() - t_all, 4)
+        if offset.applied:
+            log.warning("the LiDAR's disparities are %+.2f px off the images: removed (a height offset or another "
+                        "vertical datum?); --lidar-offset none keeps them", offset.applied)
+    d_min, d_max = resolve_disparity_range(d_min, d_max, sparse, width=left.shape[1])
+
     shape = left.shape[:2]
     lidar = None
     points, share, share_all = None, 0.0, 0.0
@@ -477,7 +487,8 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
                      len(points[0]) if points is not None else 0, out.window, d_min, d_max,
                      [int(shape[1]), int(shape[0])], out.refinement, mode,
                      stats.to_dict() if stats is not None else None, fuser.name,
-                     fused.stats.to_dict() if fused.stats is not None else None)
+                     fused.stats.to_dict() if fused.stats is not None else None,
+                     offset.to_dict() if offset is not None else None)
     return MatchResult(fused.disparity, info, fused.confidence)
 
 

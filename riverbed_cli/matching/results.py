@@ -21,7 +21,7 @@ class MatchInfo(RecordMapping):
     guides without one); ``size`` ``[width, height]``; ``refinement`` AD-Census's outlier counts and timings;
     ``range`` the search-range mode (``tube`` or ``full``); ``tubes`` with tubes: ``mean_width``, ``max_width``,
     ``nominal`` (disparities of ``[d_min, d_max]``) and ``full_share`` (share of pixels searching the nominal
-    range).
+    range); ``lidar_offset`` with LiDAR, its disparity offset against the images (:mod:`.lidar_offset`).
     """
 
     seconds: float
@@ -39,8 +39,9 @@ class MatchInfo(RecordMapping):
     tubes: dict = None
     fusion: str = "none"
     fusion_stats: dict = None
+    lidar_offset: dict = None
 
-    _optional = ("refinement", "tubes", "fusion_stats")
+    _optional = ("refinement", "tubes", "fusion_stats", "lidar_offset")
 
 
 @dataclass
