@@ -253,8 +253,9 @@ def correct_lidar(left, right, sparse, setting="auto", bits=None):
         return (out - np.float32(dd)).astype(np.float32), OffsetEstimate("forced", applied=dd)
     rows, cols = np.nonzero(np.isfinite(sparse))
     offset, gain, n, search = estimate_offset(left, right, rows, cols, sparse[rows, cols], bits)
+    offset = round(offset, 3)  # what is reported is what is removed
     apply = abs(offset) >= MIN_OFFSET and gain >= MIN_GAIN
-    est = OffsetEstimate("auto", round(offset, 3) if apply else 0.0, round(offset, 3), n, round(gain, 4), search)
+    est = OffsetEstimate("auto", offset if apply else 0.0, offset, n, round(gain, 4), search)
     if not apply:
         return sparse, est
     return (np.asarray(sparse, np.float32) - np.float32(offset)).astype(np.float32), est
