@@ -55,8 +55,8 @@ def test_a_known_offset_is_recovered_on_a_constructed_pair(bias):
     left, right = textured_pair(d=12.4)
     rows, cols = np.mgrid[10:110:5, 30:190:5].reshape(2, -1)
     vals = np.full(rows.size, 12.4 + bias, np.float32)
-    offset, gain, n, search = estimate_offset(left, right, rows, cols, vals)
-    assert n == rows.size and search == 4.0
+    offset, gain, n, search, spread = estimate_offset(left, right, rows, cols, vals)
+    assert n == rows.size and search == 4.0 and spread < 0.5  # the blocks on the 1 px grid: within half a pixel
     assert offset == pytest.approx(bias, abs=0.1)
     assert (gain > 0.3) if bias else (gain < 0.01)
 
@@ -75,7 +75,7 @@ def test_the_offset_is_removed_at_1_px_and_not_below():
     assert np.isnan(out).sum() == np.isnan(sparse).sum()
     out, est = correct_lidar(left, right, sparse, "none")
     assert out is sparse and est.to_dict() == {"mode": "none", "applied": 0.0, "estimated": None, "points": 0,
-                                               "gain": None, "search": None}
+                                               "gain": None, "search": None, "spread": None}
     out, est = correct_lidar(left, right, sparse, "1,-2,2.5")
     assert est.mode == "forced" and est.applied == 2.5
     np.testing.assert_allclose(out[12:112:5, 29:189:5], 12.4 + 2.0 - 2.5)  # moved back by (-1, +2) px
@@ -139,3 +139,15 @@ def test_setting_values(value, expected):
 def test_setting_refuses(value):
     with pytest.raises(SettingError, match="expected auto, none, DD or DX,DY,DD"):
         validate_setting("lidar_offset", value)
+
+
+def test_an_error_that_varies_over_the_image_is_not_removed_as_one_offset():
+    """A LiDAR +3 px off on the left half and -3 px on the right (as an old coarse DEM used as LiDAR is, locally):
+    no single offset explains it, and none is removed."""
+    left, right = textured_pair(d=12.4)
+    sparse = np.full(left.shape, np.nan, np.float32)
+    sparse[10:110:5, 30:190:5] = 12.4
+    sparse[:, :110] += 3.0
+    sparse[:, 110:] -= 3.0
+    out, est = correct_lidar(left, right, sparse)
+    assert out is sparse and est.applied == 0.0 and est.spread > 2.5

@@ -11,12 +11,14 @@ image's at ``x - (d - o)`` (linear in x: sub-pixel disparities), :func:`patch_co
 offset is the cost's minimum over whole pixels within the search, refined on a 1/8 px grid around it and by a
 parabola through the three lowest samples. Textureless points add the same cost to every candidate and do not move
 the minimum; a minority of wrong points (outliers, a changed building) neither. It is applied (subtracted from
-every LiDAR disparity) when it is at least :data:`MIN_OFFSET` px and the images prefer it clearly over no offset
-(the cost at the offset at least :data:`MIN_GAIN` below the cost at 0).
+every LiDAR disparity) when it is at least :data:`MIN_OFFSET` px, the images prefer it clearly over no offset (the
+cost at the offset at least :data:`MIN_GAIN` below the cost at 0), it lies inside the search, and it is one offset
+of the whole LiDAR: the minima over the blocks of a 3 x 3 grid of the image lie within :data:`MAX_SPREAD` px of it.
 
 Sign: ``offset = LiDAR - images`` (px), so a LiDAR whose disparities are 4 px too large has offset +4.
 """
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -26,6 +28,8 @@ from numba import njit, prange
 from ..errors import RiverbedError
 from ..io.images import effective_bits, to_grey
 from ..records import RecordMapping
+
+log = logging.getLogger(__name__)
 
 #: half side of the patch compared (px)
 RADIUS = 2
@@ -41,6 +45,13 @@ MIN_OFFSET = 1.0
 MIN_GAIN = 0.02
 #: at most this many LiDAR points are compared (every k-th of a denser map: the estimate needs no more)
 MAX_POINTS = 40_000
+#: the offset is one of the whole LiDAR when the estimates over the blocks of a BLOCKS x BLOCKS grid of the image
+#: (those with MIN_BLOCK_POINTS and MIN_BLOCK_SHARE of the points) lie within MAX_SPREAD px of it: on the dev scenes,
+#: offset or not, they lie within 0.71 px; an SRTM DEM used as the LiDAR of a Pleiades pair scattered them by 7-10 px
+BLOCKS = 3
+MIN_BLOCK_POINTS = 50
+MIN_BLOCK_SHARE = 0.03
+MAX_SPREAD = 1.5
 #: the search reaches this share of the LiDAR's disparity span beyond no offset (and at least MIN_SEARCH px)
 SEARCH_SHARE = 0.15
 MIN_SEARCH = 4
@@ -51,7 +62,8 @@ class OffsetEstimate(RecordMapping):
     """The LiDAR's disparity offset against the images (px, ``LiDAR - images``): ``estimated`` (None: not
     estimated), ``applied`` (what was subtracted: the estimate when significant, a forced value, or 0), ``mode``
     (``auto``, ``none`` or ``forced``), ``points`` compared, ``gain`` (relative cost drop from no offset to the
-    estimate) and ``search`` (the largest offset looked for, px)."""
+    estimate), ``search`` (the largest offset looked for, px) and ``spread`` (px: how far the estimates over blocks
+    of the image lie from it, :func:`estimate_offset`)."""
 
     mode: str
     applied: float = 0.0
@@ -59,6 +71,7 @@ class OffsetEstimate(RecordMapping):
     points: int = 0
     gain: float = None
     search: float = None
+    spread: float = None
 
 
 @njit(cache=True, parallel=True)
@@ -192,6 +205,9 @@ def estimate_offset(left, right, rows, cols, values, bits=None):
         Points compared.
     search : float
         The largest offset looked for (px).
+    spread : float
+        The largest distance (px) from ``offset`` of the minimum over a block of a 3 x 3 grid of the image (blocks
+        with at least 3 % of the points and 50): small for one offset of the whole LiDAR.
     """
     values = np.asarray(values, np.float32)
     if len(values) == 0:
@@ -204,14 +220,24 @@ def estimate_offset(left, right, rows, cols, values, bits=None):
     span = float(values.max() - values.min())
     search = float(max(MIN_SEARCH, math.ceil(SEARCH_SHARE * span)))
     coarse = np.arange(-search, search + 1.0)
-    cost = patch_costs(gl, gr, rows, cols, values, coarse).mean(axis=0)
+    per_point = patch_costs(gl, gr, rows, cols, values, coarse)
+    cost = per_point.mean(axis=0)
     at = coarse[int(np.argmin(cost))]
     fine = at + np.arange(-1.0, 1.0 + 1e-9, 0.125)
     cost_fine = patch_costs(gl, gr, rows, cols, values, np.append(fine, 0.0)).mean(axis=0)
     offset = _vertex(fine, cost_fine[:-1])
     at_zero, at_offset = float(cost_fine[-1]), float(cost_fine[:-1].min())
     gain = (at_zero - at_offset) / at_zero if at_zero > 0 else 0.0
-    return offset, max(gain, 0.0), len(values), search
+    # the same minimum over each block of a 3 x 3 grid of the image (blocks with enough points): one offset of
+    # the whole LiDAR puts every block's there; a LiDAR whose error varies over the image (an old coarse DEM as the
+    # "LiDAR", a changed scene) scatters them
+    H, W = gl.shape
+    block = np.minimum(rows * BLOCKS // H, BLOCKS - 1) * BLOCKS + np.minimum(cols * BLOCKS // W, BLOCKS - 1)
+    least = max(MIN_BLOCK_POINTS, MIN_BLOCK_SHARE * len(values))
+    local = [_vertex(coarse, per_point[block == b].mean(axis=0)) for b in range(BLOCKS * BLOCKS)
+             if np.count_nonzero(block == b) >= least]
+    spread = max(abs(v - offset) for v in local) if local else 0.0
+    return offset, max(gain, 0.0), len(values), search, spread
 
 
 def parse_offset(value):
@@ -252,10 +278,13 @@ def correct_lidar(left, right, sparse, setting="auto", bits=None):
         out = shift_points(np.asarray(sparse, np.float32), dx, dy)
         return (out - np.float32(dd)).astype(np.float32), OffsetEstimate("forced", applied=dd)
     rows, cols = np.nonzero(np.isfinite(sparse))
-    offset, gain, n, search = estimate_offset(left, right, rows, cols, sparse[rows, cols], bits)
+    offset, gain, n, search, spread = estimate_offset(left, right, rows, cols, sparse[rows, cols], bits)
     offset = round(offset, 3)  # what is reported is what is removed
-    apply = abs(offset) >= MIN_OFFSET and gain >= MIN_GAIN
-    est = OffsetEstimate("auto", offset if apply else 0.0, offset, n, round(gain, 4), search)
+    apply = abs(offset) >= MIN_OFFSET and gain >= MIN_GAIN and spread <= MAX_SPREAD and abs(offset) < search
+    est = OffsetEstimate("auto", offset if apply else 0.0, offset, n, round(gain, 4), search, round(spread, 3))
+    if abs(offset) >= MIN_OFFSET and not apply:
+        log.info("the LiDAR disagrees with the images by %+.2f px overall, but not by one offset over the image "
+                 "(blocks %.2f px apart, gain %.3f): not removed", offset, spread, gain)
     if not apply:
         return sparse, est
     return (np.asarray(sparse, np.float32) - np.float32(offset)).astype(np.float32), est
