@@ -8,7 +8,7 @@ disparity, a small patch around each LiDAR pixel looks the same in both images.
 Stage: ``(left, right, LiDAR pixels and disparities) -> OffsetEstimate``. For each candidate offset ``o`` the cost
 is the mean over the LiDAR points of ``1 - ZNCC`` (capped) of the left image's 5 x 5 patch at the point and the right
 image's at ``x - (d - o)`` (linear in x: sub-pixel disparities), :func:`patch_costs`. The
-offset is the cost's minimum over whole pixels within the search, refined on a 1/8 px grid around it and by a
+offset is the cost's minimum over whole pixels within the search, refined on a 1/4 px grid around it and by a
 parabola through the three lowest samples. Textureless points add the same cost to every candidate and do not move
 the minimum; a minority of wrong points (outliers, a changed building) neither. It is applied (subtracted from
 every LiDAR disparity) when it is at least :data:`MIN_OFFSET` px, the images prefer it clearly over no offset (the
@@ -43,8 +43,9 @@ MIN_VARIANCE = 1.0
 MIN_OFFSET = 1.0
 #: and only when the cost at the offset is at least this share below the cost at no offset
 MIN_GAIN = 0.02
-#: at most this many LiDAR points are compared (every k-th of a denser map: the estimate needs no more)
-MAX_POINTS = 40_000
+#: at most this many LiDAR points are compared (every k-th of a denser map: the estimate needs no more, and the
+#: comparisons are its cost)
+MAX_POINTS = 8_000
 #: the offset is one of the whole LiDAR when the estimates over the blocks of a BLOCKS x BLOCKS grid of the image
 #: (those with MIN_BLOCK_POINTS and MIN_BLOCK_SHARE of the points) lie within MAX_SPREAD px of it: on the dev scenes,
 #: offset or not, they lie within 0.71 px; an SRTM DEM used as the LiDAR of a Pleiades pair scattered them by 7-10 px
@@ -223,7 +224,7 @@ def estimate_offset(left, right, rows, cols, values, bits=None):
     per_point = patch_costs(gl, gr, rows, cols, values, coarse)
     cost = per_point.mean(axis=0)
     at = coarse[int(np.argmin(cost))]
-    fine = at + np.arange(-1.0, 1.0 + 1e-9, 0.125)
+    fine = at + np.arange(-1.0, 1.0 + 1e-9, 0.25)
     cost_fine = patch_costs(gl, gr, rows, cols, values, np.append(fine, 0.0)).mean(axis=0)
     offset = _vertex(fine, cost_fine[:-1])
     at_zero, at_offset = float(cost_fine[-1]), float(cost_fine[:-1].min())
