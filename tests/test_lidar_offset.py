@@ -151,3 +151,25 @@ def test_an_error_that_varies_over_the_image_is_not_removed_as_one_offset():
     sparse[:, 110:] -= 3.0
     out, est = correct_lidar(left, right, sparse)
     assert out is sparse and est.applied == 0.0 and est.spread > 2.5
+
+
+def test_a_tiled_match_estimates_once_and_every_tile_takes_the_corrected_lidar(tmp_path):
+    """Windowed (TIFF) LiDAR +5 px off, matched in 12 tiles: one estimate for all of them, reported in the tiled info,
+    and the result as the clean LiDAR's within a few hundredths of bad3 (none of the tiles' own estimates)."""
+    from riverbed_cli.io.windowed import WindowedRaster
+    from riverbed_cli.scale.tiles import match_tiled
+
+    left, right = read_image(REINDEER / "left.png"), read_image(REINDEER / "right.png")
+    gt, sparse = read_disparity(REINDEER / "gt.png", scale=2), read_disparity(REINDEER / "lidar_5pct.tif")
+    write_disparity(tmp_path / "biased.tif", sparse + 5)
+    clean = match_tiled(left, right, sparse, tile=192)
+    biased = match_tiled(left, right, WindowedRaster(tmp_path / "biased.tif", "disparity"), tile=192)
+    assert biased.info["tiles"] == clean.info["tiles"] == 12
+    est = biased.info["lidar_offset"]
+    assert est["mode"] == "auto" and est["applied"] - clean.info["lidar_offset"]["estimated"] == pytest.approx(5, abs=0.05)
+    e = [evaluate_disparity(r.disparity, gt, exclude=sparse)["bad3"] for r in (clean, biased)]
+    assert e[1] == pytest.approx(e[0], abs=0.1) and e[0] < 1.5
+    forced = match_tiled(left, right, sparse + 5, tile=192, lidar_offset=5.0)
+    assert forced.info["lidar_offset"] == {"mode": "forced", "applied": 5.0, "estimated": None, "points": 0,
+                                           "gain": None, "search": None, "spread": None}
+    np.testing.assert_array_equal(np.isnan(forced.disparity), np.isnan(clean.disparity))

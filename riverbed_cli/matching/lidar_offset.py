@@ -279,13 +279,74 @@ def correct_lidar(left, right, sparse, setting="auto", bits=None):
         out = shift_points(np.asarray(sparse, np.float32), dx, dy)
         return (out - np.float32(dd)).astype(np.float32), OffsetEstimate("forced", applied=dd)
     rows, cols = np.nonzero(np.isfinite(sparse))
-    offset, gain, n, search, spread = estimate_offset(left, right, rows, cols, sparse[rows, cols], bits)
+    est = offset_estimate(left, right, rows, cols, sparse[rows, cols], bits)
+    if not est.applied:
+        return sparse, est
+    return (np.asarray(sparse, np.float32) - np.float32(est.applied)).astype(np.float32), est
+
+
+def offset_estimate(left, right, rows, cols, values, bits=None):
+    """:func:`estimate_offset` and the rule (module docstring): the :class:`OffsetEstimate` of ``auto``, whose
+    ``applied`` is the offset to remove (0: none)."""
+    offset, gain, n, search, spread = estimate_offset(left, right, rows, cols, values, bits)
     offset = round(offset, 3)  # what is reported is what is removed
     apply = abs(offset) >= MIN_OFFSET and gain >= MIN_GAIN and spread <= MAX_SPREAD and abs(offset) < search
-    est = OffsetEstimate("auto", offset if apply else 0.0, offset, n, round(gain, 4), search, round(spread, 3))
     if abs(offset) >= MIN_OFFSET and not apply:
         log.info("the LiDAR disagrees with the images by %+.2f px overall, but not by one offset over the image "
                  "(blocks %.2f px apart, gain %.3f): not removed", offset, spread, gain)
-    if not apply:
-        return sparse, est
-    return (np.asarray(sparse, np.float32) - np.float32(offset)).astype(np.float32), est
+    return OffsetEstimate("auto", offset if apply else 0.0, offset, n, round(gain, 4), search, round(spread, 3))
+
+
+class CorrectedSparse:
+    """A sparse map read window by window (a :class:`~riverbed_cli.io.windowed.WindowedRaster`, sliced
+    ``[y0:y1, x0:x1]``) seen with the LiDAR's offset removed: each point moved by ``(-dx, -dy)`` px and its disparity
+    less ``dd``, as :func:`shift_points` and :func:`correct_lidar` do to a whole map."""
+
+    def __init__(self, src, dx, dy, dd):
+        self.src, self.dx, self.dy, self.dd = src, int(round(dx)), int(round(dy)), np.float32(dd)
+        self.shape, self.ndim, self.dtype = src.shape, 2, np.dtype(np.float32)
+
+    def __getitem__(self, key):
+        rows, cols = key[:2] if isinstance(key, tuple) else (key, slice(None))
+        H, W = self.shape[:2]
+        y0, y1, _ = rows.indices(H)
+        x0, x1, _ = cols.indices(W)
+        out = np.full((max(0, y1 - y0), max(0, x1 - x0)), np.nan, np.float32)
+        sy0, sy1 = max(0, y0 + self.dy), min(H, y1 + self.dy)  # the source window the points come from
+        sx0, sx1 = max(0, x0 + self.dx), min(W, x1 + self.dx)
+        if sy0 < sy1 and sx0 < sx1:
+            out[sy0 - self.dy - y0:sy1 - self.dy - y0, sx0 - self.dx - x0:sx1 - self.dx - x0] = \
+                np.asarray(self.src[sy0:sy1, sx0:sx1], np.float32)
+        return out - self.dd
+
+
+def corrected_sparse(sparse, dx, dy, dd):
+    """The sparse map (array or windowed) with the LiDAR's offset ``(dx, dy, dd)`` removed (:class:`CorrectedSparse`:
+    a windowed map stays windowed)."""
+    if not (round(dx) or round(dy) or dd):
+        return sparse
+    if isinstance(sparse, np.ndarray):
+        return (shift_points(np.asarray(sparse, np.float32), dx, dy) - np.float32(dd)).astype(np.float32)
+    return CorrectedSparse(sparse, dx, dy, dd)
+
+
+#: the window (px, square) of a large image in which :func:`offset_estimate_windowed` estimates the offset
+WINDOW = 2048
+
+
+def offset_estimate_windowed(left, right, rows, cols, values, bits=None):
+    """:func:`offset_estimate` over the central ``WINDOW`` x ``WINDOW`` px of a large pair (numpy arrays or windowed
+    rasters, sliced ``[y0:y1, x0:x1]``), read with the right image's columns its matches need: one estimate for
+    every tile of a tiled match. ``rows``, ``cols``, ``values``: all the LiDAR points."""
+    H, W = left.shape[:2]
+    y0, x0 = max(0, (H - WINDOW) // 2), max(0, (W - WINDOW) // 2)
+    y1, x1 = min(H, y0 + WINDOW), min(W, x0 + WINDOW)
+    inside = (rows >= y0) & (rows < y1) & (cols >= x0) & (cols < x1)
+    if not inside.any():
+        inside = np.ones(len(rows), bool)
+        y0, y1, x0, x1 = 0, H, 0, W
+    vals = np.asarray(values, np.float32)[inside]
+    reach = int(math.ceil(max(float(vals.max()), 0.0) + max(MIN_SEARCH, SEARCH_SHARE * float(np.ptp(vals))))) + 4
+    xs = max(0, x0 - reach)  # both crops from here: one column frame, the right one holding the matches
+    crop = [np.asarray(im[y0:y1, xs:x1]) for im in (left, right)]
+    return offset_estimate(*crop, rows[inside] - y0, cols[inside] - xs, vals, bits)

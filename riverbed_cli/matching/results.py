@@ -67,8 +67,9 @@ class TiledMatchInfo(RecordMapping):
     tile_ranges: dict
     range: str = "tile"
     tubes: dict = None
+    lidar_offset: dict = None
 
-    _optional = ("tubes",)
+    _optional = ("tubes", "lidar_offset")
 
 
 @dataclass

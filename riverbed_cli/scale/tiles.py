@@ -27,6 +27,7 @@ from ..matching.guidance import lidar_share, lidar_share_of_points
 from ..matching.pipeline import (check_disparity_values, check_inside, check_lidar_count, check_range_map_shape,
                                  check_range_summary, fill_tube_holes, lidar_points_needed, make_config, match_pair,
                                  range_map_ends, resolve_disparity_range, resolve_range)
+from ..matching.lidar_offset import OffsetEstimate, corrected_sparse, offset_estimate_windowed, parse_offset
 from ..matching.registry import get_guide, get_matcher
 from ..matching.tubes import cell_widths_from_points, lidar_tubes_window, range_map_summary
 from ..matching.results import MatchResult, TiledMatchInfo
@@ -441,9 +442,30 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
             if span is not None:
                 d_min = span[0] if d_min is None else d_min
                 d_max = span[1] if d_max is None else d_max
+        offset = None
         if sparse is not None:
             check_disparity_values(pv, W)
             check_lidar_count(pv.size, p)
+            # one offset for every tile (a tile's own estimate could differ from its neighbour's): estimated over
+            # the central window here, then given to the tiles as a forced one
+            offset_mode, (dx, dy, dd) = parse_offset(p.lidar_offset)
+            t0 = time.perf_counter()
+            if offset_mode == "auto":
+                offset = offset_estimate_windowed(left, right, pr, pc, pv, image_bits(left, right))
+                dd = offset.applied
+                if dd:
+                    log.warning("the LiDAR's disparities are %+.2f px off the images: removed (a height offset or "
+                                "another vertical datum?); --lidar-offset none keeps them", dd)
+            else:
+                offset = OffsetEstimate(offset_mode, applied=dd)
+            # the plan, the tiles and their tubes see the corrected LiDAR, and the tiles leave it as it is
+            sparse = corrected_sparse(sparse, dx, dy, dd)
+            p = p.replace(lidar_offset="none")
+            if round(dx) or round(dy):
+                pr, pc, pv = sparse_points_any(sparse)
+            else:
+                pv = pv - np.float32(dd)
+            offset_seconds = round(time.perf_counter() - t0, 4)
         d_min, d_max = resolve_disparity_range(d_min, d_max, pv if sparse is not None else None, width=W)
         if scan is not None:
             scan.check(d_min, d_max)
@@ -484,7 +506,10 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
                 progress(1)
     tubes = tiled_tube_stats(tube_parts, d_min, d_max)
     mode = "tube" if tubes is not None else ("tile" if sparse is not None and lidar_range else "full")
+    if offset is not None:
+        stages["lidar_offset"] = offset_seconds  # the tiles' own (forced) ones are free
     info = TiledMatchInfo(round(time.perf_counter() - t_all, 4), stages, p.guide, guide_share,
                           p.guidance.window if guide.uses_window else None, d_min, d_max, [W, H], len(plan.tiles),
-                          plan.size, overlap, int(evaluations), plan.to_dict()["tile_ranges"], mode, tubes)
+                          plan.size, overlap, int(evaluations), plan.to_dict()["tile_ranges"], mode, tubes,
+                          offset.to_dict() if offset is not None else None)
     return MatchResult(out, info)

@@ -3,6 +3,7 @@
 
 import contextlib
 import json
+import logging
 import shutil
 import time
 from pathlib import Path
@@ -21,6 +22,7 @@ from ...io.pointcloud import write_points
 from ...io.raster import write_geotiff
 from ...io.windowed import WindowedRaster, image_bits, open_range_map, open_windowed, sparse_points_any
 from ...matching.guidance import lidar_share_of_points
+from ...matching.lidar_offset import OffsetEstimate, corrected_sparse, offset_estimate_windowed, parse_offset
 from ...matching.pipeline import match_pair, resolve_disparity_range
 from ...matching.registry import get_guide
 from ...matching.tubes import ranges_from_disparity, spacing_window
@@ -28,6 +30,8 @@ from ...products.dsm import Accumulator, Grid, default_resolution, disparity_poi
 from ..tiles import Tile, match_tile, plan_tiles, scan_range_map, tube_widths
 from .plan import DONE, OUTPUTS, WORK, clean_temps, rectify_rpc, riverbed_version, sha256_file, write_json
 from .settings import match_params
+
+log = logging.getLogger(__name__)
 
 
 class RectifyError(RiverbedError):
@@ -154,11 +158,16 @@ def project_stage(job):
         sparse = sp if sparse is None else np.fmax(sparse, sp)  # the nearer point has the larger disparity
     if sparse is None:
         raise RiverbedError(f"no cloud has points in the pair's images ({len(job.clouds)} checked)", job.pair)
-    tags = {"riverbed_pair": job.pair, "riverbed_clouds": json.dumps(used), "riverbed_block_pair": job.name}
+    # The LiDAR's offset against the images, once for the pair (as match_tiled does for its tiles): sparse.tif holds
+    # the corrected LiDAR, and the matching tasks take it as it is
+    p = match_params(s)
+    srcs = [_image_source(getattr(pair, side), (H, W), s["max_pixels"]) for side in ("left", "right")]
+    sparse, offset = _corrected(sparse, srcs, p.lidar_offset)
+    tags = {"riverbed_pair": job.pair, "riverbed_clouds": json.dumps(used), "riverbed_block_pair": job.name,
+            "riverbed_lidar_offset": json.dumps(offset.to_dict())}
     write_disparity(folder / "sparse.tif", sparse, overwrite=True, tags=tags)
 
     # The matching plan, as match_tiled makes it.
-    p = match_params(s)
     guide = get_guide(p.guide)
     pr, pc, pv = sparse_points_any(sparse)
     share = lidar_share_of_points(pr, pc, (H, W))
@@ -179,7 +188,6 @@ def project_stage(job):
                       range_map=rmap)
     tiles, window, bits = [], p.guidance.window, None
     if plan.tiled:
-        srcs = [_image_source(getattr(pair, side), (H, W), s["max_pixels"]) for side in ("left", "right")]
         bits = image_bits(*srcs)
         if guide.uses_window and p.guidance.window == "auto":
             window = guide.window(share, p)  # one window for every tile
@@ -190,10 +198,25 @@ def project_stage(job):
             _save_npy(src, work / f"{side}.npy")
     stats = {"clouds": len(used), "clouds_without_points": len(empty), "lidar_points_read": counts["points_read"],
              "lidar_points_kept": counts["kept"], "lidar_share": share, "lidar_crs": counts["crs"],
-             "tile": int(plan.size) if tiles else None, **dsm_stats}
+             "tile": int(plan.size) if tiles else None, "lidar_offset": offset.to_dict(), **dsm_stats}
     return {"tiles": tiles, "window": window, "bits": bits, "d_min": d_min, "d_max": d_max, "stats": stats,
             "shape": [H, W], "range_map": rmap is not None, "rectify_seconds": t_rectify,
             "seconds": round(time.perf_counter() - t0, 4)}
+
+
+def _corrected(sparse, srcs, setting):
+    # the pair's LiDAR with its offset against the images removed (matching/lidar_offset.py), and the estimate
+    mode, (dx, dy, dd) = parse_offset(setting)
+    if mode == "auto":
+        pr, pc = np.nonzero(np.isfinite(sparse))
+        offset = offset_estimate_windowed(*srcs, pr, pc, sparse[pr, pc], image_bits(*srcs))
+        dd = offset.applied
+        if dd:
+            log.warning("the LiDAR's disparities are %+.2f px off the images: removed (a height offset or another "
+                        "vertical datum?); lidar_offset: none keeps them", dd)
+    else:
+        offset = OffsetEstimate(mode, applied=dd)
+    return corrected_sparse(sparse, dx, dy, dd), offset
 
 
 def _pair_range_map(path, shape, d_min, d_max, s, work):
@@ -251,7 +274,7 @@ def tile_stage(job, proj, index):
     """
     t0 = time.perf_counter()
     s = job.settings
-    p = match_params(s)
+    p = match_params(s).replace(lidar_offset="none")  # sparse.tif holds the corrected LiDAR (project_stage)
     folder = Path(job.folder)
     H, W = proj["shape"]
     if not proj["tiles"]:
