@@ -61,12 +61,12 @@ def test_a_known_offset_is_recovered_on_a_constructed_pair(bias):
     assert (gain > 0.3) if bias else (gain < 0.01)
 
 
-def test_the_offset_is_removed_at_1_px_and_not_below():
+def test_the_offset_is_removed_at_1_5_px_and_not_below():
     left, right = textured_pair(d=12.4)
     sparse = np.full(left.shape, np.nan, np.float32)
-    sparse[10:110:5, 30:190:5] = 12.4 + 0.6
+    sparse[10:110:5, 30:190:5] = 12.4 + 1.2
     out, est = correct_lidar(left, right, sparse)
-    assert out is sparse and est.applied == 0.0 and est.estimated == pytest.approx(0.6, abs=0.1)
+    assert out is sparse and est.applied == 0.0 and est.estimated == pytest.approx(1.2, abs=0.1)
     sparse[10:110:5, 30:190:5] = 12.4 + 2.0
     out, est = correct_lidar(left, right, sparse)
     assert est.mode == "auto" and est.applied == est.estimated >= MIN_OFFSET

@@ -37,10 +37,11 @@ RADIUS = 2
 CAP = 1.0
 #: a patch whose grey levels vary less than this (variance, grey levels squared) is flat: it compares as CAP
 MIN_VARIANCE = 1.0
-#: offsets of at least this size (px) are removed. Ground truths sampled as LiDAR sit 0.1 to 0.7 px off their own
-#: images (the estimate agrees with unguided stereo there within 0.15 px, docs/lidar_faults.md): below 1 px the
-#: LiDAR is left as it is
-MIN_OFFSET = 1.0
+#: offsets of at least this size (px) are removed. Ground truths sampled as LiDAR sit up to 0.7 px off their own
+#: images (unguided stereo sees the same, docs/lidar_faults.md), and the estimate of one scatters by about 0.2 px
+#: from one sampling of its points to another (the aerial pair's reached -1.00 px at 0.16 % of its GT): below 1.5 px
+#: the LiDAR is left as it is
+MIN_OFFSET = 1.5
 #: and only when the cost at the offset is at least this share below the cost at no offset
 MIN_GAIN = 0.02
 #: at most this many LiDAR points are compared (every k-th of a denser map: the estimate needs no more, and the
@@ -50,9 +51,11 @@ MAX_POINTS = 8_000
 #: (those with MIN_BLOCK_POINTS and MIN_BLOCK_SHARE of the points) lie within MAX_SPREAD px of it: on the dev scenes,
 #: offset or not, they lie within 0.71 px; an SRTM DEM used as the LiDAR of a Pleiades pair scattered them by 7-10 px
 BLOCKS = 3
-MIN_BLOCK_POINTS = 50
+MIN_BLOCK_POINTS = 20
 MIN_BLOCK_SHARE = 0.03
 MAX_SPREAD = 1.5
+#: and at least this many blocks hold enough points to say so (sparser LiDAR: no offset is removed)
+MIN_BLOCKS = 4
 #: the search reaches this share of the LiDAR's disparity span beyond no offset (and at least MIN_SEARCH px)
 SEARCH_SHARE = 0.15
 MIN_SEARCH = 4
@@ -208,7 +211,8 @@ def estimate_offset(left, right, rows, cols, values, bits=None):
         The largest offset looked for (px).
     spread : float
         The largest distance (px) from ``offset`` of the minimum over a block of a 3 x 3 grid of the image (blocks
-        with at least 3 % of the points and 50): small for one offset of the whole LiDAR.
+        with at least 3 % of the points and 20): small for one offset of the whole LiDAR; infinite when fewer than
+        :data:`MIN_BLOCKS` blocks hold that many.
     """
     values = np.asarray(values, np.float32)
     if len(values) == 0:
@@ -237,7 +241,7 @@ def estimate_offset(left, right, rows, cols, values, bits=None):
     least = max(MIN_BLOCK_POINTS, MIN_BLOCK_SHARE * len(values))
     local = [_vertex(coarse, per_point[block == b].mean(axis=0)) for b in range(BLOCKS * BLOCKS)
              if np.count_nonzero(block == b) >= least]
-    spread = max(abs(v - offset) for v in local) if local else 0.0
+    spread = max(abs(v - offset) for v in local) if len(local) >= MIN_BLOCKS else math.inf
     return offset, max(gain, 0.0), len(values), search, spread
 
 
@@ -294,7 +298,8 @@ def offset_estimate(left, right, rows, cols, values, bits=None):
     if abs(offset) >= MIN_OFFSET and not apply:
         log.info("the LiDAR disagrees with the images by %+.2f px overall, but not by one offset over the image "
                  "(blocks %.2f px apart, gain %.3f): not removed", offset, spread, gain)
-    return OffsetEstimate("auto", offset if apply else 0.0, offset, n, round(gain, 4), search, round(spread, 3))
+    return OffsetEstimate("auto", offset if apply else 0.0, offset, n, round(gain, 4), search,
+                          round(spread, 3) if math.isfinite(spread) else None)
 
 
 class CorrectedSparse:
