@@ -23,6 +23,7 @@ import pytest
 from riverbed_cli.errors import RiverbedError
 from riverbed_cli.io.atomic import (TEMP_NAME, atomic_output, check_output, lock_folder, output_group,
                                     release_claims, temporary_name, unlock_folder)
+from test_cli_project import CALIB as MIDDLEBURY_CALIB
 
 REPO = Path(__file__).resolve().parents[1]
 REINDEER = REPO / "sample_data" / "reindeer"
@@ -64,7 +65,7 @@ def inputs(tmp_path_factory):
     riverbed("project", BLOCK / "lidar.laz", BLOCK / "pair.yaml", "-o", d / "sparse.tif", check=0)
     riverbed("match", BLOCK / "left.png", BLOCK / "right.png", "--sparse", d / "sparse.tif", "-o", d / "disp.tif",
              check=0)
-    (d / "calib.txt").write_text(MIDDLEBURY_CALIB)
+    (d / "calib.txt").write_text(MIDDLEBURY_CALIB)  # a Middlebury calibration (tests/test_cli_project.py)
     shutil.copytree(REPO / "tests" / "data" / "cones", d / "mb" / "cones")  # a Middlebury-layout benchmark set
     return d
 
@@ -127,16 +128,6 @@ def test_a_failed_write_exits_1_and_keeps_the_old_output(inputs, tmp_path, name)
                             lines[0]), lines[0]
     assert snapshot(tmp_path / o for o in outputs) == old
     assert temporaries(tmp_path) == []
-
-
-MIDDLEBURY_CALIB = """cam0=[3997.684 0 1176.728; 0 3997.684 1011.728; 0 0 1]
-cam1=[3997.684 0 1307.839; 0 3997.684 1011.728; 0 0 1]
-doffs=131.111
-baseline=193.001
-width=2964
-height=1988
-ndisp=280
-"""
 
 
 # -- a kill mid-write, then the next run ----------------------------------------------------------------------------

@@ -154,28 +154,33 @@ def _claim(path):
         tmp = temporary_name(path)
         try:
             remove_stale_temporaries(_folder(path))
-            for _ in range(3):
-                fd = os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
-                try:
-                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                except BlockingIOError:
-                    os.close(fd)
-                    raise RiverbedError("in use by another riverbed run (it is being written); wait for that "
-                                        "run or choose another output", path) from None
-                try:  # a cleaner in another run may have removed the name between open and lock: take it anew
-                    if os.stat(tmp).st_ino == os.fstat(fd).st_ino:
-                        break
-                except FileNotFoundError:
-                    pass
-                os.close(fd)
-            else:
-                raise RiverbedError("cannot lock the output's temporary file", path)
+            fd = _locked(tmp, path, "in use by another riverbed run (it is being written); wait for that run or "
+                         "choose another output")
             os.ftruncate(fd, 0)  # a killed run's leftover under the same name
         except OSError as e:
             raise RiverbedError(f"cannot write ({e.strerror or e})", path) from None
         claim = _Claim(Path(path), tmp, fd)
         _claims[key] = claim
         return claim
+
+
+def _locked(lock, named, busy):
+    """An open descriptor of the file ``lock`` (created) holding its exclusive ``flock``; a :class:`RiverbedError`
+    ``busy`` naming ``named`` when another process holds it."""
+    for _ in range(3):
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise RiverbedError(busy, named) from None
+        try:  # another run may have removed the name between our open and lock (a cleaner, an ending run): anew
+            if os.stat(lock).st_ino == os.fstat(fd).st_ino:
+                return fd
+        except FileNotFoundError:
+            pass
+        os.close(fd)
+    raise RiverbedError("cannot lock it (its lock file keeps being replaced)", named)
 
 
 def release_claims(paths=None):
@@ -396,26 +401,11 @@ def lock_folder(folder):
     with _lock:
         if key in _folder_locks:
             return
-        lock = Path(folder) / FOLDER_LOCK
-        for _ in range(3):
-            try:
-                fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
-            except OSError as e:
-                raise RiverbedError(f"cannot lock the output folder ({e.strerror or e})", folder) from None
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:
-                os.close(fd)
-                raise RiverbedError("in use by another riverbed run (it is writing into this folder); wait for "
-                                    "that run or choose another output folder", folder) from None
-            try:  # the run that held it may have removed the file between our open and lock: lock it anew
-                if os.stat(lock).st_ino == os.fstat(fd).st_ino:
-                    break
-            except FileNotFoundError:
-                pass
-            os.close(fd)
-        else:
-            raise RiverbedError("cannot lock the output folder", folder)
+        try:
+            fd = _locked(Path(folder) / FOLDER_LOCK, folder, "in use by another riverbed run (it is writing into "
+                         "this folder); wait for that run or choose another output folder")
+        except OSError as e:
+            raise RiverbedError(f"cannot lock the output folder ({e.strerror or e})", folder) from None
         _folder_locks[key] = fd
 
 

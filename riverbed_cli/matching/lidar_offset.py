@@ -289,13 +289,30 @@ def correct_lidar(left, right, sparse, setting="auto", bits=None):
     return (np.asarray(sparse, np.float32) - np.float32(est.applied)).astype(np.float32), est
 
 
+def correct_large(left, right, sparse, points, setting="auto", bits=None):
+    """:func:`correct_lidar` for a large pair matched in tiles (arrays or windowed rasters): the offset estimated
+    once over the central window (:func:`offset_estimate_windowed`; ``points``: the map's rows, columns and
+    values), the sparse map returned corrected (:func:`corrected_sparse`: a windowed one stays windowed), with the
+    :class:`OffsetEstimate`."""
+    mode, (dx, dy, dd) = parse_offset(setting)
+    if mode == "auto":
+        est = offset_estimate_windowed(left, right, *points, bits)
+        dd = est.applied
+    else:
+        est = OffsetEstimate(mode, applied=dd)
+    return corrected_sparse(sparse, dx, dy, dd), est
+
+
 def offset_estimate(left, right, rows, cols, values, bits=None):
     """:func:`estimate_offset` and the rule (module docstring): the :class:`OffsetEstimate` of ``auto``, whose
     ``applied`` is the offset to remove (0: none)."""
     offset, gain, n, search, spread = estimate_offset(left, right, rows, cols, values, bits)
     offset = round(offset, 3)  # what is reported is what is removed
     apply = abs(offset) >= MIN_OFFSET and gain >= MIN_GAIN and spread <= MAX_SPREAD and abs(offset) < search
-    if abs(offset) >= MIN_OFFSET and not apply:
+    if apply:
+        log.warning("the LiDAR's disparities are %+.2f px off the images: removed (a height offset or another "
+                    "vertical datum?); --lidar-offset none keeps them", offset)
+    elif abs(offset) >= MIN_OFFSET:
         log.info("the LiDAR disagrees with the images by %+.2f px overall, but not by one offset over the image "
                  "(blocks %.2f px apart, gain %.3f): not removed", offset, spread, gain)
     return OffsetEstimate("auto", offset if apply else 0.0, offset, n, round(gain, 4), search,

@@ -450,9 +450,6 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
         check_disparity_values(sparse, left.shape[1])
         sparse, offset = correct_lidar(left, right, sparse, config.lidar_offset)
         stages["lidar_offset"] = round(time.perf_counter() - t_all, 4)
-        if offset.applied and offset.mode == "auto":
-            log.warning("the LiDAR's disparities are %+.2f px off the images: removed (a height offset or another "
-                        "vertical datum?); --lidar-offset none keeps them", offset.applied)
     d_min, d_max = resolve_disparity_range(d_min, d_max, sparse, width=left.shape[1])
 
     shape = left.shape[:2]

@@ -27,7 +27,7 @@ from ..matching.guidance import lidar_share, lidar_share_of_points
 from ..matching.pipeline import (check_disparity_values, check_inside, check_lidar_count, check_range_map_shape,
                                  check_range_summary, fill_tube_holes, lidar_points_needed, make_config, match_pair,
                                  range_map_ends, resolve_disparity_range, resolve_range)
-from ..matching.lidar_offset import OffsetEstimate, corrected_sparse, offset_estimate_windowed, parse_offset
+from ..matching.lidar_offset import correct_large
 from ..matching.registry import get_guide, get_matcher
 from ..matching.tubes import cell_widths_from_points, lidar_tubes_window, range_map_summary
 from ..matching.results import MatchResult, TiledMatchInfo
@@ -448,23 +448,13 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
             check_lidar_count(pv.size, p)
             # one offset for every tile (a tile's own estimate could differ from its neighbour's): estimated over
             # the central window here, then given to the tiles as a forced one
-            offset_mode, (dx, dy, dd) = parse_offset(p.lidar_offset)
             t0 = time.perf_counter()
-            if offset_mode == "auto":
-                offset = offset_estimate_windowed(left, right, pr, pc, pv, image_bits(left, right))
-                dd = offset.applied
-                if dd:
-                    log.warning("the LiDAR's disparities are %+.2f px off the images: removed (a height offset or "
-                                "another vertical datum?); --lidar-offset none keeps them", dd)
-            else:
-                offset = OffsetEstimate(offset_mode, applied=dd)
             # the plan, the tiles and their tubes see the corrected LiDAR, and the tiles leave it as it is
-            sparse = corrected_sparse(sparse, dx, dy, dd)
+            given = sparse
+            sparse, offset = correct_large(left, right, sparse, (pr, pc, pv), p.lidar_offset, image_bits(left, right))
             p = p.replace(lidar_offset="none")
-            if round(dx) or round(dy):
+            if sparse is not given:
                 pr, pc, pv = sparse_points_any(sparse)
-            else:
-                pv = pv - np.float32(dd)
             offset_seconds = round(time.perf_counter() - t0, 4)
         d_min, d_max = resolve_disparity_range(d_min, d_max, pv if sparse is not None else None, width=W)
         if scan is not None:

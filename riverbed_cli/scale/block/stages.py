@@ -3,7 +3,6 @@
 
 import contextlib
 import json
-import logging
 import shutil
 import time
 from pathlib import Path
@@ -22,7 +21,7 @@ from ...io.pointcloud import write_points
 from ...io.raster import write_geotiff
 from ...io.windowed import WindowedRaster, image_bits, open_range_map, open_windowed, sparse_points_any
 from ...matching.guidance import lidar_share_of_points
-from ...matching.lidar_offset import OffsetEstimate, corrected_sparse, offset_estimate_windowed, parse_offset
+from ...matching.lidar_offset import correct_large
 from ...matching.pipeline import match_pair, resolve_disparity_range
 from ...matching.registry import get_guide
 from ...matching.tubes import ranges_from_disparity, spacing_window
@@ -30,8 +29,6 @@ from ...products.dsm import Accumulator, Grid, default_resolution, disparity_poi
 from ..tiles import Tile, match_tile, plan_tiles, scan_range_map, tube_widths
 from .plan import DONE, OUTPUTS, WORK, clean_temps, rectify_rpc, riverbed_version, sha256_file, write_json
 from .settings import match_params
-
-log = logging.getLogger(__name__)
 
 
 class RectifyError(RiverbedError):
@@ -162,7 +159,8 @@ def project_stage(job):
     # the corrected LiDAR, and the matching tasks take it as it is
     p = match_params(s)
     srcs = [_image_source(getattr(pair, side), (H, W), s["max_pixels"]) for side in ("left", "right")]
-    sparse, offset = _corrected(sparse, srcs, p.lidar_offset)
+    pr, pc = np.nonzero(np.isfinite(sparse))
+    sparse, offset = correct_large(*srcs, sparse, (pr, pc, sparse[pr, pc]), p.lidar_offset, image_bits(*srcs))
     tags = {"riverbed_pair": job.pair, "riverbed_clouds": json.dumps(used), "riverbed_block_pair": job.name,
             "riverbed_lidar_offset": json.dumps(offset.to_dict())}
     write_disparity(folder / "sparse.tif", sparse, overwrite=True, tags=tags)
@@ -202,21 +200,6 @@ def project_stage(job):
     return {"tiles": tiles, "window": window, "bits": bits, "d_min": d_min, "d_max": d_max, "stats": stats,
             "shape": [H, W], "range_map": rmap is not None, "rectify_seconds": t_rectify,
             "seconds": round(time.perf_counter() - t0, 4)}
-
-
-def _corrected(sparse, srcs, setting):
-    # the pair's LiDAR with its offset against the images removed (matching/lidar_offset.py), and the estimate
-    mode, (dx, dy, dd) = parse_offset(setting)
-    if mode == "auto":
-        pr, pc = np.nonzero(np.isfinite(sparse))
-        offset = offset_estimate_windowed(*srcs, pr, pc, sparse[pr, pc], image_bits(*srcs))
-        dd = offset.applied
-        if dd:
-            log.warning("the LiDAR's disparities are %+.2f px off the images: removed (a height offset or another "
-                        "vertical datum?); lidar_offset: none keeps them", dd)
-    else:
-        offset = OffsetEstimate(mode, applied=dd)
-    return corrected_sparse(sparse, dx, dy, dd), offset
 
 
 def _pair_range_map(path, shape, d_min, d_max, s, work):
