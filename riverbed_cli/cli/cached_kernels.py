@@ -14,9 +14,27 @@ setting of another package for the programs that import it. ``RIVERBED_NUMBA_REF
 Numba's own behaviour (a way out should a Numba release change what a cached kernel needs).
 """
 
+import logging
 import os
+import sys
 
 _DONE = []
+
+
+def announce_compiling():
+    """Say once, on a terminal, that this run compiles riverbed's kernels (a first run after installing, or after an
+    upgrade, takes about a minute longer); in a pipe or a log it is an INFO line."""
+    if _ANNOUNCED:
+        return
+    _ANNOUNCED.append(True)
+    message = "compiling riverbed's kernels for this machine (the first run after installing; cached for the next)"
+    if sys.stderr.isatty():
+        print(f"riverbed: {message}", file=sys.stderr, flush=True)
+    else:
+        logging.getLogger(__name__).info(message)
+
+
+_ANNOUNCED = []
 
 
 def skip_refresh_on_cache_loads():
@@ -40,7 +58,10 @@ def skip_refresh_on_cache_loads():
     def load_overload(self, sig, target_context):
         rtsys.initialize(target_context)  # what a cached kernel needs of the refresh: NRT for its allocations
         with self._guard_against_spurious_io_errors():
-            return self._load_overload(sig, target_context)
+            loaded = self._load_overload(sig, target_context)
+        if loaded is None:  # not cached yet: Numba compiles it now
+            announce_compiling()
+        return loaded
 
     load_overload.__doc__ = cache.load_overload.__doc__
     cache.load_overload = load_overload

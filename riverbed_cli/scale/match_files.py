@@ -157,7 +157,8 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     H, W = left_src.shape[:2]
     if (min_disp is None or max_disp is None) and not sparse and not range_map:
         if max_disp is None:
-            raise RiverbedError("give --max-disp (and --min-disp) or --sparse to derive the disparity range from")
+            raise RiverbedError("give --max-disp (and --min-disp), or --sparse or --range-map to derive the disparity range "
+                                "from")
         min_disp = 0
     min_disp, max_disp = _clamp_given(min_disp, max_disp, W)
     if guide.uses_window and config.guidance.window != "auto" and config.guidance.window > min(H, W):
