@@ -38,6 +38,22 @@ def missing_data_outcome(environ=os.environ):
     return "fail" if environ.get("CI", "").lower() not in ("", "0", "false") else "skip"
 
 
+#: the start of a skip reason that names a capability the machine (or its installed packages) lacks: the only skip CI
+#: accepts; any other skip under CI is a failure (a skip must not stand in for a feature)
+CAPABILITY = "capability: "
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    outcome = yield
+    report = outcome.get_result()
+    if report.skipped and missing_data_outcome() == "fail" and not hasattr(report, "wasxfail"):
+        reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
+        if CAPABILITY not in reason:
+            report.outcome = "failed"
+            report.longrepr = f"skipped under CI (only a missing machine capability may skip there): {reason}"
+
+
 def pytest_collection_modifyitems(config, items):
     # every test that reads the shared data carries the `data` marker: `pytest -m "not data"` runs exactly the
     # tests that need nothing outside the repository
@@ -61,3 +77,40 @@ def shared_data():
 
 def rng():
     return np.random.default_rng(12345)
+
+
+EGM96_MISSING = ("needs PROJ's EGM96 geoid grid (Debian's proj-data, which .ci/run installs; pyproj's wheel ships no "
+                 "grids)")
+
+
+@pytest.fixture(scope="session")
+def egm96():
+    """PROJ's EGM96 -> WGS 84 ellipsoid transformer; without the grid the test is skipped with the reason, and fails
+    under CI (``.ci/run`` installs the grid, so the geoid path is always tested there)."""
+    from riverbed_cli.errors import RiverbedError
+    from riverbed_cli.geometry.rpc_dem import EGM96, geoid_to_ellipsoid_transformer
+
+    try:
+        return geoid_to_ellipsoid_transformer(EGM96)
+    except RiverbedError as e:
+        if missing_data_outcome() == "fail":
+            pytest.fail(f"{EGM96_MISSING}: {e}")
+        pytest.skip(EGM96_MISSING)
+
+
+@pytest.fixture
+def no_egm96_grid(monkeypatch):
+    """A PROJ that finds no geoid grid (its own data folder only, Debian's not added): the missing-grid path, on any
+    machine."""
+    import pyproj.datadir
+
+    from riverbed_cli.geometry import rpc_dem
+
+    before = pyproj.datadir.get_data_dir()
+    own = [d for d in before.split(":") if d and d != str(rpc_dem.SYSTEM_PROJ_DATA)]
+    pyproj.datadir.set_data_dir(own[0] if own else before)
+    monkeypatch.setattr(rpc_dem, "SYSTEM_PROJ_DATA", rpc_dem.Path("/nonexistent/proj"))
+    try:
+        yield
+    finally:
+        pyproj.datadir.set_data_dir(before)

@@ -35,7 +35,7 @@ def test_a_cache_miss_is_announced_once_on_a_terminal(fresh, monkeypatch):
     from numba.core import caching
 
     if not fresh.skip_refresh_on_cache_loads():
-        pytest.skip("this Numba lacks the methods riverbed's start-up patch relies on (it leaves Numba as it is)")
+        pytest.skip("capability: this Numba lacks the methods riverbed's start-up patch relies on (it leaves Numba as it is)")
     load = caching.Cache.load_overload
     monkeypatch.setattr("numba.core.runtime.rtsys.initialize", lambda ctx: None)
     assert load(Cache(), None, None) is None and load(Cache(), None, None) == "kernel"

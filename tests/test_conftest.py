@@ -5,6 +5,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from conftest import find_shared_data, missing_data_outcome
 
 TESTS = Path(__file__).parent
@@ -36,3 +38,22 @@ def test_data_tests_skip_on_a_bare_clone_and_fail_under_ci():
     assert "skipped" in bare.stdout and "RIVERBED_DATA=/nonexistent/shared/data is not a folder" in bare.stdout
     ci = _run({"RIVERBED_DATA": "/nonexistent/shared/data", "CI": "true"})
     assert ci.returncode == 1 and "CI runs every data test" in ci.stdout
+
+
+def test_a_skip_under_ci_fails_unless_it_names_a_missing_capability(monkeypatch):
+    from types import SimpleNamespace
+
+    import conftest
+
+    for ci, reason, outcome in (("true", "needs the grid", "failed"), ("true", "capability: no AVX2", "skipped"),
+                                ("", "needs the grid", "skipped")):
+        monkeypatch.setenv("CI", ci)
+        report = SimpleNamespace(skipped=True, longrepr=("t.py", 1, f"Skipped: {reason}"), outcome="skipped")
+        hook = conftest.pytest_runtest_makereport(None, None)
+        next(hook)
+        with pytest.raises(StopIteration):
+            hook.send(SimpleNamespace(get_result=lambda: report))
+        assert report.outcome == outcome, (ci, reason)
+        if outcome == "failed":
+            assert report.longrepr == ("skipped under CI (only a missing machine capability may skip there): "
+                                       "Skipped: needs the grid")

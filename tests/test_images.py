@@ -185,7 +185,7 @@ def test_to_grey_equals_opencv_vector_code_where_it_runs():
     # multiply-adds); its scalar code for a row's last pixels rounds otherwise. Rows of 64 px: no scalar tail at
     # any vector width.
     if not (cv2.useOptimized() and cv2.checkHardwareSupport(11) and cv2.checkHardwareSupport(12)):  # AVX2, FMA3
-        pytest.skip("OpenCV's vector code here is not the AVX2 / AVX-512 one")
+        pytest.skip("capability: OpenCV's vector code here is not the AVX2 / AVX-512 one")
     rgb = np.random.default_rng(3).integers(0, 256, (300, 64, 3)).astype(np.uint8)
     np.testing.assert_array_equal(to_grey(rgb), cv2.cvtColor(rgb.astype(np.float32), cv2.COLOR_RGB2GRAY))
 

@@ -240,16 +240,17 @@ def test_dem_bilinear_between_pixel_centres():
     assert np.isnan(dem.height(0.4, 1.0))
 
 
-def test_egm96_conversion_or_a_clear_error():
-    try:
-        tr = geoid_to_ellipsoid_transformer("EPSG:5773")
-    except RiverbedError as e:
-        assert str(e) == ("heights are EGM96 height and PROJ's grid us_nga_egm96_15.tif is not available offline "
-                          "(install Debian's proj-data, or point PROJ_DATA at a folder with it)")
-        return
+def test_egm96_conversion(egm96):
     # EGM96 undulation at Mont Ventoux (44.2 N, 5.2 E): about +50.9 m
-    _, _, h = tr.transform(5.195, 44.206, 500.0)
+    _, _, h = egm96.transform(5.195, 44.206, 500.0)
     assert h == pytest.approx(550.86, abs=0.05)
+
+
+def test_egm96_without_its_grid_is_a_clear_error(no_egm96_grid):
+    with pytest.raises(RiverbedError) as e:
+        geoid_to_ellipsoid_transformer("EPSG:5773")
+    assert str(e.value) == ("heights are EGM96 height and PROJ's grid us_nga_egm96_15.tif is not available offline "
+                            "(install Debian's proj-data, or point PROJ_DATA at a folder with it)")
 
 
 # --- the shared real data ---------------------------------------------------------------------------------------
@@ -297,21 +298,18 @@ def test_shared_unsupported_rpc_file_one_line_error(shared_data):
                             "<Dimap_Document> and DigitalGlobe <isd> files)")
 
 
-def test_ventoux_crop_corners_on_srtm(shared_data):
+def test_srtm_without_the_egm96_grid_is_refused_not_read_as_ellipsoidal(shared_data, no_egm96_grid):
+    hgt = shared_data / VENTOUX / "dtm/srtm_ventoux/srtm90_non_void_filled/N44E005.hgt"
+    with pytest.raises(RiverbedError, match="us_nga_egm96_15.tif is not available offline"):
+        read_dem(hgt)
+
+
+def test_ventoux_crop_corners_on_srtm(shared_data, egm96):
     base = shared_data / VENTOUX
     hgt = base / "dtm/srtm_ventoux/srtm90_non_void_filled/N44E005.hgt"
-    try:
-        geoid_to_ellipsoid_transformer("EPSG:5773")
-    except RiverbedError:
-        # without PROJ's EGM96 grid, SRTM is refused with the one-line error (and not read as ellipsoidal)
-        with pytest.raises(RiverbedError, match="us_nga_egm96_15.tif is not available offline"):
-            read_dem(hgt)
-        dem = read_dem(hgt, vertical="ellipsoid", bounds=(5.18, 44.19, 5.21, 44.22))
-        offset = 0.0
-    else:
-        dem = read_dem(hgt, bounds=(5.18, 44.19, 5.21, 44.22))
-        assert dem.vertical == "EPSG:5773"
-        offset = 50.86
+    dem = read_dem(hgt, bounds=(5.18, 44.19, 5.21, 44.22))
+    assert dem.vertical == "EPSG:5773"
+    offset = 50.86
     raw = read_dem(hgt, vertical="ellipsoid", bounds=(5.18, 44.19, 5.21, 44.22))
     np.testing.assert_allclose(dem.heights - raw.heights, offset, atol=0.1)
     left = read_rpc(base / "rectification/left_image.geom").shifted(5000, 5000)

@@ -323,33 +323,36 @@ def test_rpc_pair_files_refused_by_pinhole_commands_and_validated(pair_files, tm
         assert str(e.value) == f"{bad}: {message}"
 
 
-def test_ventoux_crops_rectified_read_back_and_matched(shared_data, tmp_path):
-    from bench_rpc_rectify import sift_parallax
-
-    from riverbed_cli.geometry.rpc_dem import geoid_to_ellipsoid_transformer
-
+def ventoux_rectify_args(shared_data, out):
     base = shared_data / VENTOUX / "rectification"
     hgt = shared_data / VENTOUX / "dtm/srtm_ventoux/srtm90_non_void_filled/N44E005.hgt"
+    return hgt, ["rectify", "--rpc", base / "left_image.tif", base / "left_image.geom", base / "right_image.tif",
+                 base / "right_image.geom", "-o", out, "--dem", hgt, "--json"]
+
+
+def test_ventoux_without_the_egm96_grid_is_one_line(shared_data, tmp_path, no_egm96_grid):
     out = tmp_path / "out"
-    args = ["rectify", "--rpc", base / "left_image.tif", base / "left_image.geom", base / "right_image.tif",
-            base / "right_image.geom", "-o", out, "--dem", hgt, "--json"]
-    try:
-        geoid_to_ellipsoid_transformer("EPSG:5773")
-        egm96 = True
-    except RiverbedError as e:
-        # no EGM96 grid here (Debian's proj-data): the one-line error, then SRTM read as ellipsoidal (~51 m low)
-        egm96 = False
-        r = run(args)
-        assert (r.exit_code, r.output) == (1, f"riverbed: error: {hgt}: {str(e)}\n") and not out.exists()
-        args += ["--vertical", "ellipsoid"]
+    hgt, args = ventoux_rectify_args(shared_data, out)
+    r = run(args)
+    assert (r.exit_code, r.output) == (1, f"riverbed: error: {hgt}: heights are EGM96 height and PROJ's grid "
+                                          "us_nga_egm96_15.tif is not available offline (install Debian's proj-data, "
+                                          "or point PROJ_DATA at a folder with it)\n")
+    assert not out.exists()
+
+
+def test_ventoux_crops_rectified_read_back_and_matched(shared_data, tmp_path, egm96):
+    from bench_rpc_rectify import sift_parallax
+
+    out = tmp_path / "out"
+    _, args = ventoux_rectify_args(shared_data, out)
     r = run(args)
     assert r.exit_code == 0, r.output
     s = json.loads(r.output)
     assert s["crop_offsets"] == [[5000.0, 5000.0], [4915.0, 5162.0]]
     assert (s["width"], s["height"]) == (613, 614)
-    if egm96:        # docs/rpc.md: 472.2-577.6 m, d in 0-84.2 px, pointing -4.83 px of rows
-        assert s["heights"] == pytest.approx([472.17, 577.56], abs=0.05)
-        assert s["disparity"][1] == pytest.approx(84.2, abs=0.1)
+    # docs/rpc.md: 472.2-577.6 m, d in 0-84.2 px, pointing -4.83 px of rows
+    assert s["heights"] == pytest.approx([472.17, 577.56], abs=0.05)
+    assert s["disparity"][1] == pytest.approx(84.2, abs=0.1)
     assert s["pointing_row_offset_px"] == pytest.approx(-4.83, abs=0.05) and s["pointing_tie_points"] > 300
     assert s["virtual_row_residual_max_px"] < 0.01
     pair = load_pairfile(out / "pair.yaml", accept_rpc=True)

@@ -262,18 +262,14 @@ def test_bad_inputs_one_line(rect, tmp_path):
                             "EPSG:32631+5773 for UTM 31N + EGM96, or a 3D CRS for ellipsoidal heights)")
 
 
-def test_ventoux_srtm_points_round_trip(shared_data, tmp_path):
+def test_ventoux_srtm_points_round_trip(shared_data, tmp_path, egm96):
     """Ground points on the SRTM surface at the Ventoux crops' rectified pixel centres -> project -> dsm."""
-    from riverbed_cli.geometry.rpc_dem import geoid_to_ellipsoid_transformer, read_dem
+    from riverbed_cli.geometry.rpc_dem import read_dem
     from riverbed_cli.geometry.rpc_pair import footprint_bounds
 
     base = shared_data / VENTOUX / "rectification"
     hgt = shared_data / VENTOUX / "dtm/srtm_ventoux/srtm90_non_void_filled/N44E005.hgt"
-    try:
-        geoid = geoid_to_ellipsoid_transformer("EPSG:5773")
-        vertical = []
-    except RiverbedError:   # no EGM96 grid (Debian's proj-data): SRTM read as ellipsoidal, the LAS in 3D UTM
-        geoid, vertical = None, ["--vertical", "ellipsoid"]
+    geoid, vertical = egm96, []
     out = tmp_path / "rect"
     r = run(["rectify", "--rpc", base / "left_image.tif", base / "left_image.geom", base / "right_image.tif",
              base / "right_image.geom", "-o", out, "--dem", hgt, *vertical])

@@ -20,7 +20,7 @@ def gate(value):
     return pytest.approx(value, rel=0.10, abs=0.1)
 
 
-def test_ventoux_matched_unguided_and_guided_against_srtm(shared_data, tmp_path):
+def test_ventoux_matched_unguided_and_guided_against_srtm(shared_data, tmp_path, egm96):
     from bench_rpc_ventoux import run, table
 
     s = run(shared_data, tmp_path, spacings=(4,), picture=None, baseline=False)
@@ -31,12 +31,10 @@ def test_ventoux_matched_unguided_and_guided_against_srtm(shared_data, tmp_path)
     assert rows["guided"]["lidar_points"] == 17039 and rows["guided"]["kept"] > 0.9 * 17039
     # the reference: the SRTM on the DSM grid where both crops see the ground (they overlap over ~30 % of the left)
     assert s["reference_cells"] == pytest.approx(70991, rel=0.01)
-    if s["vertical"].startswith("EGM96"):
-        for method, want in MEASURED.items():
-            assert (method, rows[method]["median"]) == (method, gate(want["median"]))
-            assert (method, rows[method]["nmad"]) == (method, gate(want["nmad"]))
-    else:     # no EGM96 grid: SRTM read as ellipsoidal (docs/rpc.md's fallback, ~51 m low; not measured here)
-        assert abs(rows["guided"]["median"]) < 0.5 and rows["guided"]["nmad"] < 1.0
+    assert s["vertical"].startswith("EGM96")
+    for method, want in MEASURED.items():
+        assert (method, rows[method]["median"]) == (method, gate(want["median"]))
+        assert (method, rows[method]["nmad"]) == (method, gate(want["nmad"]))
     # the unguided matcher is far from the smooth reference, the guided one sits on it (by construction)
     assert rows["unguided"]["nmad"] > 20 * rows["guided"]["nmad"]
     assert rows["guided"]["completeness"] > 90 and rows["unguided"]["completeness"] > 90
