@@ -137,3 +137,26 @@ def test_benchmark_baselines_and_winners(dataset, tmp_path):
     by = {x["guide"]: x for x in rows}
     # Cones at 5 % of the GT pixels: riverbed beats unguided matching and nearest-neighbour LiDAR on bad3
     assert by["riverbed"]["bad3"] < by["nearest"]["bad3"] < by["none"]["bad3"]
+
+
+def test_the_cache_serves_only_the_code_and_the_scene_that_computed_it(dataset, tmp_path, monkeypatch):
+    """A cached case is reused by the same code on the same scene; after a code change (another source fingerprint)
+    or a change of the scene's pixels it is run again."""
+    from riverbed_cli.products import benchmark as bm
+
+    out = tmp_path / "out"
+    args = [dataset, "--layout", "middlebury", "-o", out, "--guides", "none", "--shares", "0.05", "--json"]
+    assert json.loads(run(*args).output)["cached"] == 0
+    assert json.loads(run(*args).output)["cached"] == 1
+    monkeypatch.setattr(bm, "code_fingerprint", lambda: "another commit")
+    assert json.loads(run(*args).output)["cached"] == 0
+    monkeypatch.undo()
+    assert json.loads(run(*args).output)["cached"] == 1
+    changed = tmp_path / "mb"
+    shutil.copytree(dataset, changed)
+    import cv2
+
+    im = cv2.imread(str(changed / "cones" / "im6.png"))
+    im[0, 0] = 255 - im[0, 0]  # one pixel of the right image
+    cv2.imwrite(str(changed / "cones" / "im6.png"), im)
+    assert json.loads(run(changed, *args[1:]).output)["cached"] == 0

@@ -7,6 +7,7 @@ method, so methods differ only in matching.
 """
 
 import csv
+import functools
 import hashlib
 import json
 import logging
@@ -100,13 +101,33 @@ def case_key(scene, matcher, guide, share, window, seed):
     return f"{scene}|{matcher}|{guide}|{share:g}|{window}|{seed}"
 
 
-def _cache_name(key):
-    # The riverbed version is part of the cache name: results of another version are not reused.
+def _cache_name(key, scene_hash=""):
+    # The riverbed version, the code (code_fingerprint) and the scene's pixels are part of the cache name: results
+    # of other code, or of a scene whose files changed, are not reused.
     try:
         v = version("riverbed")
     except PackageNotFoundError:
         v = "dev"
-    return hashlib.sha1(f"{v}|{key}".encode()).hexdigest()[:16] + ".json"
+    return hashlib.sha1(f"{v}|{code_fingerprint()}|{scene_hash}|{key}".encode()).hexdigest()[:16] + ".json"
+
+
+@functools.lru_cache(maxsize=1)
+def code_fingerprint():
+    """A hash of riverbed's own source files (their paths and contents): a cached benchmark case is reused only by
+    the code that computed it (a version number does not change from commit to commit)."""
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha1()
+    for f in sorted(root.rglob("*.py")):
+        h.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()[:16]
+
+
+def scene_fingerprint(scene):
+    """A hash of a scene's images and ground truth (their shapes and pixels)."""
+    h = hashlib.sha1()
+    for a in (scene.left, scene.right, scene.gt):
+        h.update(str(a.shape).encode() + np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()[:16]
 
 
 #: Cache files larger than this are not read (one case's row is a few hundred bytes).
@@ -168,6 +189,7 @@ def run_benchmark(scenes, matchers=("sgm",), guides=("none", "gauss", "riverbed"
     rows = []
     for sc in scenes:
         d_max = int(math.ceil(np.nanmax(sc.gt))) + 4
+        scene_hash = scene_fingerprint(sc) if cache else ""
         for share, seed in ((sh, se) for sh in shares for se in seeds):
             sparse = lidar_sample(sc.gt, share, seed, share_of)
             for method in baselines:
@@ -185,7 +207,7 @@ def run_benchmark(scenes, matchers=("sgm",), guides=("none", "gauss", "riverbed"
                 cases = [(g, None) for g in guides] + [("riverbed", w) for w in windows]
                 for guide, window in cases:
                     key = case_key(sc.name, matcher, guide, share, window, seed) + ("|gt" if share_of == "gt" else "")
-                    f = cache / _cache_name(key) if cache else None
+                    f = cache / _cache_name(key, scene_hash) if cache else None
                     row = cached_row(f, key) if f is not None and f.is_file() else None
                     if row is not None:
                         row["cached"] = True
