@@ -173,3 +173,29 @@ def test_a_tiled_match_estimates_once_and_every_tile_takes_the_corrected_lidar(t
     assert forced.info["lidar_offset"] == {"mode": "forced", "applied": 5.0, "estimated": None, "points": 0,
                                            "gain": None, "search": None, "spread": None}
     np.testing.assert_array_equal(np.isnan(forced.disparity), np.isnan(clean.disparity))
+
+
+def test_project_reports_a_raised_cloud_in_metres(tmp_path):
+    """The sample block's LiDAR raised by 2 m (another vertical datum, say): `riverbed project` reports the offset the
+    images see, in px and in metres, with one warning; `riverbed match` removes it."""
+    import subprocess
+    import sys
+
+    import laspy
+
+    block = REPO / "sample_data" / "block"
+    las = laspy.read(block / "lidar.laz")
+    las.z = las.z + 2.0
+    las.write(tmp_path / "raised.laz")
+    r = subprocess.run([sys.executable, "-m", "riverbed_cli", "project", str(tmp_path / "raised.laz"),
+                        str(block / "pair.yaml"), "-o", str(tmp_path / "s.tif"), "--json"], capture_output=True,
+                       text=True)
+    assert r.returncode == 0, r.stderr
+    est = json.loads(r.stdout)["lidar_offset"]
+    assert est["vertical_m"] == pytest.approx(2.0, abs=0.1) and est["applied"] == pytest.approx(1.6, abs=0.1)
+    assert r.stderr == (f"riverbed: WARNING: the LiDAR lies {est['vertical_m']:+.2f} m ({est['applied']:+.2f} px) off "
+                        "the surface the images see: another vertical datum or a height offset? riverbed match "
+                        "removes it (--lidar-offset none keeps it)\n")
+    clean = CliRunner().invoke(cli, ["project", str(block / "lidar.laz"), str(block / "pair.yaml"), "-o",
+                                     str(tmp_path / "c.tif"), "--json"])
+    assert abs(json.loads(clean.output)["lidar_offset"]["vertical_m"]) < 0.1

@@ -4,17 +4,21 @@ import json
 import logging
 
 import click
+import numpy as np
 
 from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
 from ..geometry import visibility as vis
-from ..geometry.projection import NOISE_CLASSES, OUTLIERS, SIDES, VISIBILITY, image_shape, project_cloud
+from ..geometry.projection import (NOISE_CLASSES, OUTLIERS, SIDES, VISIBILITY, disparity_offset_in_metres,
+                                   image_shape, project_cloud)
 from ..io.atomic import check_output
 from ..io.disparity import disparity_format, write_disparity
 from ..io.lidar import lidar_info
+from ..io.windowed import image_bits, open_windowed
 from ..geometry.pairfile import load_pairfile, load_registration
 from ..matching.config import MatchConfig
 from ..matching.guides.riverbed import riverbed_window
+from ..matching.lidar_offset import offset_estimate_windowed
 from .options import input_path, json_opt, output_opt, overwrite_opt, print_json, progress_bar
 
 log = logging.getLogger(__name__)
@@ -120,11 +124,36 @@ def project_cmd(cloud, pair, output, registration, classes, drop_classes, outlie
             "riverbed_counts": json.dumps(counts), "riverbed_pair": str(pair), "riverbed_cloud": str(cloud)}
     if stats.get("crs"):
         tags["riverbed_crs"] = stats["crs"]
+    offset = lidar_offset_report(geometry, sparse)
+    if offset is not None:
+        tags["riverbed_lidar_offset"] = json.dumps(offset)
     write_disparity(output, sparse, overwrite=overwrite, tags=tags)
 
-    summary = {"output": str(output), **stats.to_dict()}
+    summary = {"output": str(output), **stats.to_dict(), **({"lidar_offset": offset} if offset else {})}
     if as_json:
         print_json(summary)
     else:
         log.info("%s: %d of %d points kept, LiDAR share %.4f, window %d", output, stats["kept"],
                  stats["points_read"], stats["lidar_share"], stats["window"])
+
+
+def lidar_offset_report(geometry, sparse):
+    """The LiDAR's disparity offset against the pair's images (when the pair file names them), in px and in metres
+    (``riverbed match`` removes it, docs/lidar_faults.md); None without images or points. A significant one is
+    also a warning naming a possible vertical-datum or height-offset mismatch."""
+    paths = [getattr(geometry, side, None) for side in ("left", "right")]
+    if not all(p is not None and p.is_file() for p in paths):
+        return None
+    rows, cols = np.nonzero(np.isfinite(sparse))
+    if len(rows) == 0:
+        return None
+    srcs = [open_windowed(p, "image") for p in paths]
+    est = offset_estimate_windowed(*srcs, rows, cols, sparse[rows, cols], image_bits(*srcs), warn=False)
+    vertical, along = disparity_offset_in_metres(geometry, rows, cols, sparse[rows, cols], est.estimated)
+    out = {**est.to_dict(), "vertical_m": None if vertical is None else round(vertical, 3),
+           "along_rays_m": None if along is None else round(along, 3)}
+    if est.applied:
+        log.warning("the LiDAR lies %+.2f m (%+.2f px) off the surface the images see: another vertical datum or a "
+                    "height offset? riverbed match removes it (--lidar-offset none keeps it)", vertical or 0.0,
+                    est.applied)
+    return out

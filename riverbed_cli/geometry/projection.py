@@ -41,7 +41,7 @@ from . import visibility as vis
 from .cameras import as_matrix, check_registration
 from .coverage import lidar_share
 from .outliers import SOR_K, SOR_SIGMA, layer_winners, sor_inliers_image
-from .rpc_geometry import project_cloud_rpc
+from .rpc_geometry import project_cloud_rpc, triangulate_rpc
 
 log = logging.getLogger(__name__)
 
@@ -412,3 +412,27 @@ def _visible(method, rows, cols, disp, xyz, centre, shape, footprint, tolerance,
         visible[visible] = vis.zbuffer_visible(rows[visible], cols[visible], disp[visible], shape, footprint,
                                                tolerance, slope, edge_reach)
     return visible
+
+
+def disparity_offset_in_metres(geometry, rows, cols, values, offset, n=2000):
+    """What a disparity ``offset`` (px, LiDAR minus images) of the LiDAR points means on the ground, through the
+    pair's geometry: ``(vertical, along_rays)`` in metres, the medians over up to ``n`` of the points of the height
+    change (world z; for an RPC pair, ellipsoidal height) and of the 3-D displacement's length when their disparity
+    loses the offset. Positive ``vertical``: the LiDAR lies above the surface the images see."""
+    step = max(1, -(-len(values) // n))
+    x, y = np.asarray(cols[::step], np.float64), np.asarray(rows[::step], np.float64)
+    d = np.asarray(values[::step], np.float64)
+    if getattr(geometry, "kind", None) == "rpc":
+        lon0, lat0, h0, _ = triangulate_rpc(geometry, x, y, d)
+        lon1, lat1, h1, _ = triangulate_rpc(geometry, x, y, d - offset)
+        dz = h0 - h1
+        m = 111_320.0  # metres per degree of latitude
+        moved = np.sqrt(((lon0 - lon1) * m * np.cos(np.radians(lat0))) ** 2 + ((lat0 - lat1) * m) ** 2 + dz ** 2)
+    else:
+        p0, p1 = geometry.triangulate(x, y, d), geometry.triangulate(x, y, d - offset)
+        dz = p0[:, 2] - p1[:, 2]
+        moved = np.linalg.norm(p0 - p1, axis=1)
+    ok = np.isfinite(dz) & np.isfinite(moved)
+    if not ok.any():
+        return None, None
+    return float(np.median(dz[ok])), float(np.median(moved[ok]))

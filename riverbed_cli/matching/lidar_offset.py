@@ -303,13 +303,13 @@ def correct_large(left, right, sparse, points, setting="auto", bits=None):
     return corrected_sparse(sparse, dx, dy, dd), est
 
 
-def offset_estimate(left, right, rows, cols, values, bits=None):
+def offset_estimate(left, right, rows, cols, values, bits=None, warn=True):
     """:func:`estimate_offset` and the rule (module docstring): the :class:`OffsetEstimate` of ``auto``, whose
-    ``applied`` is the offset to remove (0: none)."""
+    ``applied`` is the offset to remove (0: none); a warning says so when ``warn``."""
     offset, gain, n, search, spread = estimate_offset(left, right, rows, cols, values, bits)
     offset = round(offset, 3)  # what is reported is what is removed
     apply = abs(offset) >= MIN_OFFSET and gain >= MIN_GAIN and spread <= MAX_SPREAD and abs(offset) < search
-    if apply:
+    if apply and warn:
         log.warning("the LiDAR's disparities are %+.2f px off the images: removed (a height offset or another "
                     "vertical datum?); --lidar-offset none keeps them", offset)
     elif abs(offset) >= MIN_OFFSET:
@@ -356,7 +356,7 @@ def corrected_sparse(sparse, dx, dy, dd):
 WINDOW = 2048
 
 
-def offset_estimate_windowed(left, right, rows, cols, values, bits=None):
+def offset_estimate_windowed(left, right, rows, cols, values, bits=None, warn=True):
     """:func:`offset_estimate` over the central ``WINDOW`` x ``WINDOW`` px of a large pair (numpy arrays or windowed
     rasters, sliced ``[y0:y1, x0:x1]``), read with the right image's columns its matches need: one estimate for
     every tile of a tiled match. ``rows``, ``cols``, ``values``: all the LiDAR points."""
@@ -371,4 +371,5 @@ def offset_estimate_windowed(left, right, rows, cols, values, bits=None):
     reach = int(math.ceil(max(float(vals.max()), 0.0) + max(MIN_SEARCH, SEARCH_SHARE * float(np.ptp(vals))))) + 4
     xs = max(0, x0 - reach)  # both crops from here: one column frame, the right one holding the matches
     crop = [np.asarray(im[y0:y1, xs:x1]) for im in (left, right)]
-    return offset_estimate(*crop, rows[inside] - y0, cols[inside] - xs, vals, bits)
+    return offset_estimate(*crop, rows[inside] - y0, cols[inside] - xs, vals, bits, warn)
+
