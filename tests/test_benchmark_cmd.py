@@ -160,3 +160,15 @@ def test_the_cache_serves_only_the_code_and_the_scene_that_computed_it(dataset, 
     im[0, 0] = 255 - im[0, 0]  # one pixel of the right image
     cv2.imwrite(str(changed / "cones" / "im6.png"), im)
     assert json.loads(run(changed, *args[1:]).output)["cached"] == 0
+
+
+def test_a_metric_that_became_nan_fails_the_gate():
+    from riverbed_cli.products import benchmark as bm
+
+    key = "cones|sgm|riverbed|0.05|None|0"
+    expected = {"tolerance": {"relative": 0.1, "floor": {"bad3": 0.05, "avg": 0.005}},
+                "cases": [{"key": key, "bad3": 1.5, "avg": 0.27}]}
+    row = {"key": key, "bad3": 1.5, "avg": 0.27}
+    assert bm.check([row], expected) == []
+    assert bm.check([{**row, "avg": float("nan")}], expected) == [f"{key}: avg nan > 0.297 (expected 0.270)"]
+    assert bm.check([{**row, "bad3": 1.66}], expected) == [f"{key}: bad3 1.660 > 1.650 (expected 1.500)"]

@@ -16,7 +16,6 @@ VI32 = ir.VectorType(I32, LANES)
 VF32 = ir.VectorType(F32, LANES)
 VF64 = ir.VectorType(F64, LANES)
 LANE_INDEX = ir.Constant(VI64, list(range(LANES)))
-REVERSE = ir.Constant(ir.VectorType(I32, LANES), list(range(LANES - 1, -1, -1)))
 
 
 def element_ptr(context, builder, arrty, arr, index):

@@ -414,7 +414,7 @@ def read_expectations(path):
     :class:`RiverbedError` naming the file for anything else (oversized, not UTF-8, invalid or too deeply nested
     JSON, another shape).
 
-    The tolerance is ``{"relative": r, "floor": {metric: x}}`` or, in older files, ``{metric: x}``; ``cases`` is a
+    The tolerance is ``{"relative": r, "floor": {metric: x}}``; ``cases`` is a
     list of ``{"key": str, metric: number, ...}``. Metrics are those of :data:`METRICS`.
     """
     data, _ = load_text_data(path, "benchmark expectations file", EXPECTATIONS_MAX_BYTES, fmt="json")
@@ -427,13 +427,11 @@ def read_expectations(path):
     tol = data.get("tolerance", {})
     if not isinstance(tol, dict):
         refuse("tolerance: expected an object")
-    limits = tol
-    if "relative" in tol:
-        if not _number(tol["relative"]):
-            refuse("tolerance.relative: expected a number")
-        limits = tol.get("floor")
-        if not isinstance(limits, dict):
-            refuse("tolerance.floor: expected an object of metric: number")
+    if not _number(tol.get("relative")):
+        refuse("tolerance.relative: expected a number")
+    limits = tol.get("floor")
+    if not isinstance(limits, dict):
+        refuse("tolerance.floor: expected an object of metric: number")
     for metric, value in limits.items():
         if metric not in METRICS or not _number(value):
             refuse(f"tolerance: '{metric}' is not a metric with a number (metrics: {', '.join(METRICS)})")
@@ -454,11 +452,8 @@ def _json_kind(value):
 
 
 def _limit(value, metric, tol):
-    """The largest value of ``metric`` that passes an expectation of ``value``: relative with a floor, or (older
-    expectation files) an absolute per-metric tolerance."""
-    if "relative" in tol:
-        return value + max(tol["relative"] * value, tol["floor"].get(metric, 0.0))
-    return value + tol[metric]
+    """The largest value of ``metric`` that passes an expectation of ``value``: relative, with a floor."""
+    return value + max(tol["relative"] * value, tol["floor"].get(metric, 0.0))
 
 
 def check(rows, expected):
@@ -482,9 +477,9 @@ def check(rows, expected):
             if len(parts) == 6 and all(v in a for v, a in zip(parts, asked)):
                 failures.append(f"{case['key']}: expected but not run")
             continue
-        metrics = tol["floor"] if "relative" in tol else tol
-        for metric in metrics:
-            if metric in case and r[metric] > _limit(case[metric], metric, tol):
+        for metric in tol["floor"]:
+            # not (<=): a metric that became NaN fails too
+            if metric in case and not r[metric] <= _limit(case[metric], metric, tol):
                 failures.append(f"{case['key']}: {metric} {r[metric]:.3f} > {_limit(case[metric], metric, tol):.3f} "
                                 f"(expected {case[metric]:.3f})")
     cases = expected.get("cases", [])

@@ -11,4 +11,3 @@ MATERIAL_NAMES = ("grass", "road", "field", "roof", "tree", "water", "tar roof",
 MATERIAL_CLASS = np.array([2, 2, 2, 6, 5, 9, 6, 1, 6, 2, 2], np.uint8)
 #: Probability that a pulse on a material gives no return (dark or wet surfaces).
 MATERIAL_DROPOUT = np.array([0.0, 0.02, 0.0, 0.0, 0.0, 0.96, 0.75, 0.1, 0.5, 0.0, 0.0])
-_BUILDING_MATERIALS = (ROOF, TAR, SOLAR)

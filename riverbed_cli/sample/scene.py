@@ -63,11 +63,6 @@ class Scene:
         az, el = math.radians(self.sun_azimuth), math.radians(self.sun_elevation)
         return np.array([math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)])
 
-    def to_grid(self, xy):
-        c, s = self.rotation
-        xy = np.asarray(xy, np.float64)
-        return np.stack([c * xy[..., 0] + s * xy[..., 1], -s * xy[..., 0] + c * xy[..., 1]], axis=-1)
-
     def to_local(self, uv):
         c, s = self.rotation
         uv = np.asarray(uv, np.float64)

@@ -92,13 +92,6 @@ def support_layouts(tubes, arms, iterations, d_min):
 
 
 @njit(cache=True, inline="always")
-def _held(k, off, wid):
-    # index of absolute disparity index k in a tube (offset off, width wid), or -1 when the tube does not hold it
-    i = k - off
-    return i if 0 <= i < wid else -1
-
-
-@njit(cache=True, inline="always")
 def _run_step(src, sb, w, o, run, rb, rp, wp, op):
     # running sums of one pixel's tube (w wide from offset o; source at src[sb:], result at run[rb:]): each
     # disparity continues the previous pixel's run (its tube wp wide from op, at run[rp:]) where that pixel holds it
