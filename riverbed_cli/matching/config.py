@@ -324,7 +324,7 @@ _FUSE_HELP = {"gate": "Fusion: stereo and LiDAR agree within this many standard 
               "stereo_sigma": "Fusion: the stereo's error (px), or auto: estimated where the LiDAR is planar.",
               "lidar": "Fusion: the LiDAR's interpolation: planes (each pixel on the least-squares plane of its "
                        "nearest LiDAR point and that point's natural neighbours; no triangulation), linear "
-                       "(Delaunay; the only one until 2026-12-03, about three times the cost of planes on dense "
+                       "(Delaunay; about three times the cost of planes on dense "
                        "LiDAR), or auto: planes for LiDAR denser than one point per 12 x 12 px, else linear."}
 _FUSE_CHECKS = {"gate": _POS, "neighbours": integer(3, 64), "support": integer(1, 64), "floor": _POS,
                 "stereo_sigma": auto_or(_POS, "a positive number"), "lidar": choice(LIDAR_KINDS)}

@@ -9,7 +9,7 @@ pixel from an error estimate of each source:
   ``planes`` puts each pixel on the least-squares plane of its nearest LiDAR point and that point's ``neighbours``
   nearest natural neighbours (:func:`~riverbed_cli.geometry.planes.plane_fill`: no triangulation, a third of the
   cost); ``linear`` interpolates linearly over the Delaunay triangulation
-  (:func:`~riverbed_cli.geometry.interpolation.linear_fill`, the fusion's LiDAR side until 2026-12-03); ``auto``
+  (:func:`~riverbed_cli.geometry.interpolation.linear_fill`); ``auto``
   (the default) takes planes for LiDAR denser than one point per 12 x 12 px (:func:`lidar_kind`), linear else. Its error
   ``sigma_l`` is measured on the LiDAR itself: each point is predicted by a plane fitted to its ``neighbours``
   nearest other points (leave-one-out; with ``planes`` the nearest of its natural neighbours); a point's ``sigma``

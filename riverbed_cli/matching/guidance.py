@@ -113,7 +113,7 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
     # only (volume.band_pair_rows, as every row-parallel kernel of the match), so no pixel is written by both
     # threads; the result does not depend on the order (_claim). Bands of at least 2 * half rows, the even ones
     # offered first and then the odd ones, wrote half of each other's rows: slower, most where the VM's two vCPUs do
-    # not share their caches (docs/tubes.md, twentieth session).
+    # not share their caches (docs/tubes.md, Speed).
     H, W, C = guide.shape
     planes = np.empty((C, H, W), np.float32)
     owner = np.empty((H, W), dtype=np.int32)

@@ -2,7 +2,7 @@
 :mod:`.lanes`).
 
 The guidance's walls (:func:`lanes_walls`, :func:`lanes_flat`) work on ``LANES`` disparities of one pixel's tube in
-float32 (float64 until the twenty-first session: 1.6x the time, for costs within one unit). Their ``_whole`` forms
+float32 (float64 took 1.6x the time, for costs within one unit). Their ``_whole`` forms
 read and write all lanes (those past the tube written back unchanged), for chunks inside a block of pixels one thread
 modulates; the masked forms neither read nor write the lanes past a tube, for chunks that reach into another thread's
 block. Measured on the captured inputs of the dev pairs: the modulation 2-2.3x faster than its scalar loops

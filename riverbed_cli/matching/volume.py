@@ -131,8 +131,8 @@ def spread_rows(i, n):
 
 
 #: rows of a band of the row-parallel kernels' shares (:func:`band_pair_rows`; 32 pairs of 16 rows on the 500-row
-#: speed pair). Chosen as the riverbed ownership's bands at its default window, when the ownership still went by
-#: bands (before the twentieth session); not measured against other sizes since
+#: speed pair). Chosen as the riverbed ownership's bands at its default window, when the ownership went by bands;
+#: not measured against other sizes
 BAND_ROWS = 8
 
 
