@@ -268,13 +268,15 @@ def _held_temps():
 
 
 @contextlib.contextmanager
-def atomic_output(path, overwrite=False):
+def atomic_output(path, overwrite=False, verify=None):
     """Yield the temporary path of ``path`` (same suffix); on success check it, flush it and rename it to ``path``.
 
     Claims ``path`` (:func:`check_output`) unless this process has. On any exception the temporary file is
     removed, ``path`` is left as it was, and an ``OSError`` (a full disk, a file-size limit) or a
     :class:`RiverbedError` naming the temporary file is raised as a one-line :class:`RiverbedError` naming
     ``path``. Inside an :func:`output_group` (or another ``atomic_output`` block) the rename waits for its end.
+    ``verify``: read the file back (:func:`verify_raster`) before it counts as written; default: for TIFFs, which
+    GDAL may have written (a writer that wrote the bytes itself, through Python, passes False).
     """
     path = Path(path)
     if _key(path) in _held_temps():  # a writer handed an open block's temporary file: it is written there
@@ -289,7 +291,7 @@ def atomic_output(path, overwrite=False):
             _nesting.opened.append(claim)
             try:
                 yield claim.tmp
-                _finish(claim)
+                _finish(claim, claim.tmp.suffix.lower() in RASTER_SUFFIXES if verify is None else verify)
             except RiverbedError as e:
                 if e.path is not None and e.path == str(claim.tmp):
                     raise RiverbedError(str(e)[len(e.path) + 2:], path) from None
@@ -332,12 +334,12 @@ class _Nesting(threading.local):
 _nesting = _Nesting()
 
 
-def _finish(claim):
+def _finish(claim, verify):
     """Check what was written and flush it to disk, before it may be renamed into place."""
     tmp = claim.tmp
     if not tmp.exists():
         raise RiverbedError("nothing was written", claim.path)
-    if tmp.suffix.lower() in RASTER_SUFFIXES:
+    if verify:
         verify_raster(tmp, claim.path)
     fd = os.open(tmp, os.O_RDONLY | os.O_CLOEXEC)
     try:

@@ -62,7 +62,8 @@ def write_geotiff(path, bands, transform, crs=None, nodata=None, creation_option
         raise RiverbedError(f"unknown CRS '{crs}'", path) from None
     profile = {"driver": "GTiff", "width": width, "height": height, "count": count, "dtype": data.dtype.name,
                "transform": transform, "crs": crs_obj, "nodata": nodata}
-    with atomic_output(path, overwrite) as tmp, warnings.catch_warnings():
+    # the COG's bytes are written by Python below (its writes raise on a full disk): no read-back needed
+    with atomic_output(path, overwrite, verify=False) as tmp, warnings.catch_warnings():
         warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
         try:
             # Build the raster in memory, then let GDAL's COG driver lay out tiles and overviews.

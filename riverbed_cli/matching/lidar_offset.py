@@ -59,6 +59,8 @@ MIN_BLOCKS = 4
 #: the search reaches this share of the LiDAR's disparity span beyond no offset (and at least MIN_SEARCH px)
 SEARCH_SHARE = 0.15
 MIN_SEARCH = 4
+#: and never beyond this (px): a few stray points far off the rest must not make the search, and its cost, huge
+MAX_SEARCH = 128
 
 
 @dataclass
@@ -223,7 +225,7 @@ def estimate_offset(left, right, rows, cols, values, bits=None):
         bits = effective_bits(left, right)
     gl, gr = (to_grey(im, bits) for im in (left, right))
     span = float(values.max() - values.min())
-    search = float(max(MIN_SEARCH, math.ceil(SEARCH_SHARE * span)))
+    search = float(min(max(MIN_SEARCH, math.ceil(SEARCH_SHARE * span)), MAX_SEARCH))
     coarse = np.arange(-search, search + 1.0)
     per_point = patch_costs(gl, gr, rows, cols, values, coarse)
     cost = per_point.mean(axis=0)
@@ -368,7 +370,7 @@ def offset_estimate_windowed(left, right, rows, cols, values, bits=None, warn=Tr
         inside = np.ones(len(rows), bool)
         y0, y1, x0, x1 = 0, H, 0, W
     vals = np.asarray(values, np.float32)[inside]
-    reach = int(math.ceil(max(float(vals.max()), 0.0) + max(MIN_SEARCH, SEARCH_SHARE * float(np.ptp(vals))))) + 4
+    reach = int(math.ceil(max(float(vals.max()), 0.0) + MAX_SEARCH)) + 4
     xs = max(0, x0 - reach)  # both crops from here: one column frame, the right one holding the matches
     crop = [np.asarray(im[y0:y1, xs:x1]) for im in (left, right)]
     return offset_estimate(*crop, rows[inside] - y0, cols[inside] - xs, vals, bits, warn)

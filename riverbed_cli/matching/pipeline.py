@@ -133,18 +133,16 @@ def clamp_to_width(d_min, d_max, width):
     return lo, hi
 
 
-def disparity_range_from_sparse(sparse, margin=None, width=None):
+def disparity_range_from_sparse(sparse, margin=None):
     """Inclusive integer range ``(d_min, d_max)`` covering the sparse disparities plus a margin.
 
     The margin (px) defaults to ``max(8, 15 % of the LiDAR span)``: LiDAR misses parts of the scene (occlusions,
-    dark surfaces) whose disparities may lie a little beyond what it saw. With ``width`` (the images', px),
-    disparities beyond ``ABSURD_WIDTHS`` widths are refused (:func:`check_disparity_values`).
+    dark surfaces) whose disparities may lie a little beyond what it saw. Corrupt values are refused where the LiDAR
+    enters (:func:`check_disparity_values`: ``match_pair``, ``match_tiled``, ``match_files``, a block's project stage).
     """
     vals = sparse[np.isfinite(sparse)]
     if vals.size == 0:
         raise RiverbedError("sparse map has no valid disparities")
-    if width is not None:
-        check_disparity_values(vals, width)
     lo, hi = float(vals.min()), float(vals.max())
     if margin is None:
         margin = max(8.0, 0.15 * (hi - lo))
@@ -158,7 +156,7 @@ def resolve_disparity_range(d_min, d_max, sparse_values, width=None):
         if sparse_values is None:
             raise RiverbedError("give the disparity range (--min-disp/--max-disp), or a sparse map or a range map to "
                                 "derive it from")
-        lo, hi = disparity_range_from_sparse(sparse_values, width=width)
+        lo, hi = disparity_range_from_sparse(sparse_values)
         d_min = lo if d_min is None else d_min
         d_max = hi if d_max is None else d_max
     d_min, d_max = int(d_min), int(d_max)

@@ -17,7 +17,7 @@ from pathlib import Path
 from ...errors import RiverbedError
 from ...geometry.rectify import rectify_files
 from ...geometry.rpc_pair import rectify_rpc_files
-from ...io.atomic import FOLDER_LOCK, atomic_output, lock_folder, taken_temporaries
+from ...io.atomic import FOLDER_LOCK, TEMP_NAME, atomic_output, lock_folder, taken_temporaries
 from ...io.images import header_size, read_image
 from ...geometry.pairfile import load_pairfile
 from .manifest import RAW_KEYS, RPC_KEYS, Manifest, load_manifest
@@ -31,8 +31,6 @@ WORK = ".work"
 MERGED = "dsm.tif"
 #: Where an ``rpc:`` or ``raw:`` entry's rectified pair goes, under ``pairs/NAME/``.
 RECTIFIED = "rectified"
-# io.atomic's temporary names: .STEM.XXXXXXXX.tmp.SUFFIX (8 hex digits)
-TEMP_NAME = re.compile(r"^\..+\.[0-9a-f]{8}\.tmp(\.[^.]*)?$")
 
 
 def clean_temps(folder, names=None):

@@ -22,7 +22,7 @@ from ...io.raster import write_geotiff
 from ...io.windowed import WindowedRaster, image_bits, open_range_map, open_windowed, sparse_points_any
 from ...matching.guidance import lidar_share_of_points
 from ...matching.lidar_offset import correct_large
-from ...matching.pipeline import match_pair, resolve_disparity_range
+from ...matching.pipeline import check_disparity_values, match_pair, resolve_disparity_range
 from ...matching.registry import get_guide
 from ...matching.tubes import ranges_from_disparity, spacing_window
 from ...products.dsm import Accumulator, Grid, default_resolution, disparity_points
@@ -159,6 +159,7 @@ def project_stage(job):
     # the corrected LiDAR, and the matching tasks take it as it is
     p = match_params(s)
     srcs = [_image_source(getattr(pair, side), (H, W), s["max_pixels"]) for side in ("left", "right")]
+    check_disparity_values(sparse, W)  # a point next to a camera is no disparity of the pair
     pr, pc = np.nonzero(np.isfinite(sparse))
     sparse, offset = correct_large(*srcs, sparse, (pr, pc, sparse[pr, pc]), p.lidar_offset, image_bits(*srcs))
     tags = {"riverbed_pair": job.pair, "riverbed_clouds": json.dumps(used), "riverbed_block_pair": job.name,
