@@ -121,15 +121,20 @@ def check_lidar_count(n, config):
 def clamp_to_width(d_min, d_max, width):
     """``(d_min, d_max)`` cut to what a pair ``width`` px wide can match, ``|d| <= width - 1`` (a pixel's match at a
     larger disparity lies outside the other image, and the volume would grow for nothing), with a warning when it
-    cuts; :class:`RiverbedError` when no disparity of the range is left."""
+    cuts; :class:`RiverbedError` when no disparity of the range is left. An end that is None (not given: derived
+    later) stays None; an empty range (``d_min > d_max``) is left for the caller to report."""
     top = max(int(width) - 1, 0)
-    if d_min > top or d_max < -top:
+    if d_min is not None and d_max is not None and d_min > d_max:
+        return d_min, d_max
+    if (d_min is not None and d_min > top) or (d_max is not None and d_max < -top):
         raise RiverbedError(f"disparity range [{d_min}, {d_max}] lies beyond what images {width} px wide can match "
                             f"(|d| <= {top})")
-    lo, hi = max(d_min, -top), min(d_max, top)
+    lo = None if d_min is None else max(d_min, -top)
+    hi = None if d_max is None else min(d_max, top)
     if (lo, hi) != (d_min, d_max):
-        log.warning("disparity range [%d, %d] clamped to [%d, %d]: the images are %d px wide", d_min, d_max, lo, hi,
-                    width)
+        show = lambda v: "auto" if v is None else str(v)  # noqa: E731
+        log.warning("disparity range [%s, %s] clamped to [%s, %s]: the images are %d px wide", show(d_min),
+                    show(d_max), show(lo), show(hi), width)
     return lo, hi
 
 

@@ -87,23 +87,7 @@ def _range_for_plan(vals, min_disp, max_disp, width):
     if vals.size == 0:
         return None  # match_pair reports the empty map
     lo, hi = disparity_range_from_sparse(vals)
-    lo, hi = (lo if min_disp is None else min_disp), (hi if max_disp is None else max_disp)
-    return clamp_to_width(lo, hi, width) if lo <= hi else (lo, hi)
-
-
-def _clamp_given(min_disp, max_disp, width):
-    # --min-disp / --max-disp cut to what the images can match (pipeline.clamp_to_width), with one warning here
-    # rather than one from each tile; an end not given is derived (and cut) later
-    if min_disp is not None and max_disp is not None:
-        return (min_disp, max_disp) if min_disp > max_disp else clamp_to_width(min_disp, max_disp, width)
-    top = max(width - 1, 0)
-    if max_disp is not None and max_disp > top:
-        log.warning("--max-disp %d clamped to %d: the images are %d px wide", max_disp, top, width)
-        max_disp = top
-    if min_disp is not None and min_disp < -top:
-        log.warning("--min-disp %d clamped to %d: the images are %d px wide", min_disp, -top, width)
-        min_disp = -top
-    return min_disp, max_disp
+    return clamp_to_width(lo if min_disp is None else min_disp, hi if max_disp is None else max_disp, width)
 
 
 def _heap_estimate(H, W, rng, widths, plan, overlap):
@@ -160,7 +144,7 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
             raise RiverbedError("give --max-disp (and --min-disp), or --sparse or --range-map to derive the disparity range "
                                 "from")
         min_disp = 0
-    min_disp, max_disp = _clamp_given(min_disp, max_disp, W)
+    min_disp, max_disp = clamp_to_width(min_disp, max_disp, W)  # one warning here rather than one per tile
     if guide.uses_window and config.guidance.window != "auto" and config.guidance.window > min(H, W):
         raise RiverbedError(f"--window {config.guidance.window} is larger than the image ({W}x{H} px)")
     rmap = scan = None
