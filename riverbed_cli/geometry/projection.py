@@ -176,17 +176,52 @@ def _grow(a, cap):
 
 
 def _check_crs(pair, cloud_crs, cloud_path):
-    """Refuse a cloud whose CRS differs from the pair's (no reprojection here)."""
+    """Refuse a cloud whose CRS differs from the pair's (no reprojection here). A compound CRS (horizontal +
+    vertical, e.g. a DEM's projected CRS + EGM2008 heights) is compared by its horizontal part, and by its vertical
+    part only when the pair states one too: frame orientations carry no vertical datum, and their camera heights are
+    taken to be on the cloud's."""
     if pair.crs is None or cloud_crs is None:
         return
     try:
         pair_crs = CRS.from_user_input(pair.crs)
     except CRSError:
         raise RiverbedError(f"crs: unknown CRS '{pair.crs}' in the pair file") from None
-    if not pair_crs.equals(cloud_crs, ignore_axis_order=True):
+    if pair_crs.equals(cloud_crs, ignore_axis_order=True):
+        return
+    (pair_h, pair_v), (cloud_h, cloud_v) = crs_parts(pair_crs), crs_parts(cloud_crs)
+    if not pair_h.equals(cloud_h, ignore_axis_order=True):
         raise RiverbedError(
-            f"the cloud's CRS ({cloud_crs.to_string()}) differs from the pair's ({pair_crs.to_string()}); "
+            f"the cloud's CRS ({crs_label(cloud_crs)}) differs from the pair's ({crs_label(pair_crs)}); "
             "reproject the cloud, or pass --crs if the file states a wrong one", cloud_path)
+    if pair_v is not None and cloud_v is not None and not pair_v.equals(cloud_v):
+        raise RiverbedError(
+            f"the cloud's heights ({cloud_v.name}) are on another vertical datum than the pair's ({pair_v.name}); "
+            "convert the cloud's heights first", cloud_path)
+    if cloud_v is not None and pair_v is None:
+        log.info("%s: heights taken to be on the cloud's vertical datum (%s): the pair states none",
+                 cloud_path, cloud_v.name)
+
+
+def crs_parts(crs):
+    """``(horizontal, vertical)`` parts of a pyproj CRS: a compound CRS's two sub-CRSs, a 3-D CRS's 2-D version and
+    None, or the CRS itself and None."""
+    if crs.is_compound:
+        subs = crs.sub_crs_list
+        vertical = next((c for c in subs if c.is_vertical), None)
+        horizontal = next((c for c in subs if not c.is_vertical), subs[0])
+        return horizontal, vertical
+    if len(crs.axis_info) == 3:
+        try:
+            return crs.to_2d(), None
+        except CRSError:
+            return crs, None
+    return crs, None
+
+
+def crs_label(crs):
+    """A CRS in one short phrase: its authority code (``EPSG:32632``) when it has one, else its name."""
+    code = crs.to_authority(min_confidence=90)
+    return f"{code[0]}:{code[1]}" if code else f"'{crs.name}'"
 
 
 def image_shape(pair):

@@ -60,13 +60,15 @@ GROWTH = 4.0
 class FusionStats(RecordMapping):
     """What a fusion did: ``stereo_sigma`` (px, the stereo's estimated error), ``agree`` (share of pixels where the
     sources agreed and were averaged), ``lidar`` (share taken from the interpolation), ``stereo`` (share kept from the
-    stereo against the interpolation), ``mean_confidence``."""
+    stereo against the interpolation), ``mean_confidence``, ``invalid`` (share left invalid: outside the overlap or
+    beyond the searched range, :mod:`.overlap`); shares of all pixels."""
 
     stereo_sigma: float
     agree: float
     lidar: float
     stereo: float
     mean_confidence: float
+    invalid: float = 0.0
 
 
 @dataclass

@@ -19,6 +19,7 @@ from ..errors import RiverbedError
 from . import fusion, guides, matchers  # noqa: F401  (importing them fills the registries)
 from ..geometry.coverage import lidar_share_of_row_ends
 from .config import MatchConfig
+from .overlap import keep_fusion_to_lidar, keep_to_overlap
 from .lidar_offset import correct_lidar
 from .registry import get_fusion, get_guide, get_matcher
 from .results import MatchInfo, MatchResult
@@ -402,7 +403,7 @@ def fill_tube_holes(left, right, lo, hi, hole, d_min, d_max, config):
 
 
 def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, range_map=None, beside="auto",
-               **overrides):
+               valid_areas=None, **overrides):
     """Dense disparity of a rectified pair, optionally guided by sparse LiDAR disparities.
 
     Parameters
@@ -426,14 +427,18 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
         Run the fusion's LiDAR side (``Fusion.prepare``) in a thread beside the matcher; ``auto``: for images up to
         ``BESIDE_MAX_PIXELS``. The output is the same either way. Tiled matches pass False: a second thread's
         allocator arena keeps its freed memory beside the main one's, from tile to tile.
+    valid_areas : (left_valid, right_valid), optional
+        The images' valid areas ((H, W) bool or None each; e.g. a rectified frame's alpha): left pixels outside the
+        left one, and those whose every candidate falls outside the right one, are not matched (:mod:`.overlap`).
 
     Returns
     -------
     MatchResult
         ``disparity``: (H, W) float32, NaN invalid; ``info`` (:class:`MatchInfo`): ``seconds`` (whole matching
         time), ``stages`` (seconds per stage; ``first_pass`` for riverbed+), ``lidar_share``, ``window``,
-        ``d_min``, ``d_max``, ``guide``, ``matcher``, and for AD-Census ``refinement`` (outlier counts and step
-        timings).
+        ``d_min``, ``d_max``, ``guide``, ``matcher``, ``outside_overlap`` (share of pixels with no candidate
+        inside the right image: NaN, confidence 0; :mod:`.overlap`), and for AD-Census ``refinement`` (outlier
+        counts and step timings).
 
     The SGM settings (``config.sgm``) apply to the ``sgm`` matcher; AD-Census takes ``config.adcensus`` and always
     checks left-right consistency in its refinement.
@@ -474,8 +479,9 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
             beside = shape[0] * shape[1] <= BESIDE_MAX_PIXELS
         lidar_side = (_Beside if beside else _After)(fuser.prepare, sparse, config, points)
     try:
-        out, mode, stats = _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, matcher, share,
-                                         range_map, stages, fuser.needs_status, points, share_all)
+        out, mode, stats, tubes = _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, matcher,
+                                                share, range_map, stages, fuser.needs_status, points, share_all)
+        outside, no_stereo = keep_to_overlap(out, d_min, d_max, valid_areas, tubes)
         t0 = time.perf_counter()  # the fusion's stage is the time it adds after the matcher
         fused = fuser.fuse(out.disparity, out.status, sparse, config,
                            lidar_side.result() if lidar_side is not None else None)
@@ -483,19 +489,21 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
         if lidar_side is not None:  # not left running behind an error
             lidar_side.join()
     if fuser.name != "none":
+        fused = keep_fusion_to_lidar(fused, no_stereo, points, d_min, d_max, valid_areas)
         stages["fusion"] = round(time.perf_counter() - t0, 4)
     info = MatchInfo(round(time.perf_counter() - t_all, 4), stages, config.guide, config.matcher, share,
                      len(points[0]) if points is not None else 0, out.window, d_min, d_max,
                      [int(shape[1]), int(shape[0])], out.refinement, mode,
                      stats.to_dict() if stats is not None else None, fuser.name,
                      fused.stats.to_dict() if fused.stats is not None else None,
-                     offset.to_dict() if offset is not None else None)
+                     offset.to_dict() if offset is not None else None, round(float(outside.mean()), 6))
     return MatchResult(fused.disparity, info, fused.confidence)
 
 
 def _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, matcher, share, range_map, stages,
                   return_status, points=None, share_all=0.0):
-    # match_pair's range (tubes), guide preparation and matcher: the matcher's output, the range mode, tube stats
+    # match_pair's range (tubes), guide preparation and matcher: the matcher's output, the range mode, tube stats,
+    # the tubes (None: the whole range)
     shape = left.shape[:2]
     mode = resolve_range(config, guide, matcher, sparse is not None, range_map is not None)
     tubes, stats = None, None
@@ -521,7 +529,7 @@ def _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, match
         stages["first_pass"] = round(time.perf_counter() - t0, 4)
     out = matcher.match(left, right, sparse, d_min, d_max, config, guide, share, first_pass, stages, tubes,
                         return_status=return_status, points=points)
-    return out, mode, stats
+    return out, mode, stats, tubes
 
 
 def warm_up(matcher="sgm", guide_names=("none", "gauss", "riverbed"), config=None, fusion_lidar=None):

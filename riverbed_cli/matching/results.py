@@ -40,6 +40,7 @@ class MatchInfo(RecordMapping):
     fusion: str = "none"
     fusion_stats: dict = None
     lidar_offset: dict = None
+    outside_overlap: float = 0.0
 
     _optional = ("refinement", "tubes", "fusion_stats", "lidar_offset")
 

@@ -1,0 +1,192 @@
+"""Where a match is possible at all: the overlap rule, applied to every match by :func:`keep_to_overlap` and
+:func:`keep_fusion_to_lidar`.
+
+A pixel ``(y, x)`` of the left (reference) image can be matched only if at least one disparity ``d`` of its searched
+range (``[d_min, d_max]``, or its tube) puts its candidate ``x - d`` inside the right image (``0 <= x - d < W``) and, when the right
+image has a valid area (a rectified frame's area that its source covers), on a valid right pixel; a left pixel outside
+the left image's own valid area has nothing to match. A pixel whose tube (the LiDAR's bound on its disparity, narrower than the range) reaches outside
+needs all of it inside: its true match may be the part outside, and the stereo would then pick a wrong one inside
+(on a real frame pair, DSM spikes of 50-70 m along the overlap's edge). Every other pixel is *outside the overlap*: whatever a matcher
+or an interpolation puts there is a guess. Such pixels are invalid in the disparity (NaN), have confidence 0, are
+never filled by the fusion and are never triangulated. On frame pairs this is most of the image: with 27 % forward
+overlap, 71-74 % of a rectified left frame has ``x - d < 0`` for every disparity the terrain allows.
+
+The fusion's output is also held to the range that was searched: a value outside ``[d_min - 1, d_max + 1]`` (the
+sub-pixel refinement reaches half a pixel beyond the ends) is an extrapolation of the LiDAR's planes, not a
+measurement, and is invalid.
+"""
+
+from dataclasses import replace
+
+import cv2
+import numpy as np
+from numba import njit, prange
+
+#: How far (px) beyond the searched range a disparity may lie: the sub-pixel refinement's reach, with room.
+RANGE_SLACK = 1.0
+
+
+def matchable_mask(shape, d_min, d_max, right_valid=None, left_valid=None, tubes=None):
+    """Pixels of the left image that have at least one candidate inside the right image (and its valid area).
+
+    Parameters
+    ----------
+    shape : (H, W)
+        Size of the (equal-size) rectified images.
+    d_min, d_max : int
+        The searched disparity range, inclusive, ``d = x_left - x_right`` (px).
+    right_valid, left_valid : (H, W) bool arrays, optional
+        The images' valid areas (True: the pixel shows the scene); None: every pixel.
+    tubes : TubeLayout, optional
+        Each pixel's own searched range (:class:`~riverbed_cli.matching.volume.TubeLayout`, tubes inside
+        ``[d_min, d_max]``): its candidates are those of its tube. A tube narrower than ``[d_min, d_max]`` is the
+        LiDAR's bound on the true disparity: when part of it falls outside, so may the true match, and the pixel
+        needs *every* candidate of its tube inside.
+
+    Returns
+    -------
+    (H, W) bool
+        True where a match is possible.
+    """
+    H, W = int(shape[0]), int(shape[1])
+    lo, hi = int(d_min), int(d_max)
+    if tubes is not None:
+        out = _matchable_tubes(tubes.offset, tubes.width, np.int64(lo), np.int64(hi - lo + 1),
+                               np.ones((1, 1), np.bool_) if right_valid is None else
+                               np.ascontiguousarray(right_valid, np.bool_))
+    elif right_valid is None:
+        # candidates x - hi .. x - lo overlap [0, W - 1] exactly for lo <= x <= W - 1 + hi
+        x = np.arange(W)
+        row = (x >= lo) & (x <= W - 1 + hi)
+        out = np.broadcast_to(row, (H, W)).copy()
+    else:
+        out = _matchable_rows(np.ascontiguousarray(right_valid, np.bool_), np.int64(lo), np.int64(hi))
+    if left_valid is not None:
+        out &= np.asarray(left_valid, np.bool_)
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _matchable_rows(right_valid, lo, hi):
+    # Per row, the running count of valid right pixels: a left pixel is matchable when its candidate columns
+    # [x - hi, x - lo] (cut to the image) hold at least one. Rows in parallel; O(W) per row whatever the range.
+    H, W = right_valid.shape
+    out = np.empty((H, W), np.bool_)
+    for y in prange(H):
+        count = np.zeros(W + 1, np.int32)
+        for x in range(W):
+            count[x + 1] = count[x] + (1 if right_valid[y, x] else 0)
+        for x in range(W):
+            a = max(x - hi, 0)
+            b = min(x - lo, W - 1)
+            out[y, x] = b >= a and count[b + 1] - count[a] > 0
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _matchable_tubes(offset, width, d_min, nominal, right_valid):
+    # _matchable_rows with each pixel's own range [d_min + offset, d_min + offset + width - 1], a tube narrower than
+    # the ``nominal`` range needing every candidate inside; right_valid of shape (1, 1): no valid area
+    H, W = offset.shape
+    masked = right_valid.shape[0] == H
+    out = np.empty((H, W), np.bool_)
+    for y in prange(H):
+        count = np.zeros(W + 1, np.int32)
+        for x in range(W):
+            count[x + 1] = count[x] + (1 if (not masked or right_valid[y, x]) else 0)
+        for x in range(W):
+            lo = d_min + offset[y, x]
+            hi = lo + width[y, x] - 1
+            if width[y, x] < nominal:  # a tube from the LiDAR: all of it inside, else the truth may lie outside
+                out[y, x] = x - hi >= 0 and x - lo <= W - 1 and count[x - lo + 1] - count[x - hi] == hi - lo + 1
+            else:
+                a = max(x - hi, 0)
+                b = min(x - lo, W - 1)
+                out[y, x] = b >= a and count[b + 1] - count[a] > 0
+    return out
+
+
+def matchable_mask_reference(shape, d_min, d_max, right_valid=None, left_valid=None, tubes=None):
+    """:func:`matchable_mask` as the plain loop over every candidate (for tests)."""
+    H, W = int(shape[0]), int(shape[1])
+    out = np.zeros((H, W), np.bool_)
+    for y in range(H):
+        for x in range(W):
+            if left_valid is not None and not left_valid[y, x]:
+                continue
+            lo, hi = int(d_min), int(d_max)
+            if tubes is not None:
+                lo = int(d_min) + int(tubes.offset[y, x])
+                hi = lo + int(tubes.width[y, x]) - 1
+            inside = [0 <= x - d < W and (right_valid is None or right_valid[y, x - d]) for d in range(lo, hi + 1)]
+            narrow = tubes is not None and hi - lo < int(d_max) - int(d_min)
+            out[y, x] = all(inside) if narrow else any(inside)
+    return out
+
+
+def lidar_coverage(points, shape):
+    """Pixels inside the convex hull of the LiDAR ``points`` (``(rows, cols, values)``), where the LiDAR's
+    interpolation is an interpolation: (H, W) bool (all False for fewer than three points)."""
+    rows, cols = np.asarray(points[0]), np.asarray(points[1])
+    out = np.zeros(shape, np.uint8)
+    if rows.size >= 3:
+        hull = cv2.convexHull(np.stack([cols, rows], axis=1).astype(np.int32))
+        cv2.fillConvexPoly(out, hull, 1)
+    return out.astype(np.bool_)
+
+
+def match_outside(disparity, right_valid=None):
+    """Pixels whose disparity puts their match outside the right image (``x - d`` more than half a pixel beyond
+    its columns) or on an invalid pixel of it: the matcher's cost there is padding, not a measurement."""
+    H, W = disparity.shape
+    with np.errstate(invalid="ignore"):
+        xr = np.arange(W, dtype=np.float32)[None, :] - disparity
+        out = (xr < -0.5) | (xr > W - 0.5)
+    if right_valid is not None:
+        col = np.clip(np.rint(np.nan_to_num(xr, nan=0.0)), 0, W - 1).astype(np.intp)
+        out |= np.isfinite(disparity) & ~np.take_along_axis(np.asarray(right_valid, np.bool_), col, axis=1)
+    return out
+
+
+def outside_searched_range(disparity, d_min, d_max):
+    """Pixels whose disparity lies further than :data:`RANGE_SLACK` beyond the searched ``[d_min, d_max]``."""
+    with np.errstate(invalid="ignore"):
+        return (disparity < d_min - RANGE_SLACK) | (disparity > d_max + RANGE_SLACK)
+
+
+def keep_to_overlap(out, d_min, d_max, valid_areas=None, tubes=None):
+    """Invalidate, in a matcher's output ``out`` (:class:`~riverbed_cli.matching.matchers.MatcherOutput`, changed in
+    place), the pixels outside the overlap and the choices whose match lies outside the right image; their left-right
+    status becomes failing. ``valid_areas``: ``(left_valid, right_valid)`` or None; ``tubes``: the searched tubes
+    (None: ``[d_min, d_max]`` everywhere). Returns ``(outside, no_stereo)``: the pixels without any candidate
+    (the overlap's complement) and every pixel the output leaves without a disparity, (H, W) bool each."""
+    left_valid, right_valid = valid_areas if valid_areas is not None else (None, None)
+    outside = ~matchable_mask(out.disparity.shape, d_min, d_max, right_valid, left_valid, tubes=tubes)
+    unmatched = outside | match_outside(out.disparity, right_valid)
+    if unmatched.any():
+        out.disparity[unmatched] = np.nan
+        if out.status is not None:
+            out.status[unmatched] = np.maximum(out.status[unmatched], 1)
+    return outside, ~np.isfinite(out.disparity)
+
+
+def keep_fusion_to_lidar(fused, no_stereo, points, d_min, d_max, valid_areas=None):
+    """A fusion's output (:class:`~riverbed_cli.matching.fusion.FusionOutput`) without what it cannot know: a pixel
+    with no stereo (``no_stereo``) keeps the LiDAR's value only inside the convex hull of the LiDAR ``points`` (an
+    interpolation, not an extrapolation of its planes) and inside the left image's valid area; no value lies beyond
+    the searched range. Dropped pixels are NaN with confidence 0, and counted in the stats' ``invalid``."""
+    shape = fused.disparity.shape
+    dropped = no_stereo & ~lidar_coverage(points, shape)
+    if valid_areas is not None and valid_areas[0] is not None:
+        dropped |= ~np.asarray(valid_areas[0], np.bool_)
+    dropped |= outside_searched_range(fused.disparity, d_min, d_max)
+    if not dropped.any():
+        return fused
+    fused.disparity[dropped] = np.nan
+    if fused.confidence is not None:
+        fused.confidence[dropped] = 0.0
+    if fused.stats is not None:  # the dropped pixels had no stereo: they were the interpolation's
+        gone = float(dropped.mean())
+        fused.stats = replace(fused.stats, lidar=round(max(0.0, fused.stats.lidar - gone), 4), invalid=round(gone, 4),
+                              mean_confidence=round(float(fused.confidence.mean()), 4))
+    return fused
