@@ -1,14 +1,23 @@
 """The overlap rule (riverbed_cli.matching.overlap): no disparity where no match is possible, no fill beyond the LiDAR."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
+import rasterio
+from click.testing import CliRunner
 
+from riverbed_cli.cli.main import cli
+from riverbed_cli.io.disparity import read_disparity
+from riverbed_cli.io.images import read_image, read_valid_area, write_png_file
+from riverbed_cli.io.windowed import valid_area_source
 from riverbed_cli.matching.fusion import FusionOutput, FusionStats
 from riverbed_cli.matching.overlap import (keep_fusion_to_lidar, lidar_coverage, match_outside, matchable_mask,
                                            matchable_mask_reference)
 from riverbed_cli.matching.pipeline import match_pair
 from riverbed_cli.matching.volume import TubeLayout
 
+RAW = Path(__file__).resolve().parents[1] / "sample_data" / "block" / "raw"
 H, W, D = 60, 160, 24  # a fronto-parallel pair: the right image is the left one shifted by D px
 
 
@@ -132,3 +141,55 @@ def test_valid_areas_restrict_the_match():
     band = (x - D >= 60) & (x - D < 90)
     assert np.isnan(d[:, band]).all() and np.isnan(d[:, -10:]).all()
     assert np.isfinite(d[:, D:][:, ~band[D:] & (x[D:] < W - 10)]).mean() > 0.95
+
+
+def test_written_valid_area_round_trips(tmp_path):
+    rng = np.random.default_rng(1)
+    valid = rng.random((20, 30)) > 0.3
+    for name, img in (("grey.png", rng.integers(0, 255, (20, 30), dtype=np.uint8)),
+                      ("rgb16.png", rng.integers(0, 65535, (20, 30, 3), dtype=np.uint16))):
+        write_png_file(tmp_path / name, img, valid=valid)
+        np.testing.assert_array_equal(read_valid_area(tmp_path / name), valid)
+        back = read_image(tmp_path / name)
+        assert back.dtype == img.dtype and (back == (img if img.ndim == 3 else img[:, :, None])).all()
+    write_png_file(tmp_path / "plain.png", np.zeros((4, 5), np.uint8))
+    assert read_valid_area(tmp_path / "plain.png") is None
+    write_png_file(tmp_path / "full.png", np.zeros((4, 5), np.uint8), valid=np.ones((4, 5), bool))
+    assert read_valid_area(tmp_path / "full.png") is None  # all valid: no area to keep to
+    # a TIFF's mask as GDAL gives it (here its nodata), read whole or by windows
+    data = np.where(valid, 7, 0).astype(np.uint8)
+    with rasterio.open(tmp_path / "m.tif", "w", driver="GTiff", width=30, height=20, count=1, dtype="uint8",
+                       nodata=0) as ds:
+        ds.write(data, 1)
+    np.testing.assert_array_equal(read_valid_area(tmp_path / "m.tif"), valid)
+    src = valid_area_source(tmp_path / "m.tif")
+    np.testing.assert_array_equal(src[3:9, 5:25], valid[3:9, 5:25])
+    with rasterio.open(tmp_path / "n.tif", "w", driver="GTiff", width=30, height=20, count=1, dtype="uint8") as ds:
+        ds.write(data, 1)
+    assert valid_area_source(tmp_path / "n.tif") is None and read_valid_area(tmp_path / "n.tif") is None
+
+
+def test_rectified_frames_keep_their_valid_area_through_match(tmp_path):
+    """rectify --alpha 1 (every source pixel kept: black corners) writes the valid areas as alpha; match leaves
+    every pixel outside the left one, and every pixel whose candidates all fall outside the right one, invalid,
+    whole or in tiles."""
+    raw = RAW
+
+    def run(*args):
+        r = CliRunner().invoke(cli, [str(a) for a in args])
+        assert r.exit_code == 0, r.output
+        return r
+
+    run("rectify", raw / "frame0.png", raw / "frame0.yaml", raw / "frame1.png", raw / "frame1.yaml",
+        "-o", tmp_path / "r", "--alpha", "1", "--size", "600x400")
+    lv, rv = (read_valid_area(tmp_path / "r" / f"{s}.png") for s in ("left", "right"))
+    assert lv is not None and rv is not None and 0.6 < lv.mean() < 0.99 and 0.6 < rv.mean() < 0.99
+    for tile in ("0", "160"):
+        out = tmp_path / f"d{tile}.tif"
+        run("match", tmp_path / "r" / "left.png", tmp_path / "r" / "right.png", "--min-disp", 20, "--max-disp", 80,
+            "--tile", tile, "--overlap", 32, "-o", out)
+        d = read_disparity(out)
+        assert not np.isfinite(d[~lv]).any()
+        assert not np.isfinite(d[~matchable_mask(d.shape, 20, 80, rv)]).any()
+        assert not match_outside(d, rv).any()
+        assert np.isfinite(d[lv]).mean() > 0.5

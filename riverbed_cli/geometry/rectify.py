@@ -90,6 +90,8 @@ class Rectified:
     (0 left, 1 right) the raw-image pixel it was sampled from (``cv2.remap``); ``rotations[i]`` is the
     rotation from raw camera axes to rectified camera axes and ``K[i]`` the rectified camera matrix, so that
     ``pair.P_left == K[0] @ [R_rect | -R_rect (C_left - origin)]`` with ``R_rect = rotations[0] @ R_left``.
+    ``valid_areas[i]``: (H, W) bool, the rectified pixels inside raw image ``i`` (None: all of them), written as the
+    PNGs' alpha channel.
     """
 
     left: np.ndarray
@@ -99,6 +101,7 @@ class Rectified:
     rotations: tuple
     K: tuple
     info: dict
+    valid_areas: tuple = (None, None)
 
 
 # In-plane rotations about the optical axis that turn the baseline to +x (OpenCV's rectified frame -> ours).
@@ -246,13 +249,14 @@ def rectify(left_image, left, right_image, right, alpha=0.0, size=None, interpol
     P_right[0, 3] -= f * B
     pair = PairGeometry(P_left, P_right, origin=origin, crs=crs, width=out_size[0], height=out_size[1])
 
-    rotations, maps, images, valid = [], [], [], []
+    rotations, maps, images, valid, areas = [], [], [], [], []
     for o, K, img in ((left, K1, left_image), (right, K2, right_image)):
         Rr = R_fin @ o.R.T  # raw camera axes -> rectified camera axes
         mx, my = cv2.initUndistortRectifyMap(o.K, o.dist, Rr, K, out_size, cv2.CV_32FC1)
         images.append(cv2.remap(img, mx, my, interpolation, borderMode=cv2.BORDER_CONSTANT, borderValue=0))
         inside = (mx >= -0.5) & (mx <= W - 0.5) & (my >= -0.5) & (my <= H - 0.5)
         valid.append(round(float(inside.mean()), 6))
+        areas.append(None if inside.all() else inside)
         rotations.append(Rr)
         maps.append((mx, my))
     # Each image's turn (multiple of 90 deg) and the small rotation left once the turn is undone.
@@ -270,7 +274,7 @@ def rectify(left_image, left, right_image, right, alpha=0.0, size=None, interpol
         if t:
             log.info("%s image turned by %d deg about its optical axis so that the baseline runs along the "
                      "rows with the right camera to the right (d >= 0)", name, t)
-    return Rectified(images[0], images[1], pair, tuple(maps), tuple(rotations), (K1, K2), info)
+    return Rectified(images[0], images[1], pair, tuple(maps), tuple(rotations), (K1, K2), info, tuple(areas))
 
 
 OUTPUTS = ("left.png", "right.png", "pair.yaml")
@@ -327,8 +331,8 @@ def rectify_files(left_image, left_orientation, right_image, right_orientation, 
                f"{info['turn_deg'][1]} deg (right).")
     with atomic_output(paths[0], overwrite) as t_left, atomic_output(paths[1], overwrite) as t_right, \
             atomic_output(paths[2], overwrite) as t_pair:
-        write_png_file(t_left, result.left)
-        write_png_file(t_right, result.right)
+        write_png_file(t_left, result.left, valid=result.valid_areas[0])
+        write_png_file(t_right, result.right, valid=result.valid_areas[1])
         write_pairfile(t_pair, pair, comment=comment)
     files = {name: p.stat().st_size for name, p in zip(OUTPUTS, paths)}
     return {"outdir": str(outdir), "files": files, **info,

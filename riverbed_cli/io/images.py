@@ -439,13 +439,51 @@ def check_pair(left, right, left_path=None, right_path=None):
         )
 
 
-def write_png_file(path, img):
+def read_valid_area(path):
+    """The valid area of an image file: (H, W) bool, True where the pixel shows the scene, from its alpha channel
+    (PNG grey + alpha or RGBA; TIFF alpha band, mask band or nodata, as GDAL gives them); None when the file has
+    none (every pixel valid). The area a rectified frame's source covers (``riverbed rectify`` writes it as alpha).
+    """
+    path = require_file(path)
+    with open(path, "rb") as f:
+        head = f.read(26)
+    if head[:8] == PNG_SIGNATURE:
+        if len(head) < 26 or head[25] not in (4, 6):  # IHDR colour type: 4 grey + alpha, 6 RGBA
+            return None
+        img = imread_quiet(path)
+        if img is None or img.ndim != 3 or img.shape[2] not in (2, 4):
+            return None
+        valid = img[:, :, -1] > 0
+        return None if valid.all() else valid
+    if head[:4] in TIFF_MAGIC:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+                with rasterio.open(path) as ds:
+                    if all(flags == [rasterio.enums.MaskFlags.all_valid] for flags in ds.mask_flag_enums):
+                        return None
+                    valid = ds.dataset_mask() > 0
+        except MemoryError:
+            raise
+        except Exception:  # noqa: BLE001 - GDAL drivers raise many types; any of them means "cannot read"
+            raise RiverbedError(_CORRUPT, path) from None
+        return None if valid.all() else valid
+    return None
+
+
+def write_png_file(path, img, valid=None):
     """Write ``img`` (uint8/uint16, H x W, or H x W x 3 in RGB order) as PNG with OpenCV; one-line error on failure.
+    ``valid`` ((H, W) bool, optional): the image's valid area, written as its alpha channel (full scale where
+    True, 0 elsewhere; :func:`read_valid_area`).
 
     Writes ``path`` directly: callers wrap it in :func:`~riverbed_cli.io.atomic.atomic_output`.
     """
     img = np.asarray(img)
     out = cv2.cvtColor(img, cv2.COLOR_RGB2BGR) if img.ndim == 3 else img
+    if valid is not None:
+        alpha = np.where(valid, np.iinfo(img.dtype).max, 0).astype(img.dtype)
+        # OpenCV encodes 1, 3 or 4 channels (and decodes grey + alpha as 4): a grey image goes as grey RGBA
+        out = np.dstack([out if out.ndim == 3 else np.dstack([out] * 3), alpha])
     try:
         ok, data = cv2.imencode(".png", out)
     except cv2.error:

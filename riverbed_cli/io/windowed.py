@@ -11,7 +11,7 @@ from rasterio.windows import Window
 from ..errors import RiverbedError
 from .atomic import c_stderr_silenced
 from .disparity import TIFF_COMPRESSION, disparity_format, read_disparity
-from .images import TIFF_MAGIC, effective_bits, read_image
+from .images import TIFF_MAGIC, effective_bits, read_image, read_valid_area
 from .paths import require_file
 
 
@@ -19,7 +19,8 @@ class WindowedRaster:
     """A raster file read window by window (rasterio), sliced like a numpy array: ``src[y0:y1, x0:x1]``.
 
     ``kind="image"``: bands become channels (H x W or H x W x 3, samples unchanged); ``kind="disparity"``: band
-    ``band`` (default 1) as float32 with nodata, inf and NaN as NaN. Only what a tile needs is ever in memory.
+    ``band`` (default 1) as float32 with nodata, inf and NaN as NaN; ``kind="valid"``: the image's valid area as
+    GDAL gives it (alpha, mask band or nodata), H x W bool. Only what a tile needs is ever in memory.
     """
 
     def __init__(self, path, kind="image", band=1):
@@ -31,9 +32,9 @@ class WindowedRaster:
         except rasterio.errors.RasterioError as e:
             raise RiverbedError(f"cannot read raster ({str(e).splitlines()[0]})", path) from None
         H, W = self._ds.height, self._ds.width
-        self.bands = 1 if kind == "disparity" else min(self._ds.count, 3)
+        self.bands = 1 if kind in ("disparity", "valid") else min(self._ds.count, 3)
         self.shape = (H, W) if self.bands == 1 else (H, W, self.bands)
-        self.dtype = np.dtype(np.float32 if kind == "disparity" else self._ds.dtypes[0])
+        self.dtype = np.dtype({"disparity": np.float32, "valid": np.bool_}.get(kind, self._ds.dtypes[0]))
         self.ndim = len(self.shape)
 
     def __getitem__(self, key):
@@ -42,6 +43,13 @@ class WindowedRaster:
         y0, y1, _ = rows.indices(H)
         x0, x1, _ = cols.indices(W)
         win = Window(x0, y0, max(0, x1 - x0), max(0, y1 - y0))
+        if self.kind == "valid":
+            try:
+                return self._ds.dataset_mask(window=win) > 0
+            except MemoryError:
+                raise
+            except Exception:  # noqa: BLE001 - as _read
+                raise RiverbedError("cannot read image data (corrupt or truncated file)", self.path) from None
         if self.kind == "disparity":
             a = self._read(self.band, win, masked=True).astype(np.float32).filled(np.nan)
             a[~np.isfinite(a)] = np.nan
@@ -81,6 +89,24 @@ def bounded_raster_cache():
     environment, in MiB, overrides it)."""
     env = os.environ.get("GDAL_CACHEMAX")
     return rasterio.Env() if env else rasterio.Env(GDAL_CACHEMAX=TILED_CACHE_BYTES)
+
+
+def valid_area_source(path):
+    """The valid area of an image file (:func:`~riverbed_cli.io.images.read_valid_area`) as a source sliced like
+    the image: None when every pixel is valid, a :class:`WindowedRaster` of kind ``valid`` for a TIFF (read by
+    windows), else an (H, W) bool array."""
+    if is_tiff(path):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+            try:
+                with rasterio.open(path) as ds:
+                    flags = ds.mask_flag_enums
+            except rasterio.errors.RasterioError as e:
+                raise RiverbedError(f"cannot read raster ({str(e).splitlines()[0]})", path) from None
+        if all(f == [rasterio.enums.MaskFlags.all_valid] for f in flags):
+            return None
+        return WindowedRaster(path, "valid")
+    return read_valid_area(path)
 
 
 def is_tiff(path):

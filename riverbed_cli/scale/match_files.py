@@ -14,7 +14,7 @@ from ..errors import RiverbedError
 from ..io.atomic import atomic_output, check_outputs, releases_claims
 from ..io.disparity import disparity_format, read_disparity, write_disparity
 from ..io.images import check_pair, read_image
-from ..io.windowed import TiffSink, WindowedRaster, is_tiff, open_range_map, sparse_points_any
+from ..io.windowed import TiffSink, WindowedRaster, is_tiff, open_range_map, sparse_points_any, valid_area_source
 from ..matching.fusion import lidar_kind
 from ..matching.pipeline import (ABSURD_WIDTHS, check_disparity_values, check_lidar_count, clamp_to_width,
                                  disparity_range_from_sparse, match_pair, resolve_fusion, warm_up)
@@ -139,6 +139,9 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     # the inputs before the range: a broken image is reported as such, not as a range to give
     left_src, right_src, sparse_src = open_inputs(left, right, sparse, sparse_scale, max_pixels)
     H, W = left_src.shape[:2]
+    # the images' valid areas (a rectified frame's alpha): pixels outside them are not matched (matching/overlap.py)
+    valid = tuple(valid_area_source(p) for p in (left, right))
+    valid = valid if any(v is not None for v in valid) else None
     if (min_disp is None or max_disp is None) and not sparse and not range_map:
         if max_disp is None:
             raise RiverbedError("give --max-disp (and --min-disp), or --sparse or --range-map to derive the disparity range "
@@ -195,7 +198,7 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     start_up_done()  # the command's collector back on, start-up's objects frozen (scale/collector.py)
     if plan is not None and plan.tiled:
         return _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, plan.size, overlap,
-                            lidar_range, output, color_png, overwrite, progress, rmap, confidence, scan)
+                            lidar_range, output, color_png, overwrite, progress, rmap, confidence, scan, valid)
 
     step = progress(3) if progress else None
     left_img, right_img = (np.asarray(s[:, :]) if isinstance(s, WindowedRaster) else s for s in (left_src, right_src))
@@ -204,7 +207,9 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
         step()
     try:
         whole_map = tuple(b[:, :] for b in rmap) if rmap is not None else None
-        result = match_pair(left_img, right_img, sparse_map, min_disp, max_disp, config, range_map=whole_map)
+        areas = None if valid is None else tuple(None if v is None else np.asarray(v[:, :]) for v in valid)
+        result = match_pair(left_img, right_img, sparse_map, min_disp, max_disp, config, range_map=whole_map,
+                            valid_areas=areas)
     except RiverbedError as e:
         # Name the file the problem comes from when it is the sparse map or the range map.
         if sparse and "sparse" in str(e) and e.path is None:
@@ -232,7 +237,7 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
 
 
 def _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, size, overlap, lidar_range, output,
-                 color_png, overwrite, progress, range_map=None, confidence=None, range_scan=None):
+                 color_png, overwrite, progress, range_map=None, confidence=None, range_scan=None, valid=None):
     H, W = left_src.shape[:2]
     n_tiles = -(-H // size) * -(-W // size)
     step = progress(n_tiles) if progress else None
@@ -247,14 +252,14 @@ def _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, si
             with atomic_output(output, overwrite) as tmp, TiffSink(tmp, H, W) as sink:
                 result = match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, size, overlap,
                                      lidar_range, progress=advance, out=sink, range_map=range_map,
-                                     confidence_out=conf_sink, range_scan=range_scan)
+                                     confidence_out=conf_sink, range_scan=range_scan, valid_areas=valid)
                 sink.update_tags(riverbed_guide=config.guide, riverbed_window=result.info["window"],
                                  riverbed_tiles=result.info["tiles"])
             disp = None
         else:
             result = match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, size, overlap,
                                  lidar_range, progress=advance, range_map=range_map, confidence_out=conf_sink,
-                                 range_scan=range_scan)
+                                 range_scan=range_scan, valid_areas=valid)
             disp = result.disparity
             write_disparity(output, disp, overwrite=overwrite, tags={"riverbed_guide": config.guide})
     if color_png:

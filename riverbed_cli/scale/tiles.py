@@ -324,7 +324,7 @@ def plan_tiles(height, width, sparse, d_min, d_max, tile=TILE_DEFAULT, overlap=O
 
 
 def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None, global_range=None, range_map=None,
-               confidence=False):
+               confidence=False, valid_areas=None):
     """Match one :class:`Tile` (sources sliced like numpy arrays: arrays, memory maps, :class:`WindowedRaster`).
 
     Returns ``(block, evaluations, stages, tubes)``: the tile's own disparities (float32, ``t.y1 - t.y0`` x ``t.x1 -
@@ -336,7 +336,8 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
     the tile's range. A ``range_map`` (the whole image's checked ``(lo, hi)``, NaN: no range) gives the tubes
     instead.
     With ``confidence`` a fifth value: the fusion's confidence of the tile's own pixels (NaN where the tile was not
-    fused: no LiDAR in its range).
+    fused: no LiDAR in its range). ``valid_areas``: the images' valid areas ``(left, right)``, each None or sliced
+    like the images (:func:`~riverbed_cli.io.windowed.valid_area_source`).
     """
     H, W = left.shape[:2]
     ya, yb = max(0, t.y0 - overlap), min(H, t.y1 + overlap)
@@ -384,7 +385,12 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
         range_map = (lo, hi)
     # the fusion's LiDAR side in this thread: a thread's malloc arena would keep its freed memory from tile to tile
     # (10 MP: 1233-1267 MiB peak against 1193-1201)
-    res = match_pair(lc, rc, sc, lo_c, hi_c, p, range_map=range_map, beside=False)
+    crops = None
+    if valid_areas is not None and any(v is not None for v in valid_areas):
+        lv, rv = valid_areas
+        crops = (None if lv is None else np.asarray(lv[ya:yb, a:b]),
+                 None if rv is None else np.asarray(rv[ya:yb, a - off:b - off]))
+    res = match_pair(lc, rc, sc, lo_c, hi_c, p, range_map=range_map, beside=False, valid_areas=crops)
     block = res.disparity[t.y0 - ya:t.y1 - ya, t.x0 - a:t.x1 - a] + np.float32(off)
     tubes = res.info.get("tubes")
     n = int(lc.shape[0] * lc.shape[1] * (tubes["mean_width"] if tubes else (t.d_max - t.d_min + 1)))
@@ -404,12 +410,14 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
 
 def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, tile=TILE_DEFAULT,
                 overlap=OVERLAP_DEFAULT, lidar_range=True, progress=None, out=None, range_map=None,
-                confidence_out=None, range_scan=None, **overrides):
+                confidence_out=None, range_scan=None, valid_areas=None, **overrides):
     """:func:`match_pair` tile by tile; same arguments plus ``tile`` (px, ``"auto"`` or 0), ``overlap`` (px) and
     ``lidar_range``; ``range_map`` (per-pixel ``(lo, hi)``, NaN: the nominal range) as :func:`match_pair`'s: each
     tile searches the range the map spans there and its pixels their own intervals (``range_scan``: its
     :func:`scan_range_map`, when the caller has read it already). ``confidence_out`` receives the
     fusion's confidence tile by tile as ``out`` the disparities (NaN in tiles that were not fused).
+
+    ``valid_areas`` (the images' valid areas, :func:`match_tile`'s) as :func:`match_pair`'s.
 
     ``left``, ``right`` and ``sparse`` may be numpy arrays or :class:`WindowedRaster` (read tile by tile); ``out``
     receives each tile by ``out[y0:y1, x0:x1] = block`` (default: a new float32 array, returned in the result).
@@ -484,7 +492,7 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
         tube_parts = []
         for t in plan.tiles:
             block, n, st, tube, *conf = match_tile(left, right, sparse, t, overlap, p, bits, share, (d_min, d_max),
-                                                   rmap, confidence_out is not None)
+                                                   rmap, confidence_out is not None, valid_areas)
             tube_parts.append(tube)
             out[t.y0:t.y1, t.x0:t.x1] = block
             if conf:

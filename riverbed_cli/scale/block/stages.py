@@ -14,12 +14,13 @@ from ...geometry.projection import project_cloud
 from ...geometry.rpc_geometry import cloud_to_wgs84, output_crs
 from ...io.atomic import atomic_output
 from ...io.disparity import read_disparity, write_disparity
-from ...io.images import check_pair, check_pixels, read_image
+from ...io.images import check_pair, check_pixels, read_image, read_valid_area
 from ...io.lidar import lidar_info, resolve_crs
 from ...geometry.pairfile import load_pairfile, load_registration
 from ...io.pointcloud import write_points
 from ...io.raster import write_geotiff
-from ...io.windowed import WindowedRaster, image_bits, open_range_map, open_windowed, sparse_points_any
+from ...io.windowed import (WindowedRaster, image_bits, open_range_map, open_windowed, sparse_points_any,
+                            valid_area_source)
 from ...matching.guidance import lidar_share_of_points
 from ...matching.lidar_offset import correct_large
 from ...matching.pipeline import check_disparity_values, match_pair, resolve_disparity_range
@@ -119,7 +120,8 @@ def project_stage(job):
     with contextlib.suppress(FileNotFoundError):
         (folder / DONE).unlink()  # from now on the folder is not a finished pair
     clean_temps(folder, ("sparse.tif",))
-    clean_temps(folder / WORK, ("left.npy", "right.npy", "range_lo.npy", "range_hi.npy"))
+    clean_temps(folder / WORK, ("left.npy", "right.npy", "left_valid.npy", "right_valid.npy", "range_lo.npy",
+                                "range_hi.npy"))
     t_rectify = None
     if job.rpc is not None:  # an rpc: entry: its ROI rectified (unless done for the same inputs)
         try:
@@ -195,6 +197,11 @@ def project_stage(job):
         work.mkdir(exist_ok=True)
         for side, src in zip(("left", "right"), srcs):
             _save_npy(src, work / f"{side}.npy")
+        # the images' valid areas (a rectified frame's alpha), read once here as the images are
+        for side, path in zip(("left", "right"), (pair.left, pair.right)):
+            valid = valid_area_source(path)
+            if valid is not None:
+                _save_npy(valid, work / f"{side}_valid.npy")
     stats = {"clouds": len(used), "clouds_without_points": len(empty), "lidar_points_read": counts["points_read"],
              "lidar_points_kept": counts["kept"], "lidar_share": share, "lidar_crs": counts["crs"],
              "tile": int(plan.size) if tiles else None, "lidar_offset": offset.to_dict(), **dsm_stats}
@@ -271,10 +278,13 @@ def tile_stage(job, proj, index):
                                 pair.left)
         sparse = read_disparity(folder / "sparse.tif")
         rmap = _load_range_map(folder, proj)
+        valid = tuple(read_valid_area(path) for path in (pair.left, pair.right))
+        valid = valid if any(v is not None for v in valid) else None
         if rmap is None:
-            res = match_pair(left, right, sparse, s["min_disp"], s["max_disp"], p)
+            res = match_pair(left, right, sparse, s["min_disp"], s["max_disp"], p, valid_areas=valid)
         else:  # the pair's range, widened to hold the map
-            res = match_pair(left, right, sparse, proj["d_min"], proj["d_max"], p, range_map=rmap)
+            res = match_pair(left, right, sparse, proj["d_min"], proj["d_max"], p, range_map=rmap,
+                             valid_areas=valid)
         n_d = res.info["d_max"] - res.info["d_min"] + 1
         return {"index": 0, "disparity": res.disparity, "evaluations": H * W * n_d, "stages": res.info["stages"],
                 "seconds": round(time.perf_counter() - t0, 4)}
@@ -284,9 +294,11 @@ def tile_stage(job, proj, index):
     right = np.load(folder / WORK / "right.npy", mmap_mode="r")
     sparse = WindowedRaster(folder / "sparse.tif", "disparity")
     # the pair's LiDAR share and range: every tile takes the whole pair's tubes, as match_tiled does
+    valid = tuple(np.load(f, mmap_mode="r") if f.exists() else None
+                  for f in (folder / WORK / f"{side}_valid.npy" for side in ("left", "right")))
     disp, n, stages, _ = match_tile(left, right, sparse, tile, s["overlap"], p, proj["bits"],
-                                 proj["stats"]["lidar_share"], (proj["d_min"], proj["d_max"]),
-                                 _load_range_map(folder, proj))
+                                    proj["stats"]["lidar_share"], (proj["d_min"], proj["d_max"]),
+                                    _load_range_map(folder, proj), valid_areas=valid)
     return {"index": index, "disparity": disp, "evaluations": n, "stages": stages,
             "seconds": round(time.perf_counter() - t0, 4)}
 
