@@ -67,6 +67,7 @@ COMMANDS = {
     "sample": ("sample", "sample_cmd", "Generate the synthetic aerial block (pair, LiDAR, ground truth)."),
     "block": ("block", "block_cmd", "Run a block manifest on dask and merge its DSMs (or split-rpc a scene)."),
     "rectify": ("rectify", "rectify_cmd", "Rectify raw frames with their orientations into a pair."),
+    "orient": ("orient", "orient_cmd", "Import orientations (Orthority, OpenSfM/ODM, COLMAP) as orientation files."),
     "benchmark": ("benchmark", "benchmark_cmd", "Run the paper's protocol (matchers x guides x LiDAR shares)."),
 }
 
