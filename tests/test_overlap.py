@@ -93,9 +93,11 @@ def test_fusion_fills_outside_the_overlap_only_where_the_lidar_covers_it():
     res = match_pair(left, right, projected)
     d, conf = res.disparity, res.confidence
     assert res.info["fusion"] == "confidence"
-    # the points' hull starts at the first column holding a point: left of it no stereo and nothing to interpolate
-    first = int(np.ceil(D / 6) * 6)
+    # the points' coverage (their hull and one spacing, 6 px, around it) starts 6 px left of the first column
+    # holding a point: left of it there is no stereo and nothing to interpolate
+    first = int(np.ceil(D / 6) * 6) - 6
     assert np.isnan(d[:, :first]).all() and (conf[:, :first] == 0).all()
+    assert np.isfinite(d[:55, first:]).all()  # (the rounded corners below the last row of points aside)
     assert res.info["fusion_stats"]["invalid"] == pytest.approx(np.isnan(d).mean(), abs=1e-4)
     assert np.nanmax(np.abs(d[:, first:] - D)) <= 1.0
     # LiDAR over the whole left image (a benchmark's, sampled from the ground truth): its interpolation there
@@ -122,11 +124,16 @@ def test_fusion_never_extrapolates_beyond_the_searched_range():
     np.testing.assert_array_equal(np.isfinite(out.disparity), np.isfinite(stereo))
 
 
-def test_lidar_coverage_is_the_points_hull():
-    cov = lidar_coverage((np.array([2, 2, 8]), np.array([1, 9, 5]), None), (12, 12))
+def test_lidar_coverage_is_the_points_hull_and_one_spacing_around_it():
+    points = (np.array([2, 2, 8]), np.array([1, 9, 5]), None)
+    cov = lidar_coverage(points, (12, 12), reach=0)
     assert cov[2, 1] and cov[2, 9] and cov[8, 5] and cov[4, 5]
     assert not cov[8, 1] and not cov[0, 0] and not cov[10, 5]
     assert not lidar_coverage((np.array([1, 2]), np.array([1, 2]), None), (5, 5)).any()
+    # default reach: the mean spacing, sqrt(hull area / points) = sqrt(24 / 3) = 2.8 -> 3 px
+    wide = lidar_coverage(points, (20, 20))
+    np.testing.assert_array_equal(wide, lidar_coverage(points, (20, 20), reach=3))
+    assert wide[11, 5] and not wide[12, 5] and wide[2, 12] and not wide[2, 13]
 
 
 def test_valid_areas_restrict_the_match():
@@ -193,3 +200,18 @@ def test_rectified_frames_keep_their_valid_area_through_match(tmp_path):
         assert not np.isfinite(d[~matchable_mask(d.shape, 20, 80, rv)]).any()
         assert not match_outside(d, rv).any()
         assert np.isfinite(d[lv]).mean() > 0.5
+
+
+def test_guided_matcher_keeps_its_value_outside_the_overlap_only_inside_the_lidar():
+    """Outside the overlap a LiDAR-guided matcher's value is the LiDAR's guidance carried along the image (the
+    paper's method, no fusion): kept inside the LiDAR's coverage, invalid beyond it."""
+    left, right = shifted_pair()
+    y, x = np.mgrid[0:H, 0:W]
+    everywhere = np.where((y % 6 == 0) & (x % 6 == 0), np.float32(D), np.float32(np.nan)).astype(np.float32)
+    paper = dict(guide="riverbed", range="full", fusion="none", lidar_offset="none")
+    d = match_pair(left, right, everywhere, **paper).disparity
+    assert np.isfinite(d[:55, :D]).all() and np.abs(d[:55, :D] - D).max() <= 1.0
+    projected = np.where(x >= D, everywhere, np.nan).astype(np.float32)
+    d = match_pair(left, right, projected, **paper).disparity
+    first = int(np.ceil(D / 6) * 6) - 6
+    assert np.isnan(d[:, :first]).all()

@@ -42,6 +42,7 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 import rasterio
 import rasterio.windows
@@ -354,13 +355,30 @@ def _grey(img):
     return img.astype(np.float32) if img.ndim == 2 else img.astype(np.float32).mean(axis=2)
 
 
-def _write_tiff(path, img):
+def _valid_area(ds, H, size):
+    """The rectified pixels inside the image of ``ds``: those whose centre the affinity ``H`` maps back inside its
+    extent (the image's outline mapped by ``H``, a parallelogram, filled), (h, w) bool, or None when every one is."""
+    w, h = ds.width, ds.height
+    corners = np.array([[-0.5, -0.5, 1], [w - 0.5, -0.5, 1], [w - 0.5, h - 0.5, 1], [-0.5, h - 0.5, 1]]).T
+    outline = (H @ corners)[:2].T
+    valid = np.zeros((int(size[1]), int(size[0])), np.uint8)
+    # 4 fractional bits: the outline to 1/16 px; a pixel counts when its centre lies inside
+    cv2.fillConvexPoly(valid, np.round(outline * 16).astype(np.int32), 1, lineType=cv2.LINE_8, shift=4)
+    valid = valid > 0
+    return None if valid.all() else valid
+
+
+def _write_tiff(path, img, valid=None):
+    # valid: the image's valid area, written as its GDAL mask (read back by io.windowed.valid_area_source)
     bands = img[np.newaxis] if img.ndim == 2 else np.moveaxis(img, -1, 0)
     with warnings.catch_warnings(), c_stderr_silenced():  # a failed write is found when it is checked (io/atomic)
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        with rasterio.open(path, "w", driver="GTiff", width=bands.shape[2], height=bands.shape[1],
-                           count=bands.shape[0], dtype=bands.dtype, compress="deflate") as ds:
+        with rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True), \
+                rasterio.open(path, "w", driver="GTiff", width=bands.shape[2], height=bands.shape[1],
+                              count=bands.shape[0], dtype=bands.dtype, compress="deflate") as ds:
             ds.write(bands)
+            if valid is not None:
+                ds.write_mask(np.where(valid, 255, 0).astype(np.uint8))
 
 
 def _row_residual(pair, n=21, n_heights=7):
@@ -500,6 +518,7 @@ def rectify_rpc_files(left_image, left_rpc, right_image, right_rpc, outdir, roi=
         raise RiverbedError(f"the rectified ROI would be {out_w}x{out_h} px, more than --max-pixels {max_pixels}")
     with _open(left_image) as ds:
         rect_left = _resample_window(ds, rect.H_left, rect.size, left_image)
+        left_valid = _valid_area(ds, rect.H_left, rect.size)
     with _open(right_image) as ds_right:
         rect_right = _resample_window(ds_right, rect.H_right, rect.size, right_image)
         n_tie, offset = 0, 0.0
@@ -511,6 +530,7 @@ def rectify_rpc_files(left_image, left_rpc, right_image, right_rpc, outdir, roi=
                                     left_image) from None
             rect = with_row_offset(rect, offset)
             rect_right = _resample_window(ds_right, rect.H_right, rect.size, right_image)
+        valid_areas = (left_valid, _valid_area(ds_right, rect.H_right, rect.size))
     # the pointing correction as a shift of the right model: H_right(rpc_r'(X)) has the row of H_left(rpc_l(X))
     L = rect.H_right[:2, :2]
     shift = np.linalg.solve(L, [0.0, -offset]) if offset else np.zeros(2)
@@ -541,8 +561,8 @@ def rectify_rpc_files(left_image, left_rpc, right_image, right_rpc, outdir, roi=
     outdir.mkdir(exist_ok=True)
     with atomic_output(outdir_paths[0], overwrite) as t_left, atomic_output(outdir_paths[1], overwrite) as t_right, \
             atomic_output(outdir_paths[2], overwrite) as t_pair:
-        _write_tiff(t_left, rect_left)
-        _write_tiff(t_right, rect_right)
+        _write_tiff(t_left, rect_left, valid_areas[0])
+        _write_tiff(t_right, rect_right, valid_areas[1])
         t_pair.write_text(text, encoding="utf-8")
     return {"outdir": str(outdir), "files": {n: p.stat().st_size for n, p in zip(OUTPUTS, outdir_paths)},
             "width": out_w, "height": out_h, "roi": list(roi), "heights": [float(v) for v in hrange],

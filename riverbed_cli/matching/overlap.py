@@ -16,6 +16,7 @@ sub-pixel refinement reaches half a pixel beyond the ends) is an extrapolation o
 measurement, and is invalid.
 """
 
+import math
 from dataclasses import replace
 
 import cv2
@@ -124,14 +125,20 @@ def matchable_mask_reference(shape, d_min, d_max, right_valid=None, left_valid=N
     return out
 
 
-def lidar_coverage(points, shape):
-    """Pixels inside the convex hull of the LiDAR ``points`` (``(rows, cols, values)``), where the LiDAR's
-    interpolation is an interpolation: (H, W) bool (all False for fewer than three points)."""
+def lidar_coverage(points, shape, reach=None):
+    """Pixels inside the convex hull of the LiDAR ``points`` (``(rows, cols, values)``) or within ``reach`` px of
+    it (default: the points' mean spacing, ``sqrt(hull area / points)``), where the LiDAR's interpolation is an
+    interpolation: (H, W) bool (all False for fewer than three points)."""
     rows, cols = np.asarray(points[0]), np.asarray(points[1])
     out = np.zeros(shape, np.uint8)
     if rows.size >= 3:
         hull = cv2.convexHull(np.stack([cols, rows], axis=1).astype(np.int32))
         cv2.fillConvexPoly(out, hull, 1)
+        if reach is None:
+            reach = math.sqrt(max(float(cv2.contourArea(hull)), 1.0) / rows.size)
+        r = int(round(reach))
+        if r >= 1:
+            out = cv2.dilate(out, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
     return out.astype(np.bool_)
 
 
@@ -154,17 +161,27 @@ def outside_searched_range(disparity, d_min, d_max):
         return (disparity < d_min - RANGE_SLACK) | (disparity > d_max + RANGE_SLACK)
 
 
-def keep_to_overlap(out, d_min, d_max, valid_areas=None, tubes=None):
+def keep_to_overlap(out, d_min, d_max, valid_areas=None, tubes=None, guided_by=None):
     """Invalidate, in a matcher's output ``out`` (:class:`~riverbed_cli.matching.matchers.MatcherOutput`, changed in
     place), the pixels outside the overlap and the choices whose match lies outside the right image; their left-right
-    status becomes failing. ``valid_areas``: ``(left_valid, right_valid)`` or None; ``tubes``: the searched tubes
-    (None: ``[d_min, d_max]`` everywhere). Returns ``(outside, no_stereo)``: the pixels without any candidate
-    (the overlap's complement) and every pixel the output leaves without a disparity, (H, W) bool each."""
+    status becomes failing.
+
+    ``valid_areas``: ``(left_valid, right_valid)`` or None; ``tubes``: the searched tubes (None: ``[d_min, d_max]``
+    everywhere). ``guided_by``: the LiDAR points ``(rows, cols, values)`` that guided the cost, if any: inside their
+    convex hull such a pixel keeps the guided matcher's value, the LiDAR's guidance carried along the image's
+    paths (an image-guided interpolation of the LiDAR, not a stereo measurement, hence its failing status).
+    Returns ``(outside, no_stereo)``: the pixels without any candidate (the overlap's complement) and every pixel
+    the output leaves without a disparity, (H, W) bool each."""
     left_valid, right_valid = valid_areas if valid_areas is not None else (None, None)
     outside = ~matchable_mask(out.disparity.shape, d_min, d_max, right_valid, left_valid, tubes=tubes)
     unmatched = outside | match_outside(out.disparity, right_valid)
     if unmatched.any():
-        out.disparity[unmatched] = np.nan
+        drop = unmatched
+        if guided_by is not None:
+            drop = unmatched & ~lidar_coverage(guided_by, out.disparity.shape)
+        if left_valid is not None:
+            drop |= ~np.asarray(left_valid, np.bool_)
+        out.disparity[drop] = np.nan
         if out.status is not None:
             out.status[unmatched] = np.maximum(out.status[unmatched], 1)
     return outside, ~np.isfinite(out.disparity)

@@ -481,7 +481,8 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
     try:
         out, mode, stats, tubes = _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, matcher,
                                                 share, range_map, stages, fuser.needs_status, points, share_all)
-        outside, no_stereo = keep_to_overlap(out, d_min, d_max, valid_areas, tubes)
+        outside, no_stereo = keep_to_overlap(out, d_min, d_max, valid_areas, tubes,
+                                             points if guide.needs_sparse else None)
         t0 = time.perf_counter()  # the fusion's stage is the time it adds after the matcher
         fused = fuser.fuse(out.disparity, out.status, sparse, config,
                            lidar_side.result() if lidar_side is not None else None)
