@@ -47,3 +47,13 @@ def assert_catches(expected, regression=0.20):
             for factor in (1 + regression, 1 - regression):
                 moved = {case: {metric: value * factor}}
                 assert off_gate(moved, {case: {metric: value}}), (case, metric, value, factor)
+
+
+def inside_overlap(gt):
+    """Ground truth ``gt`` (H x W, px) without the pixels whose match lies outside the right image (``x - d < 0``):
+    no matcher can find those, and riverbed leaves them invalid unless LiDAR covers them (matching/overlap.py)."""
+    import numpy as np
+
+    x = np.arange(gt.shape[1])[None, :]
+    with np.errstate(invalid="ignore"):
+        return np.where(x - gt >= 0, gt, np.nan)

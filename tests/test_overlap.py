@@ -52,11 +52,12 @@ def test_matchable_mask_with_tubes_is_the_plain_loop():
     for rv in (None, right_valid):
         got = matchable_mask((9, 50), d_min, d_max, rv, tubes=tubes)
         np.testing.assert_array_equal(got, matchable_mask_reference((9, 50), d_min, d_max, rv, tubes=tubes))
-    # a narrow tube reaching past the left edge is not matchable, a full-width one is while one candidate is inside
+    # a narrow tube is matchable while its middle lies inside, a full-width one while one candidate is inside
     got = matchable_mask((9, 50), d_min, d_max, tubes=tubes)
     x = np.arange(50)[None, :]
     narrow = (hi - lo) < d_max - d_min
-    assert not got[narrow & (x < hi)].any() and got[narrow & (x >= hi)].all()
+    mid = (lo + hi) // 2
+    assert not got[narrow & (x < mid)].any() and got[narrow & (x >= mid)].all()
     assert got[~narrow & (x >= d_min)].all() and not got[~narrow & (x < d_min)].any()
 
 

@@ -88,7 +88,7 @@ def test_paths_16_end_to_end(tmp_path, cones):
         assert r.exit_code == 0, r.output
         assert json.loads(r.output)["d_max"] == 59
         out[paths] = evaluate_disparity(read_disparity(tmp_path / f"d{paths}.tif"), cones[2])
-    # unguided Cones, measured: bad3 9.01 % with 16 paths, 8.75 % with 8 (16 paths is not better here), mean 0.972
-    # vs 0.948 px; the two runs differ (16 paths really ran)
-    assert abs(out["16"]["bad3"] - 9.01) < 0.3 and abs(out["8"]["bad3"] - 8.75) < 0.3
+    # unguided Cones, measured: bad3 12.75 % with 16 paths, 12.51 % with 8 (16 paths is not better here; 7.3 % of
+    # the GT pixels lie left of the overlap: invalid), mean 0.726 vs 0.696 px; the two runs differ (16 paths ran)
+    assert abs(out["16"]["bad3"] - 12.75) < 0.3 and abs(out["8"]["bad3"] - 12.51) < 0.3
     assert out["16"]["avg"] != out["8"]["avg"]

@@ -4,6 +4,7 @@ volume (tubes as wide as the range) and against a brute-force reference (narrow 
 import numpy as np
 import pytest
 
+from gates import inside_overlap
 from riverbed_cli.matching import census, diffusion, disparity, guidance, riverbed_plus, sgm
 from riverbed_cli.matching.guidance import lidar_share
 from riverbed_cli.matching.pipeline import match_pair
@@ -402,7 +403,10 @@ def test_range_map_from_the_command_line_and_its_bad_inputs(cones, tmp_path):
 
     s = json.loads(r.output)
     assert s["range"] == "tube" and s["tubes"]["mean_width"] < 20
-    assert evaluate_disparity(read_disparity(out), gt)["bad3"] < 5.0  # unguided, but searched near the truth only
+    # unguided, but searched near the truth only: measured bad3 2.32 % inside the overlap, 9.32 % over every GT pixel
+    # (7.2 % of them have their match outside the right image: invalid)
+    assert evaluate_disparity(read_disparity(out), inside_overlap(gt))["bad3"] < 2.6
+    assert 8.4 < evaluate_disparity(read_disparity(out), gt)["bad3"] < 10.3
     cases = {
         "size": ([lo[:-1], lo[:-1] + 6], f"range map is {W}x{H - 1} but the images are {W}x{H} (WxH)"),
         "bands": ([lo], "range map needs 2 bands (min and max disparity), has 1"),
@@ -450,8 +454,9 @@ def test_range_map_on_tiles(cones, tmp_path):
     # the map's intervals, 7 px wide, and the nominal range's 64 where it has none: the same tubes tiled or not
     assert tiled["tubes"] == untiled["tubes"] and 10 < tiled["tubes"]["mean_width"] < 20
     assert tiled["tubes"]["full_share"] > 0.1
-    # unguided matching searched near the truth only (8.75 % bad3 on the full range)
-    assert e_tiled["bad3"] < 5.0 and abs(e_tiled["bad3"] - e_untiled["bad3"]) < 0.1
+    # unguided matching searched near the truth only: 9.32 % bad3, 7.2 points of it the GT pixels whose match lies
+    # outside the right image (12.5 % on the full range)
+    assert 8.4 < e_tiled["bad3"] < 10.3 and abs(e_tiled["bad3"] - e_untiled["bad3"]) < 0.1
     # the library on the map read by windows, the range taken from the map (as the command does without
     # --min-disp/--max-disp)
     from riverbed_cli.io.windowed import open_range_map

@@ -5,8 +5,8 @@ A pixel ``(y, x)`` of the left (reference) image can be matched only if at least
 range (``[d_min, d_max]``, or its tube) puts its candidate ``x - d`` inside the right image (``0 <= x - d < W``) and, when the right
 image has a valid area (a rectified frame's area that its source covers), on a valid right pixel; a left pixel outside
 the left image's own valid area has nothing to match. A pixel whose tube (the LiDAR's bound on its disparity, narrower than the range) reaches outside
-needs all of it inside: its true match may be the part outside, and the stereo would then pick a wrong one inside
-(on a real frame pair, DSM spikes of 50-70 m along the overlap's edge). Every other pixel is *outside the overlap*: whatever a matcher
+needs the tube's middle inside: beyond that its true match most likely lies outside, and the stereo would pick a
+wrong one inside. Every other pixel is *outside the overlap*: whatever a matcher
 or an interpolation puts there is a guess. Such pixels are invalid in the disparity (NaN), have confidence 0, are
 never filled by the fusion and are never triangulated. On frame pairs this is most of the image: with 27 % forward
 overlap, 71-74 % of a rectified left frame has ``x - d < 0`` for every disparity the terrain allows.
@@ -41,8 +41,8 @@ def matchable_mask(shape, d_min, d_max, right_valid=None, left_valid=None, tubes
     tubes : TubeLayout, optional
         Each pixel's own searched range (:class:`~riverbed_cli.matching.volume.TubeLayout`, tubes inside
         ``[d_min, d_max]``): its candidates are those of its tube. A tube narrower than ``[d_min, d_max]`` is the
-        LiDAR's bound on the true disparity: when part of it falls outside, so may the true match, and the pixel
-        needs *every* candidate of its tube inside.
+        LiDAR's bound on the true disparity: the pixel needs its middle candidate inside (when the middle of the
+        bound falls outside, the true match most likely does too).
 
     Returns
     -------
@@ -87,7 +87,7 @@ def _matchable_rows(right_valid, lo, hi):
 @njit(cache=True, parallel=True)
 def _matchable_tubes(offset, width, d_min, nominal, right_valid):
     # _matchable_rows with each pixel's own range [d_min + offset, d_min + offset + width - 1], a tube narrower than
-    # the ``nominal`` range needing every candidate inside; right_valid of shape (1, 1): no valid area
+    # the ``nominal`` range needing its middle candidate inside; right_valid of shape (1, 1): no valid area
     H, W = offset.shape
     masked = right_valid.shape[0] == H
     out = np.empty((H, W), np.bool_)
@@ -98,8 +98,9 @@ def _matchable_tubes(offset, width, d_min, nominal, right_valid):
         for x in range(W):
             lo = d_min + offset[y, x]
             hi = lo + width[y, x] - 1
-            if width[y, x] < nominal:  # a tube from the LiDAR: all of it inside, else the truth may lie outside
-                out[y, x] = x - hi >= 0 and x - lo <= W - 1 and count[x - lo + 1] - count[x - hi] == hi - lo + 1
+            if width[y, x] < nominal:  # a tube from the LiDAR: its middle inside, else the truth likely lies outside
+                mid = (lo + hi) // 2
+                out[y, x] = x - mid >= 0 and x - mid <= W - 1 and (not masked or right_valid[y, x - mid])
             else:
                 a = max(x - hi, 0)
                 b = min(x - lo, W - 1)
@@ -121,7 +122,7 @@ def matchable_mask_reference(shape, d_min, d_max, right_valid=None, left_valid=N
                 hi = lo + int(tubes.width[y, x]) - 1
             inside = [0 <= x - d < W and (right_valid is None or right_valid[y, x - d]) for d in range(lo, hi + 1)]
             narrow = tubes is not None and hi - lo < int(d_max) - int(d_min)
-            out[y, x] = all(inside) if narrow else any(inside)
+            out[y, x] = inside[(hi - lo) // 2] if narrow else any(inside)
     return out
 
 
