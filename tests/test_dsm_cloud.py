@@ -104,9 +104,10 @@ def test_coarse_dsm_ranges_beat_the_full_range(coarse_dsm_ranges):
                         "-o", tmp / f"{name}.tif")
         assert code == 0, out
         errors[name] = evaluate_disparity(read_disparity(tmp / f"{name}.tif"), gt)
-    # measured: full range bad3 7.51 % / avg 1.464 px, in the coarse DSM's ranges 4.15 % / 0.686 px
+    # measured: full range bad3 7.59 % / avg 0.857 px (98.6 % dense: the left edge, where a match may lie outside
+    # the right image, is invalid), in the coarse DSM's ranges 4.25 % / 0.685 px
     assert errors["map"]["bad3"] < 0.7 * errors["full"]["bad3"]
-    assert errors["map"]["avg"] < 0.6 * errors["full"]["avg"]
+    assert errors["map"]["avg"] < 0.85 * errors["full"]["avg"]
 
 
 def test_bad_dsms_one_line_errors_and_no_output(tmp_path):

@@ -67,7 +67,7 @@ def test_projection_counts_and_photometric_check(kitti):
 #: bad3 %, avg px of unguided matching, riverbed-guided matching (the default: confidence fusion) and riverbed alone
 #: (--fusion none). Gated within 10 % (floors: tests/gates.py).
 HELD_OUT = {
-    "unguided": {"bad1": 27.348, "bad3": 13.148, "avg": 8.1394},
+    "unguided": {"bad1": 27.374, "bad3": 13.201, "avg": 2.4487},
     "guided": {"bad1": 4.263, "bad3": 0.826, "avg": 0.4834},
     "guided, --fusion none": {"bad1": 6.980, "bad3": 0.826, "avg": 0.5905},
 }
@@ -93,7 +93,8 @@ def test_guided_matching_beats_unguided_on_held_out_lidar(kitti, tmp_path):
     for i, (name, args) in enumerate(runs.items()):
         run(["match", *common, *args, "-o", tmp_path / f"{i}.tif"])
         got[name] = evaluate_disparity(read_disparity(tmp_path / f"{i}.tif"), truth)
-        assert got[name]["n"] == 7507 and got[name]["density"] == 100.0
+        # the unguided match leaves the left edge, where a match may lie outside the right image, invalid
+        assert got[name]["n"] == 7507 and got[name]["density"] == pytest.approx(95.244 if name == "unguided" else 100.0, abs=0.001)
     assert_within(got, HELD_OUT)
 
 

@@ -268,8 +268,8 @@ def test_lidar_density_is_1_to_5_percent_of_image_pixels(written, pair):
 #: Measured with the current code (seed 0, 2 cores, LiDAR projected with HPR visibility): bad1 %, bad3 %, avg px over
 #: the 365352 GT pixels without LiDAR, per (guide, fusion).
 GUIDANCE = {
-    ("none", "none"): {"bad1": 16.577, "bad3": 6.772, "avg": 0.9240},
-    ("riverbed", "confidence"): {"bad1": 4.627, "bad3": 1.620, "avg": 0.2418},
+    ("none", "none"): {"bad1": 16.602, "bad3": 6.868, "avg": 0.8239},
+    ("riverbed", "confidence"): {"bad1": 4.584, "bad3": 1.609, "avg": 0.2392},
     ("riverbed", "none"): {"bad1": 4.785, "bad3": 1.625, "avg": 0.2544},
 }
 
@@ -309,7 +309,10 @@ def test_plain_sgm_struggles_and_guidance_pays(matched):
     the confidence fusion (the default) and without it. Each figure within 10 % of its measurement (tests/gates.py)."""
     got = {case: matched[case] for case in GUIDANCE}
     assert_within(got, GUIDANCE)
-    assert all(m["n"] == 365352 and m["density"] == 100.0 for m in got.values())
+    # plain SGM leaves the left edge, where a match may lie outside the right image, invalid; guided, the LiDAR covers it
+    assert all(m["n"] == 365352 for m in got.values())
+    assert {c: round(m["density"], 3) for c, m in got.items()} == {
+        ("none", "none"): 99.428, ("riverbed", "confidence"): 100.0, ("riverbed", "none"): 100.0}
 
 
 # -- command line -----------------------------------------------------------------------------------------------------
