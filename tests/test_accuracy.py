@@ -21,38 +21,38 @@ CASES = (("none", "none"), ("gauss", "confidence"), ("gauss", "none"), ("riverbe
          ("riverbed", "none"))
 
 #: Measured with the current code (2 cores): bad1 %, bad3 % and avg px over the GT pixels not used as LiDAR, per
-#: seed (0, 1, 2). Worst seed: riverbed at 0.16 % (confidence) seed 2, 6.478 % / 0.7787 px.
+#: seed (0, 1, 2). Worst seed: riverbed at 0.16 % (confidence) seed 1, 6.564 % / 0.7593 px (seed 2: 0.7787 px).
 MEASURED = {
-    (0.05, "none", "none"): {"bad1": (12.506, 12.542, 12.557), "bad3": (8.758, 8.769, 8.781),
-                             "avg": (0.9478, 0.9505, 0.9517)},
-    (0.05, "gauss", "confidence"): {"bad1": (7.310, 7.528, 7.557), "bad3": (4.064, 4.097, 4.309),
-                                    "avg": (0.5446, 0.5507, 0.5640)},
-    (0.05, "gauss", "none"): {"bad1": (7.521, 7.695, 7.744), "bad3": (4.108, 4.132, 4.332),
+    (0.05, "none", "none"): {"bad1": (15.612, 15.665, 15.672), "bad3": (12.511, 12.536, 12.542),
+                             "avg": (0.6958, 0.6982, 0.6985)},
+    (0.05, "gauss", "confidence"): {"bad1": (7.344, 7.530, 7.552), "bad3": (4.068, 4.087, 4.303),
+                                    "avg": (0.5443, 0.5505, 0.5635)},
+    (0.05, "gauss", "none"): {"bad1": (7.522, 7.695, 7.745), "bad3": (4.108, 4.132, 4.333),
                               "avg": (0.5746, 0.5802, 0.5943)},
-    (0.05, "riverbed", "confidence"): {"bad1": (3.183, 3.248, 3.322), "bad3": (1.499, 1.523, 1.564),
-                                       "avg": (0.2692, 0.2701, 0.2751)},
-    (0.05, "riverbed", "none"): {"bad1": (3.203, 3.277, 3.358), "bad3": (1.510, 1.537, 1.573),
+    (0.05, "riverbed", "confidence"): {"bad1": (3.184, 3.250, 3.325), "bad3": (1.498, 1.522, 1.564),
+                                       "avg": (0.2690, 0.2702, 0.2747)},
+    (0.05, "riverbed", "none"): {"bad1": (3.204, 3.277, 3.359), "bad3": (1.510, 1.537, 1.574),
                                  "avg": (0.2780, 0.2794, 0.2843)},
-    (0.0123, "none", "none"): {"bad1": (12.496, 12.505, 12.518), "bad3": (8.724, 8.750, 8.745),
-                               "avg": (0.9472, 0.9482, 0.9478)},
-    (0.0123, "gauss", "confidence"): {"bad1": (10.604, 10.581, 10.683), "bad3": (6.090, 6.255, 6.098),
-                                      "avg": (0.7355, 0.7492, 0.7343)},
-    (0.0123, "gauss", "none"): {"bad1": (10.751, 10.786, 10.796), "bad3": (6.108, 6.265, 6.137),
+    (0.0123, "none", "none"): {"bad1": (15.610, 15.622, 15.626), "bad3": (12.487, 12.511, 12.503),
+                               "avg": (0.6947, 0.6956, 0.6964)},
+    (0.0123, "gauss", "confidence"): {"bad1": (10.617, 10.619, 10.701), "bad3": (6.086, 6.258, 6.106),
+                                      "avg": (0.7359, 0.7490, 0.7345)},
+    (0.0123, "gauss", "none"): {"bad1": (10.751, 10.785, 10.798), "bad3": (6.108, 6.265, 6.139),
                                 "avg": (0.7546, 0.7684, 0.7538)},
-    (0.0123, "riverbed", "confidence"): {"bad1": (5.227, 5.508, 5.388), "bad3": (2.370, 2.542, 2.536),
-                                         "avg": (0.3894, 0.4146, 0.4051)},
-    (0.0123, "riverbed", "none"): {"bad1": (5.217, 5.485, 5.403), "bad3": (2.372, 2.544, 2.548),
+    (0.0123, "riverbed", "confidence"): {"bad1": (5.197, 5.494, 5.389), "bad3": (2.374, 2.540, 2.545),
+                                         "avg": (0.3896, 0.4141, 0.4045)},
+    (0.0123, "riverbed", "none"): {"bad1": (5.217, 5.485, 5.405), "bad3": (2.372, 2.544, 2.551),
                                    "avg": (0.3981, 0.4225, 0.4145)},
-    (0.0016, "none", "none"): {"bad1": (12.512, 12.519, 12.518), "bad3": (8.743, 8.751, 8.747),
-                               "avg": (0.9480, 0.9485, 0.9483)},
-    (0.0016, "gauss", "confidence"): {"bad1": (12.686, 12.941, 12.857), "bad3": (8.500, 8.846, 8.801),
-                                      "avg": (0.9276, 0.9483, 0.9459)},
-    (0.0016, "gauss", "none"): {"bad1": (12.687, 12.713, 12.735), "bad3": (8.515, 8.849, 8.789),
-                                "avg": (0.9283, 0.9421, 0.9423)},
-    (0.0016, "riverbed", "confidence"): {"bad1": (9.982, 10.341, 10.673), "bad3": (5.536, 6.391, 6.478),
-                                         "avg": (0.7046, 0.7585, 0.7787)},
-    (0.0016, "riverbed", "none"): {"bad1": (9.950, 10.123, 10.530), "bad3": (5.523, 6.378, 6.449),
-                                   "avg": (0.7032, 0.7496, 0.7731)},
+    (0.0016, "none", "none"): {"bad1": (15.626, 15.630, 15.629), "bad3": (12.502, 12.507, 12.505),
+                               "avg": (0.6958, 0.6962, 0.6960)},
+    (0.0016, "gauss", "confidence"): {"bad1": (12.686, 13.113, 12.857), "bad3": (8.501, 9.019, 8.801),
+                                      "avg": (0.9275, 0.9495, 0.9459)},
+    (0.0016, "gauss", "none"): {"bad1": (12.687, 12.886, 12.735), "bad3": (8.515, 9.022, 8.789),
+                                "avg": (0.9283, 0.9433, 0.9423)},
+    (0.0016, "riverbed", "confidence"): {"bad1": (9.982, 10.516, 10.673), "bad3": (5.536, 6.564, 6.478),
+                                         "avg": (0.7045, 0.7593, 0.7787)},
+    (0.0016, "riverbed", "none"): {"bad1": (9.950, 10.296, 10.530), "bad3": (5.523, 6.551, 6.450),
+                                   "avg": (0.7032, 0.7507, 0.7731)},
 }
 #: the same figures as gates: {(share, guide, fusion, seed): {metric: value}}
 EXPECTED = {(*case, seed): {metric: values[i] for metric, values in metrics.items()}
@@ -82,7 +82,12 @@ def test_gates_catch_a_20_percent_regression():
 @pytest.mark.parametrize("guide, fusion", CASES)
 def test_cones_accuracy_holds_its_expectation(results, guide, fusion):
     assert_within(results, {k: v for k, v in EXPECTED.items() if k[1:3] == (guide, fusion)})
-    assert all(results[k]["density"] == 100.0 for k in EXPECTED if k[1:3] == (guide, fusion))
+    # unguided, the left edge whose match may lie outside the right image is invalid (7.3 % of the GT pixels); guided,
+    # the LiDAR covers it but for the corners beyond its reach at 0.16 %
+    low = 92.6 if guide == "none" else 99.8
+    assert all(low < results[k]["density"] <= 100.0 for k in EXPECTED if k[1:3] == (guide, fusion))
+    if guide == "none":
+        assert all(results[k]["density"] < 92.8 for k in EXPECTED if k[1:3] == (guide, fusion))
 
 
 def test_riverbed_ahead_of_gauss_ahead_of_none_at_5_percent(results):
@@ -98,4 +103,5 @@ def test_riverbed_beats_unguided_at_every_share(results):
         for fusion in ("confidence", "none"):
             for seed in SEEDS:
                 none, rb = results[share, "none", "none", seed], results[share, "riverbed", fusion, seed]
-                assert rb["bad3"] < none["bad3"] and rb["avg"] < none["avg"], (share, fusion, seed)
+                # (mean errors are over the predicted pixels: the unguided match predicts 7 % fewer)
+                assert rb["bad3"] < none["bad3"] and rb["bad1"] < none["bad1"], (share, fusion, seed)

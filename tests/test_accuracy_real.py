@@ -21,31 +21,29 @@ SHARES = (0.05, 0.0123, 0.0016)
 CASES = (("none", "none"), ("gauss", "confidence"), ("gauss", "none"), ("riverbed", "confidence"),
          ("riverbed", "none"))
 
-#: Measured with the current code (seed 0, 2 cores): bad1 %, bad3 %, avg px over the GT pixels not used as LiDAR.
-#: The confidence rows at 5 % and 1.23 % since the fusion's LiDAR side there became local planes (2026-12-03,
-#: ``fusion_lidar: auto``; docs/fusion.md): with the Delaunay fill (--fusion-lidar linear) riverbed gave
-#: 1.743 / 0.327 / 0.1552 and 4.220 / 0.754 / 0.2871, Gauss 3.118 / 0.699 / 0.2469 and 6.642 / 1.763 / 0.4100.
-#: At 0.16 % (25 px between points) auto keeps the Delaunay fill; planes there gave riverbed 9.228 / 2.060 / 0.5175
-#: and Gauss 11.443 / 3.152 / 0.6976.
-#: Over seeds 1 and 2 the figures move by up to 0.15 points of bad3 at 5 % and 0.55 at 0.16 % (riverbed): this test
-#: runs seed 0 only.
+#: Measured with the current code (seed 0, 2 cores): bad1 %, bad3 %, avg px over the GT pixels not used as LiDAR (an
+#: invalid pixel counts as an error; the unguided match leaves the 1 % of them whose match may lie outside the right
+#: image invalid). The fusion's LiDAR side is local planes at 5 % and 1.23 %, the Delaunay fill at 0.16 % (25 px
+#: between points; ``fusion_lidar: auto``, docs/fusion.md). Over seeds 1 and 2 the figures move by up to 0.15 points
+#: of bad3 at 5 % and 0.55 at 0.16 % (riverbed): this test runs seed 0 only.
 EXPECTED = {
-    (0.05, "none", "none"): {"bad1": 20.116, "bad3": 4.440, "avg": 1.0542},
-    (0.05, "gauss", "confidence"): {"bad1": 3.077, "bad3": 0.721, "avg": 0.2675},
-    (0.05, "gauss", "none"): {"bad1": 7.860, "bad3": 0.812, "avg": 0.4504},
-    (0.05, "riverbed", "confidence"): {"bad1": 1.567, "bad3": 0.223, "avg": 0.1558},
-    (0.05, "riverbed", "none"): {"bad1": 2.209, "bad3": 0.227, "avg": 0.1762},
-    (0.0123, "none", "none"): {"bad1": 20.140, "bad3": 4.471, "avg": 1.0559},
-    (0.0123, "gauss", "confidence"): {"bad1": 6.597, "bad3": 1.747, "avg": 0.4357},
-    (0.0123, "gauss", "none"): {"bad1": 14.143, "bad3": 2.252, "avg": 0.6937},
-    (0.0123, "riverbed", "confidence"): {"bad1": 4.017, "bad3": 0.657, "avg": 0.2918},
-    (0.0123, "riverbed", "none"): {"bad1": 7.153, "bad3": 0.677, "avg": 0.3892},
-    (0.0016, "none", "none"): {"bad1": 20.240, "bad3": 4.492, "avg": 1.0552},
-    (0.0016, "gauss", "confidence"): {"bad1": 11.124, "bad3": 3.452, "avg": 0.6625},
-    (0.0016, "gauss", "none"): {"bad1": 19.110, "bad3": 4.135, "avg": 0.9704},
-    (0.0016, "riverbed", "confidence"): {"bad1": 9.574, "bad3": 2.389, "avg": 0.5212},
-    (0.0016, "riverbed", "none"): {"bad1": 15.435, "bad3": 2.441, "avg": 0.6899},
+    (0.05, "none", "none"): {"bad1": 20.396, "bad3": 5.009, "avg": 1.0259},
+    (0.05, "gauss", "confidence"): {"bad1": 3.071, "bad3": 0.724, "avg": 0.2674},
+    (0.05, "gauss", "none"): {"bad1": 7.860, "bad3": 0.815, "avg": 0.4504},
+    (0.05, "riverbed", "confidence"): {"bad1": 1.570, "bad3": 0.227, "avg": 0.1558},
+    (0.05, "riverbed", "none"): {"bad1": 2.212, "bad3": 0.230, "avg": 0.1762},
+    (0.0123, "none", "none"): {"bad1": 20.418, "bad3": 5.024, "avg": 1.0291},
+    (0.0123, "gauss", "confidence"): {"bad1": 6.591, "bad3": 1.745, "avg": 0.4355},
+    (0.0123, "gauss", "none"): {"bad1": 14.145, "bad3": 2.256, "avg": 0.6937},
+    (0.0123, "riverbed", "confidence"): {"bad1": 4.021, "bad3": 0.661, "avg": 0.2918},
+    (0.0123, "riverbed", "none"): {"bad1": 7.157, "bad3": 0.681, "avg": 0.3892},
+    (0.0016, "none", "none"): {"bad1": 20.525, "bad3": 5.064, "avg": 1.0268},
+    (0.0016, "gauss", "confidence"): {"bad1": 11.102, "bad3": 3.455, "avg": 0.6592},
+    (0.0016, "gauss", "none"): {"bad1": 19.110, "bad3": 4.140, "avg": 0.9669},
+    (0.0016, "riverbed", "confidence"): {"bad1": 9.567, "bad3": 2.399, "avg": 0.5180},
+    (0.0016, "riverbed", "none"): {"bad1": 15.439, "bad3": 2.446, "avg": 0.6866},
 }
+
 
 
 @pytest.fixture(scope="module")
@@ -78,7 +76,10 @@ def test_kitti_gates_catch_a_20_percent_regression():
 @pytest.mark.parametrize("guide, fusion", CASES)
 def test_kitti_accuracy_holds_its_expectation(results, guide, fusion):
     assert_within(results, {k: v for k, v in EXPECTED.items() if k[1:] == (guide, fusion)})
-    assert all(results[share, guide, fusion]["density"] == 100.0 for share in SHARES)
+    # unguided, the left edge whose match may lie outside the right image is invalid (1 % of the GT pixels); guided,
+    # the LiDAR covers it
+    low, high = (98.9, 99.1) if guide == "none" else (99.95, 100.0)
+    assert all(low <= results[share, guide, fusion]["density"] <= high for share in SHARES)
 
 
 def test_kitti_riverbed_ahead_of_gauss_ahead_of_none_at_5_percent(results):
