@@ -37,19 +37,36 @@ def test_benchmark_tables_figure_cache_and_check(dataset, tmp_path):
     assert by["riverbed", 9]["bad3"] < 0.3 * by["none", None]["bad3"]  # the auto window at 5 % is 9
     assert (out / "figure5.png").stat().st_size > 10_000 and (out / "results.csv").is_file()
     assert "| 5.00 % | sgm | riverbed s=13 |" in (out / "results.md").read_text()
-    # resume: every case comes from the cache, and the gate passes against its own expectations
+    # a finished run's tables are replaced only with --overwrite, and nothing runs without it
     r = run(*args, "--check", tmp_path / "exp.json")
+    assert r.exit_code == 1
+    assert r.output == f"riverbed: error: {out / 'results.csv'}: output exists; pass --overwrite to replace it\n"
+    r = run(*args[:-1], "--write-expected", tmp_path / "exp.json")
+    assert r.output == f"riverbed: error: {out / 'results.csv'}: output exists; pass --overwrite to replace it\n"
+    # resume: every case comes from the cache, and the gate passes against its own expectations
+    r = run(*args, "--check", tmp_path / "exp.json", "--overwrite")
     s = json.loads(r.output)
     assert r.exit_code == 0 and s["cached"] == 4 and s["regressions"] == []
     # a regression: expectations better than reality by more than the tolerance
     exp = json.loads((tmp_path / "exp.json").read_text())
     for case in exp["cases"]:
-        case["bad3"] -= 1.0
+        case["bad3"] *= 0.5
     (tmp_path / "better.json").write_text(json.dumps(exp))
     r = CliRunner().invoke(cli, ["benchmark", "--baselines", "", *map(str, args[:-1]), "--check",
-                                 str(tmp_path / "better.json")])
+                                 str(tmp_path / "better.json"), "--overwrite"])
     assert r.exit_code == 1
     assert "riverbed: regression: cones|sgm|none|0.05|None|0: bad3" in r.output
+    # the gate is two-sided: a figure much better than its expectation is a change to review too
+    for case in exp["cases"]:
+        case["bad3"] *= 4.0  # (from the halved figures: twice the measured ones)
+    (tmp_path / "worse.json").write_text(json.dumps(exp))
+    r = CliRunner().invoke(cli, ["benchmark", "--baselines", "", *map(str, args[:-1]), "--check",
+                                 str(tmp_path / "worse.json"), "--overwrite"])
+    assert r.exit_code == 1
+    line = next(x for x in r.output.splitlines() if "cones|sgm|none|0.05|None|0: bad3" in x)
+    case = next(c for c in exp["cases"] if c["key"] == "cones|sgm|none|0.05|None|0")
+    assert line.endswith(f"outside {case['bad3']:.3f} +- {max(0.1 * case['bad3'], 0.03):.3f}")
+
 
 
 def test_benchmark_bad_dataset(tmp_path):
@@ -102,21 +119,23 @@ def test_benchmark_check_on_a_subset(dataset, tmp_path):
     assert r.exit_code == 0 and s["checked"] == 1 and s["regressions"] == []
     # an expected case inside the selection that did not run is still a failure
     exp = json.loads((tmp_path / "exp.json").read_text())
-    exp["cases"].append({**exp["cases"][0], "key": "cones|sgm|riverbed|0.05|None|7"})
+    riverbed = next(c for c in exp["cases"] if c["key"] == "cones|sgm|riverbed|0.05|None|0")
+    exp["cases"].append({**riverbed, "key": "cones|sgm|riverbed|0.05|None|7"})
+    exp["tolerance"]["relative"] = 0.5  # another sampling of the LiDAR: another result, within half of seed 0's
     (tmp_path / "exp2.json").write_text(json.dumps(exp))
     r = run(dataset, "--layout", "middlebury", "--guides", "riverbed", "--shares", "0.05", "--seeds", "0", "-o",
-            tmp_path / "sub", "--check", tmp_path / "exp2.json")
+            tmp_path / "sub", "--check", tmp_path / "exp2.json", "--overwrite")
     assert r.exit_code == 0  # seed 7 was not asked for
     r = run(dataset, "--layout", "middlebury", "--guides", "riverbed", "--shares", "0.05", "--seeds", "0,7", "-o",
-            tmp_path / "sub", "--check", tmp_path / "exp2.json", "--json")
-    # seed 7 ran now, so it was compared (against the unguided case's metrics, which riverbed beats)
+            tmp_path / "sub", "--check", tmp_path / "exp2.json", "--json", "--overwrite")
+    # seed 7 ran now, so it was compared
     assert r.exit_code == 0 and json.loads(r.output)["checked"] == 2
     # expectations of another dataset: nothing compared is a failure, not a pass
     other = {"tolerance": exp["tolerance"], "cases": [{**exp["cases"][0], "key": "teddy|sgm|riverbed|0.05|None|0"}]}
     (tmp_path / "other.json").write_text(json.dumps(other))
     r = CliRunner().invoke(cli, ["benchmark", "--baselines", "", str(dataset), "--layout", "middlebury", "--guides",
                                  "riverbed", "--shares", "0.05", "-o", str(tmp_path / "sub"),
-                                 "--check", str(tmp_path / "other.json")])
+                                 "--check", str(tmp_path / "other.json"), "--overwrite"])
     assert r.exit_code == 1
     assert "riverbed: regression: none of the 1 expected cases ran (expectations of another dataset or selection?)" \
         in r.output
@@ -145,7 +164,8 @@ def test_the_cache_serves_only_the_code_and_the_scene_that_computed_it(dataset, 
     from riverbed_cli.products import benchmark as bm
 
     out = tmp_path / "out"
-    args = [dataset, "--layout", "middlebury", "-o", out, "--guides", "none", "--shares", "0.05", "--json"]
+    args = [dataset, "--layout", "middlebury", "-o", out, "--guides", "none", "--shares", "0.05", "--json",
+            "--overwrite"]
     assert json.loads(run(*args).output)["cached"] == 0
     assert json.loads(run(*args).output)["cached"] == 1
     monkeypatch.setattr(bm, "code_fingerprint", lambda: "another commit")
@@ -170,5 +190,8 @@ def test_a_metric_that_became_nan_fails_the_gate():
                 "cases": [{"key": key, "bad3": 1.5, "avg": 0.27}]}
     row = {"key": key, "bad3": 1.5, "avg": 0.27}
     assert bm.check([row], expected) == []
-    assert bm.check([{**row, "avg": float("nan")}], expected) == [f"{key}: avg nan > 0.297 (expected 0.270)"]
-    assert bm.check([{**row, "bad3": 1.66}], expected) == [f"{key}: bad3 1.660 > 1.650 (expected 1.500)"]
+    assert bm.check([{**row, "avg": float("nan")}], expected) == [f"{key}: avg nan outside 0.270 +- 0.027"]
+    assert bm.check([{**row, "bad3": 1.66}], expected) == [f"{key}: bad3 1.660 outside 1.500 +- 0.150"]
+    # two-sided: much better is off its expectation too; within the tolerance either way passes
+    assert bm.check([{**row, "bad3": 1.34}], expected) == [f"{key}: bad3 1.340 outside 1.500 +- 0.150"]
+    assert bm.check([{**row, "bad3": 1.36, "avg": 0.29}], expected) == []

@@ -1,9 +1,9 @@
 """The committed benchmark expectations as a regression gate, on real data read from RIVERBED_DATA.
 
 `benchmarks/expected_middlebury.json` and `benchmarks/expected_kitti.json` hold the full tables of
-docs/benchmarks.md, reviewed and committed (`riverbed benchmark --write-expected`); a case regresses when a metric
-exceeds its expectation by 10 % and by a small floor (0.05 points, 0.005 px). The gate covers every dev scene and
-share for the guides the docs make claims for.
+docs/benchmarks.md, reviewed and committed (`riverbed benchmark --write-expected`); a case is off when a metric
+differs from its expectation, up or down, by more than 10 % and a small floor (0.03 points, 0.005 px; the tests'
+gates). The gate covers every dev scene and share for the guides the docs make claims for.
 """
 
 import json
@@ -64,16 +64,21 @@ BASELINES = ("--baselines", "nearest,linear,guided")
 
 
 def beats_inputs(rows, scene, share, label, metric):
-    """Mean over seeds of ``label`` (a fused guide) below the best mean of unguided SGM and the LiDAR-only rows."""
-    def mean(pred):
-        vals = [r[metric] for r in rows if r["scene"] == scene and r["share"] == share and pred(r)]
+    """Mean over seeds of ``label`` (a fused guide) below the best mean of unguided SGM and the LiDAR-only rows.
+
+    bad1 and bad3 count a pixel without a disparity as an error; a mean error is over the pixels an output predicts,
+    so it is compared only with inputs that predict at least as many (the unguided match leaves the left edge whose
+    match lies outside the right image invalid: its mean is over easier pixels)."""
+    def mean(pred, key=metric):
+        vals = [r[key] for r in rows if r["scene"] == scene and r["share"] == share and pred(r)]
         assert len(vals) == 3, (scene, share, label, len(vals))  # one per seed
         return sum(vals) / 3
-    mine = mean(lambda r: r["matcher"] == "sgm" and r["guide"] == label)
-    inputs = [mean(lambda r: r["matcher"] == "sgm" and r["guide"] == "none")]
-    inputs += [mean(lambda r, m=m: r["matcher"] == "lidar" and r["guide"] == m)
-               for m in ("nearest", "linear", "guided")]
-    return mine < min(inputs)
+    preds = [lambda r: r["matcher"] == "sgm" and r["guide"] == "none"]
+    preds += [lambda r, m=m: r["matcher"] == "lidar" and r["guide"] == m for m in ("nearest", "linear", "guided")]
+    mine_pred = lambda r: r["matcher"] == "sgm" and r["guide"] == label  # noqa: E731
+    if metric == "avg":
+        preds = [p for p in preds if mean(p, "density") >= mean(mine_pred, "density") - 0.01]
+    return mean(mine_pred) < min(mean(p) for p in preds)
 
 
 def gt_protocol(shared_data, tmp_path, folder, layout, guides, expected):
@@ -120,8 +125,13 @@ def test_kitti_gt_protocol_and_table_3(shared_data, tmp_path):
     assert s["checked"] == 3 * 3 * (2 + 3)
     for share in (0.05, 0.0123):
         assert all(beats_inputs(rows, "000046_10", share, "riverbed", m) for m in ("bad1", "bad3", "avg"))
-    # at 0.16 % of the GT (88 points) the fused output loses to unguided matching on every metric (docs/fusion.md)
-    assert not any(beats_inputs(rows, "000046_10", 0.0016, "riverbed", m) for m in ("bad1", "bad3", "avg"))
+    # at 0.16 % of the GT (88 points) the fused output loses to unguided matching (docs/fusion.md): bad1 / bad3
+    # (measured 30.7 / 14.7 % vs 20.5 / 5.1 %) and the mean error (1.59 px over 99.4 % of the pixels vs 1.03 px over
+    # 99.0 %)
+    assert not any(beats_inputs(rows, "000046_10", 0.0016, "riverbed", m) for m in ("bad1", "bad3"))
+    mean_avg = {g: sum(r["avg"] for r in rows if r["share"] == 0.0016 and r["matcher"] == "sgm" and r["guide"] == g)
+                / 3 for g in ("none", "riverbed")}
+    assert mean_avg["riverbed"] > 1.4 * mean_avg["none"]
     # the paper's Table 3 protocol (5 % of the GT): the mean error beats its 0.45 px; bad1 / bad3 do not reach its
     # 2.60 / 0.73 % (measured 6.12 / 1.28 %)
     fused = [r for r in rows if r["share"] == 0.05 and r["matcher"] == "sgm" and r["guide"] == "riverbed"]

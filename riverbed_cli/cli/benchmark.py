@@ -7,11 +7,11 @@ import click
 
 from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
-from ..io.atomic import atomic_output, output_group
+from ..io.atomic import atomic_output, check_output, check_output_folder, output_group
 from ..matching.config import FUSION_CHOICES, GUIDE_NAMES as GUIDES, MATCHER_NAMES as MATCHERS, RANGES
 from ..products.densify import METHODS as DENSIFY_METHODS
 from ..products import benchmark as bm
-from .options import json_opt, print_json, progress_bar
+from .options import json_opt, overwrite_opt, print_json, progress_bar
 
 
 def _floats(value, name):
@@ -69,8 +69,9 @@ def _ints(value, name):
 @click.option("--write-expected", type=click.Path(dir_okay=False), default=None,
               help="Store these results as expectations (for a later --check).")
 @json_opt
+@overwrite_opt
 def benchmark_cmd(dataset, layout, outdir, matchers, guides, ranges, fusions, shares, share_of, baselines, windows,
-                  seeds, scenes, gt_scale, figure_scene, expected, write_expected, as_json):
+                  seeds, scenes, gt_scale, figure_scene, expected, write_expected, as_json, overwrite):
     """Run the paper's protocol on DATASET: seeded LiDAR sampled from the ground truth at each share, every
     matcher x guide, evaluated on the GT pixels not sampled. Cases are cached in OUTPUT/cache, so an interrupted run
     resumes; --check makes it a regression gate for CI."""
@@ -88,7 +89,13 @@ def benchmark_cmd(dataset, layout, outdir, matchers, guides, ranges, fusions, sh
     sh = _floats(shares, "shares")
     ws = tuple(int(w) for w in _floats(windows, "windows"))
     se = _ints(seeds, "seeds")
-    out.mkdir(parents=True, exist_ok=True)
+    # the tables, the figure and the expectations claimed before any work: a finished run's are replaced only with
+    # --overwrite (a run interrupted before them resumes from OUTPUT/cache without it)
+    check_output_folder(out, ("results.csv", "results.json", "results.md") + (("figure5.png",) if ws else ()),
+                        overwrite, inputs=[expected])
+    if write_expected:
+        check_output(write_expected, overwrite, inputs=[expected])
+    out.mkdir(exist_ok=True)
     bl = _names(baselines, "baselines", DENSIFY_METHODS) if baselines.strip() else ()
     total = bm.count_cases(scene_list, ms, gs, sh, ws, se, bl)
     with progress_bar(total, desc="benchmark", unit="case") as bar:
