@@ -358,7 +358,7 @@ def dataset(tmp_path_factory):
 
 def _bench(dataset, out, *extra):
     return run("benchmark", dataset, "--layout", "middlebury", "-o", out, "--baselines", "", "--guides", "none",
-               "--shares", "0.05", "--json", *extra)
+               "--shares", "0.05", "--json", "--overwrite", *extra)
 
 
 @pytest.mark.parametrize("content, problem", [

@@ -114,7 +114,7 @@ def test_a_failed_write_exits_1_and_keeps_the_old_output(inputs, tmp_path, name)
     args = [str(a).replace("{out}", str(tmp_path)) for a in argv]
     riverbed(*args, check=0)  # the user's good outputs (and the kernels this run loads, compiled and cached)
     old = snapshot(tmp_path / o for o in outputs)
-    r = riverbed(*args, *(["--overwrite"] if name != "benchmark" else []), fsize=limit)
+    r = riverbed(*args, "--overwrite", fsize=limit)
     assert r.returncode == 1, r.stderr
     lines = r.stderr.splitlines()
     assert len(lines) == 1, r.stderr
