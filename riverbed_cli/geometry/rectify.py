@@ -31,6 +31,7 @@ from ..errors import RiverbedError
 from ..io.atomic import atomic_output, check_output_folder
 from ..io.images import MAX_PIXELS, read_image, write_png_file
 from .pairfile import write_pairfile
+from .tie_points import rectification_check, warn_on_parallax
 from .cameras import PairGeometry
 from .orientation import (
     FrameOrientation,
@@ -303,7 +304,9 @@ def rectify_files(left_image, left_orientation, right_image, right_orientation, 
 
     ``outdir`` is created if missing (its parent must exist). All three outputs are written under temporary
     names and renamed into place only once all are complete; existing outputs are replaced only with
-    ``overwrite``. Returns a summary dict (files and sizes, focal length, baseline, rotation, valid shares).
+    ``overwrite``. Returns a summary dict (files and sizes, focal length, baseline, rotation, valid shares, and the
+    tie points' check of the written pair, :func:`~riverbed_cli.geometry.tie_points.rectification_check`: its
+    vertical parallax, with a warning above 1 px, and the disparities it shows).
     """
     t0 = time.perf_counter()
     outdir = Path(outdir)
@@ -335,5 +338,8 @@ def rectify_files(left_image, left_orientation, right_image, right_orientation, 
         write_png_file(t_right, result.right, valid=result.valid_areas[1])
         write_pairfile(t_pair, pair, comment=comment)
     files = {name: p.stat().st_size for name, p in zip(OUTPUTS, paths)}
-    return {"outdir": str(outdir), "files": files, **info,
+    # the rectification checked on the written images: tie points' rows (and the disparities they show)
+    check = rectification_check(result.left, result.right, valid_areas=result.valid_areas)
+    warn_on_parallax(check, str(outdir))
+    return {"outdir": str(outdir), "files": files, **info, "tie_points": check,
             "seconds": round(time.perf_counter() - t0, 3)}
