@@ -12,6 +12,7 @@ from ..io.disparity import read_disparity
 from ..io.images import read_image
 from ..io.lidar import lidar_info, resolve_crs
 from ..geometry.pairfile import load_pairfile, load_registration
+from ..geometry.projection import crs_name
 from ..geometry.rpc_geometry import output_crs
 from ..io.pointcloud import check_pointcloud_path, write_points
 from ..io.raster import parse_creation_options, write_geotiff
@@ -181,7 +182,7 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
             res = result.grid.resolution
             write_picture(hillshade_png, hillshade_picture(hillshade(result.dsm, res), result.dsm, res),
                           overwrite=overwrite)
-    summary = {"output": str(output), **result.stats, "crs": crs if crs is None or len(str(crs)) < 40 else "wkt",
+    summary = {"output": str(output), **result.stats, "crs": crs_name(crs),
                "seconds": round(time.perf_counter() - t0, 3)}
     if as_json:
         print_json(summary)

@@ -219,9 +219,30 @@ def crs_parts(crs):
 
 
 def crs_label(crs):
-    """A CRS in one short phrase: its authority code (``EPSG:32632``) when it has one, else its name."""
+    """A CRS in one short phrase: its authority code (``EPSG:32632``) when it has one, else its name (quoted)."""
     code = crs.to_authority(min_confidence=90)
     return f"{code[0]}:{code[1]}" if code else f"'{crs.name}'"
+
+
+def crs_name(crs):
+    """What ``--json`` summaries call a CRS (any pyproj input, or None): its authority code when it has one
+    (``EPSG:32632``), else its name (``Lo25 WGS84 + EGM2008 height``), else the string it was given (a PROJ
+    string)."""
+    if crs is None:
+        return None
+    given = crs
+    if isinstance(crs, str) and len(crs) < 40:
+        return crs
+    try:
+        crs = CRS.from_user_input(crs)
+    except CRSError:
+        return str(crs)
+    code = crs.to_authority(min_confidence=90)
+    if code:
+        return f"{code[0]}:{code[1]}"
+    if crs.name and crs.name != "unknown":
+        return crs.name
+    return given if isinstance(given, str) else crs.to_proj4()
 
 
 def image_shape(pair):
@@ -423,7 +444,7 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
         log.warning("the pair's right camera is off the baseline: right-image rows differ by %.3f px "
                     "(median, max %.3f) at the kept points; %d points off by more than %.1f px dropped",
                     float(np.median(dy)), float(dy.max()), n_row, MAX_ROW_OFFSET)
-    stats.crs = cloud_crs.to_string() if cloud_crs is not None else pair.crs
+    stats.crs = crs_name(cloud_crs) if cloud_crs is not None else pair.crs
     t_end = time.perf_counter()
     stats.seconds = t_end - t0
     stats.stage_seconds = {"stream": t_stream - t0, "outliers": t_sor - t_stream,
