@@ -356,11 +356,17 @@ def test_ventoux_split_into_rois_on_dask_merges_like_the_whole_crop(shared_data,
     assert [p["status"] for p in s["split"]["pairs"]] == ["done"] * 4
     assert s["split"]["cluster"]["workers"] == 2
     d = s["figures"]
-    # the merged DSM of the 4 ROIs and the whole crop's DSM: the same surface (each ROI rectified and pointed alone)
-    assert d["merged_vs_whole"]["cells"] > 50000
-    assert abs(d["merged_vs_whole"]["median"]) < 0.05 and d["merged_vs_whole"]["nmad"] < 0.3
-    for key in ("merged_vs_srtm", "whole_vs_srtm"):
-        assert abs(d[key]["median"]) < 0.1 and d[key]["nmad"] < 0.4
+    # the merged DSM of the 4 ROIs and the one ROI's: the same surface (each ROI rectified and pointed alone), and
+    # as close to the SRTM (measured: dz 0.013 / 0.047 m median / NMAD over 129 853 cells; against the SRTM
+    # 0.020 / 0.152 m and -0.001 / 0.147 m)
+    assert d["merged_vs_whole"]["cells"] == pytest.approx(129853, rel=0.01)
+    assert d["merged_vs_whole"]["median"] == pytest.approx(0.013, abs=0.01)
+    assert d["merged_vs_whole"]["nmad"] == pytest.approx(0.047, abs=0.01)
+    assert d["merged_vs_srtm"]["median"] == pytest.approx(0.020, abs=0.01)
+    assert d["whole_vs_srtm"]["median"] == pytest.approx(-0.001, abs=0.01)
+    assert d["merged_vs_srtm"]["nmad"] == pytest.approx(0.152, rel=0.1)
+    assert d["whole_vs_srtm"]["nmad"] == pytest.approx(0.147, rel=0.1)
+    assert d["merged_vs_srtm"]["nmad"] < 1.1 * d["whole_vs_srtm"]["nmad"]
 
 
 def test_lidar_height_range_ignores_unclassified_noise():
