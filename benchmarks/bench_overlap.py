@@ -10,7 +10,8 @@ Two routes, each as a user runs it (``riverbed`` commands in fresh processes):
 
 Rows per route: the default (LiDAR-guided, fused), unguided matching over the LiDAR's range (``project``'s
 ``d_range``, 8 px around it), and the LiDAR alone (``densify``, no matching). Columns: the DSM against the
-reference (median, NMAD, RMSE in m over the reference cells the DSM covers; completeness %), the share of the
+reference (median, NMAD, RMSE in m over the reference cells the DSM covers; completeness %), the empty cells inside
+the DSM's footprint with the default lattice rule and with ``--keep-lattice`` (docs/dsm.md), the share of the
 left image with a disparity, the share outside the overlap (no candidate in the right image), and the pixels
 outside the overlap that were triangulated anyway.
 
@@ -30,7 +31,9 @@ import sys
 import tempfile
 from pathlib import Path
 
+import cv2
 import numpy as np
+import rasterio
 
 from riverbed_cli.io.disparity import read_disparity
 from riverbed_cli.matching.overlap import matchable_mask
@@ -89,6 +92,8 @@ def route(name, rect, cloud, reference, out, methods=METHODS):
             riverbed("densify", out / "sparse.tif", "-o", disp, "--method", "planes")
         riverbed("dsm", disp, pair, "-o", out / f"{method}_dsm.tif")
         e = riverbed("evaluate", "--dsm", out / f"{method}_dsm.tif", reference, "--json")
+        riverbed("dsm", disp, pair, "-o", out / f"{method}_open.tif", "--keep-lattice")
+        holes = [footprint_holes(out / f"{method}_{n}.tif") for n in ("dsm", "open")]
         d = read_disparity(disp)
         d_min, d_max = info.get("d_min", lo), info.get("d_max", hi)
         outside = ~matchable_mask(d.shape, d_min, d_max)  # the whole range's rule (tubes narrow it further)
@@ -97,8 +102,16 @@ def route(name, rect, cloud, reference, out, methods=METHODS):
                      "matched": round(float(np.isfinite(d).mean()), 4),
                      "outside_overlap": round(float(outside.mean()), 4),
                      "outside_triangulated": int(np.count_nonzero(np.isfinite(d) & outside)),
-                     "pixels": int(d.size)})
+                     "pixels": int(d.size), "holes": holes[0], "holes_open_lattice": holes[1]})
     return rows
+
+
+def footprint_holes(path):
+    """Share (%) of the empty cells of a DSM inside its footprint (its data cells closed by a 5 x 5 closing)."""
+    with rasterio.open(path) as ds:
+        data = np.isfinite(ds.read(1)).astype(np.uint8)
+    footprint = cv2.morphologyEx(data, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8)) > 0
+    return round(float(100.0 * (footprint & (data == 0)).sum() / max(int(footprint.sum()), 1)), 2)
 
 
 def run(data, work):
@@ -118,12 +131,12 @@ LABELS = {"default": "default (LiDAR-guided, fused)", "unguided": "unguided, the
 
 def table(rows):
     """The Markdown table of docs/rectify.md from the result rows."""
-    out = ["| pair | method | median m | NMAD m | RMSE m | completeness % | image matched % | outside the overlap % "
-           "| triangulated outside |", "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+    out = ["| pair | method | median m | NMAD m | RMSE m | completeness % | holes % (lattice open) | image matched % "
+           "| outside the overlap % | triangulated outside |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         out.append(f"| {r['route']} | {LABELS[r['method']]} | {r['median']:+.2f} | {r['nmad']:.2f} | "
-                   f"{r['rmse']:.2f} | {r['completeness']:.1f} | {100 * r['matched']:.1f} | "
-                   f"{100 * r['outside_overlap']:.1f} | {r['outside_triangulated']} |")
+                   f"{r['rmse']:.2f} | {r['completeness']:.1f} | {r['holes']:.1f} ({r['holes_open_lattice']:.1f}) | "
+                   f"{100 * r['matched']:.1f} | {100 * r['outside_overlap']:.1f} | {r['outside_triangulated']} |")
     return "\n".join(out)
 
 

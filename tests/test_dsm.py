@@ -205,3 +205,23 @@ def test_hillshade_is_lit_from_the_sun_side():
     lit, shaded = int(255 * (0.5 + 0.5 * math.cos(math.pi / 4))), int(255 * (0.5 - 0.5 * math.cos(math.pi / 4)))
     assert (facing_west, facing_north) == (lit, lit) and (facing_east, facing_south) == (shaded, shaded)
     assert hillshade(np.zeros((4, 4)), 1.0)[1, 1] == int(255 * math.sin(math.pi / 4))
+
+
+def test_close_lattice_is_the_plain_loop_and_closes_only_sampling_holes():
+    from riverbed_cli.products.dsm_holes import close_lattice, close_lattice_reference
+
+    rng = np.random.default_rng(4)
+    dsm = rng.normal(100.0, 5.0, (40, 50)).astype(np.float32)
+    dsm[rng.random(dsm.shape) < 0.15] = np.nan  # a sampling lattice's empty cells
+    dsm[10:16, 10:16] = np.nan  # a real gap: its inner cells have fewer than 6 neighbours with data
+    got, n = close_lattice(dsm)
+    want, n_ref = close_lattice_reference(dsm)
+    np.testing.assert_allclose(got, want, rtol=1e-6, equal_nan=True)
+    assert n == n_ref and 0 < n < np.isnan(dsm).sum()
+    assert np.isnan(got[11:15, 11:15]).all()
+    # a lone empty cell in a plane takes its neighbours' median: the plane's height there
+    plane = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    plane[4, 4] = np.nan
+    closed, n = close_lattice(plane)
+    assert n == 1 and closed[4, 4] == 8.0
+    assert close_lattice(plane, min_neighbours=9)[1] == 0

@@ -331,19 +331,28 @@ def test_min_confidence_drops_points_and_cells(tmp_path):
     conf[60:63, 60:63] = 0.1
     d, p = write_pair(tmp_path, disp)
     write_disparity(tmp_path / "conf.tif", conf)  # a float32 TIFF, NaN nodata
+    # the lattice left open: the cells as their points give them
     r = dsm(d, p, "-o", tmp_path / "dsm.tif", "--resolution", "1.5", "--points", tmp_path / "p.las",
-            "--confidence", tmp_path / "conf.tif", "--min-confidence", "0.5", "--json")
+            "--confidence", tmp_path / "conf.tif", "--min-confidence", "0.5", "--json", "--keep-lattice")
     assert r.exit_code == 0, r.output
     s = json.loads(r.stdout)
-    assert s["confidence_dropped"] == 9 + 6 + 9
+    assert s["confidence_dropped"] == 9 + 6 + 9 and s["cells_closed"] == 0
     assert s["image_points"] == W * H - 9 - 24 == len(laspy.read(tmp_path / "p.las").points)
-    assert dsm(d, p, "-o", tmp_path / "all.tif", "--resolution", "1.5").exit_code == 0
+    assert dsm(d, p, "-o", tmp_path / "all.tif", "--resolution", "1.5", "--keep-lattice").exit_code == 0
     (kept,), ds = read_bands(tmp_path / "dsm.tif")
     (every,), _ = read_bands(tmp_path / "all.tif")
     assert ds.transform == GRID15
     lost = np.isfinite(every) & np.isnan(kept)
     assert sorted(zip(*np.nonzero(lost))) == [(10, 10), (13, 11)]
     assert np.isnan(every[20, 20]) and np.array_equal(kept[~lost], every[~lost], equal_nan=True)
+    # by default a lone empty cell among 8 with heights is closed by their median (docs/dsm.md): the two lost cells
+    # and the cell without disparities take the flat ground's height again
+    r = dsm(d, p, "-o", tmp_path / "closed.tif", "--resolution", "1.5", "--confidence", tmp_path / "conf.tif",
+            "--min-confidence", "0.5", "--json")
+    assert r.exit_code == 0 and json.loads(r.stdout)["cells_closed"] == 3
+    (closed,), _ = read_bands(tmp_path / "closed.tif")
+    for cell in ((10, 10), (13, 11), (20, 20)):
+        assert closed[cell] == every[10, 12], cell
 
 
 def test_min_confidence_in_the_library_equals_masked_disparities(tmp_path):

@@ -33,10 +33,16 @@ def test_the_claims_hold():
         for m in ("default", "unguided"):
             r = BY[route, m]
             assert r["outside_triangulated"] == 0 and r["matched"] <= 1 - r["outside_overlap"] + 1e-9
-        # the LiDAR alone extrapolates everywhere; the default beats it and the unguided match in RMSE
+        # the LiDAR alone extrapolates everywhere: the default beats it in RMSE, and the unguided match in NMAD
         assert BY[route, "lidar_only"]["matched"] == 1.0
-        assert BY[route, "default"]["rmse"] < min(BY[route, "unguided"]["rmse"], BY[route, "lidar_only"]["rmse"])
+        assert BY[route, "default"]["rmse"] < BY[route, "lidar_only"]["rmse"]
+        assert BY[route, "default"]["nmad"] < BY[route, "unguided"]["nmad"]
     assert 0.6 < BY["NGI", "default"]["outside_overlap"] < 0.75 and 0.35 < BY["sample", "default"]["outside_overlap"] < 0.45
+    # the image DSMs' sampling lattice (docs/dsm.md): about a tenth of the footprint open, a few % once closed
+    for route in ("NGI", "sample"):
+        for m in ("default", "unguided"):
+            r = BY[route, m]
+            assert r["holes_open_lattice"] > 8.0 and r["holes"] < 4.0, (route, m)
 
 
 def test_the_ngi_default_row_measured_again(shared_data, tmp_path):
@@ -45,5 +51,6 @@ def test_the_ngi_default_row_measured_again(shared_data, tmp_path):
     want = BY["NGI", "default"]
     for key in ("median", "nmad", "rmse"):
         assert got[key] == pytest.approx(want[key], abs=0.05), key
-    for key in ("completeness", "matched", "outside_overlap", "outside_triangulated", "pixels"):
+    for key in ("completeness", "matched", "outside_overlap", "outside_triangulated", "pixels", "holes",
+                "holes_open_lattice"):
         assert got[key] == pytest.approx(want[key], abs=1e-3), key

@@ -54,6 +54,9 @@ class Number(click.ParamType):
 @click.option("--fill-holes", type=int, default=0, show_default=True,
               help="Fill enclosed gaps up to N cells across (GDAL inverse-distance); filled cells are flagged in a "
                    "second band (1 = filled).")
+@click.option("--keep-lattice", is_flag=True, default=False,
+              help="Leave the image points' sampling lattice open: by default an empty cell with at least 6 of its "
+                   "8 neighbours holding heights takes their median (docs/dsm.md).")
 @click.option("--crs", default=None,
               help="CRS of the output [default: the pair's, else the LiDAR file's]; assigned, not reprojected (RPC "
                    "pairs: a projected CRS the points are converted to, default the scene's UTM zone).")
@@ -73,8 +76,8 @@ class Number(click.ParamType):
               help="Drop the points whose pixel's --confidence is below X (0..1) or NaN.")
 @json_opt
 @overwrite_opt
-def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill_holes, crs, creation, clouds,
-            registration, hillshade_png, confidences, min_confidence, as_json, overwrite):
+def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill_holes, keep_lattice, crs, creation,
+            clouds, registration, hillshade_png, confidences, min_confidence, as_json, overwrite):
     """Triangulate DISP PAIR couples (disparity map of the left image, pair file) into a DSM.
 
     Every valid disparity is triangulated exactly (float64) with the pair's cameras, the pair's origin added back;
@@ -160,9 +163,9 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
 
     total = sum(d.shape[0] for d, _, _ in sources)
     with progress_bar(total, bool(total), desc="dsm", unit="row", leave=False) as bar:
-        result = build_dsm(sources, clouds, resolution, agg, bounds, fill_holes, point_sink=sink,
-                           lidar_registration=reg, progress=bar.update, confidence=confs if confidences else None,
-                           min_confidence=min_confidence)
+        result = build_dsm(sources, clouds, resolution, agg, bounds, fill_holes, lattice=not keep_lattice,
+                           point_sink=sink, lidar_registration=reg, progress=bar.update,
+                           confidence=confs if confidences else None, min_confidence=min_confidence)
 
     dsm = result.dsm
     if not np.isnan(nodata):

@@ -13,18 +13,17 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 import rasterio
 from affine import Affine
 from numba import njit
-from rasterio.fill import fillnodata
 
 from ..errors import RiverbedError
 from ..geometry.rpc_geometry import rpc_disparity_points
 from ..io.lidar import iter_lidar, lidar_info
 from ..io.paths import require_file
 from ..io.raster import write_geotiff
+from .dsm_holes import MAX_FILL_CELLS, check_fill_holes, close_lattice, fill_holes  # noqa: F401  (re-exported)
 
 AGGREGATIONS = ("max", "mean", "median", "idw")
 
@@ -208,52 +207,6 @@ def rasterize(x, y, z, grid, agg="max"):
     acc = Accumulator(grid, agg)
     acc.add(x, y, z)
     return acc.result()
-
-
-#: widest gap ``--fill-holes`` fills (cells): GDAL searches that far from every empty cell (a million ran for
-#: minutes), and a wider gap is no hole in a surface but a part the pairs did not see
-MAX_FILL_CELLS = 256
-
-
-def check_fill_holes(max_size):
-    """``--fill-holes`` as an int from 0 to :data:`MAX_FILL_CELLS`, or :class:`RiverbedError`."""
-    if not 0 <= max_size <= MAX_FILL_CELLS:
-        raise RiverbedError(f"--fill-holes must be from 0 to {MAX_FILL_CELLS} cells, got {max_size}")
-    return int(max_size)
-
-
-def fill_holes(dsm, max_size):
-    """Fill enclosed gaps of a DSM no wider than ``max_size`` cells.
-
-    A gap is a connected group of empty (NaN) cells that does not touch the raster border; it is filled when its
-    largest inscribed distance to data is at most ``max_size / 2`` cells (so a gap up to ``max_size`` cells across),
-    by GDAL's inverse-distance interpolation (``rasterio.fill.fillnodata``). ``max_size`` at most
-    :data:`MAX_FILL_CELLS`. Returns the filled DSM (float32) and a uint8 mask, 1 where a cell was filled.
-    """
-    check_fill_holes(max_size)
-    dsm = np.asarray(dsm, np.float32)
-    empty = np.isnan(dsm)
-    mask = np.zeros(dsm.shape, np.uint8)
-    if max_size <= 0 or not empty.any() or empty.all():
-        return dsm.copy(), mask
-    n, labels = cv2.connectedComponents(empty.astype(np.uint8), connectivity=8)
-    dist = cv2.distanceTransform(empty.astype(np.uint8), cv2.DIST_L2, 5)
-    border = np.unique(np.r_[labels[0], labels[-1], labels[:, 0], labels[:, -1]])
-    biggest = np.zeros(n, np.float32)
-    np.maximum.at(biggest, labels[empty], dist[empty])
-    fillable = (biggest <= max_size / 2.0 + 0.5)
-    fillable[border] = False
-    fillable[0] = False  # label 0 is the data
-    target = fillable[labels] & empty
-    if not target.any():
-        return dsm.copy(), mask
-    work = np.where(empty, 0, dsm).astype(np.float32)
-    filled = fillnodata(work, mask=(~empty).astype(np.uint8), max_search_distance=float(max_size) + 1,
-                        smoothing_iterations=0)
-    out = dsm.copy()
-    out[target] = filled[target]
-    mask[target] = 1
-    return out, mask
 
 
 def hillshade(dsm, resolution, azimuth=315.0, altitude=45.0, z_factor=1.0):
@@ -455,7 +408,7 @@ def _no_points(bounds, lo, hi):
 
 def build_dsm(sources=(), lidar=(), resolution=None, agg="max", bounds=None, fill=0, block_rows=256,
               point_sink=None, lidar_registration=None, drop_classes=NOISE_CLASSES, progress=None,
-              confidence=None, min_confidence=None):
+              confidence=None, min_confidence=None, lattice=True):
     """Merge the points of several disparity maps (and optionally LiDAR clouds) into one DSM.
 
     Parameters
@@ -474,6 +427,9 @@ def build_dsm(sources=(), lidar=(), resolution=None, agg="max", bounds=None, fil
         Default: the extent of all points.
     fill : int
         Fill enclosed gaps up to this many cells across (:func:`fill_holes`).
+    lattice : bool
+        Close the image points' sampling lattice (:func:`~riverbed_cli.products.dsm_holes.close_lattice`; the
+        count is ``stats["cells_closed"]``).
     point_sink : callable, optional
         Called as ``point_sink(xyz, rgb)`` with every block of image points (to write a point cloud).
     confidence : sequence of (H, W) float arrays (or None), optional
@@ -573,6 +529,9 @@ def build_dsm(sources=(), lidar=(), resolution=None, agg="max", bounds=None, fil
             if progress:
                 progress(min(block_rows, disp.shape[0] - r0))
     dsm = img_acc.result() if sources else np.full((grid.height, grid.width), np.nan, np.float32)
+    n_closed = 0
+    if sources and lattice:  # before the LiDAR's cells: the lattice is the image points' sampling
+        dsm, n_closed = close_lattice(dsm)
     n_lidar = 0
     in_grid = int(img_acc.counts.sum())
     if lidar:
@@ -593,5 +552,6 @@ def build_dsm(sources=(), lidar=(), resolution=None, agg="max", bounds=None, fil
     stats = {"resolution": grid.resolution, "width": grid.width, "height": grid.height,
              "bounds": list(grid.bounds), "image_points": int(n_img), "lidar_points": int(n_lidar),
              "cells_with_data": float(100.0 * np.isfinite(dsm).mean()), "cells_filled": int(filled.sum()),
+             "cells_closed": n_closed,
              "aggregation": agg, "confidence_dropped": None if min_confidence is None else n_dropped}
     return DsmResult(dsm.astype(np.float32), grid, filled, stats)

@@ -9,14 +9,15 @@ from pyproj import CRS
 from ...errors import RiverbedError
 from ...io.lidar import iter_lidar, lidar_info
 from ...io.raster import write_geotiff
-from ...products.dsm import Accumulator, Grid
+from ...products.dsm import Accumulator, Grid, close_lattice
 
 
 def merge_dsm(laz_paths, output, resolution, agg="max", crs=None, chunk_size=1_000_000, heights=None):
     """Rasterise the points of several LAS/LAZ files onto one grid (snapped to multiples of ``resolution``).
 
     Chunks stream into one :class:`~riverbed_cli.products.dsm.Accumulator`, so the result is the aggregation over
-    the union of the points, exact for every aggregation. Writes a COG GeoTIFF (NaN nodata) and returns stats;
+    the union of the points, exact for every aggregation, its sampling lattice closed (:func:`~riverbed_cli.
+    products.dsm_holes.close_lattice`). Writes a COG GeoTIFF (NaN nodata) and returns stats;
     ``heights`` (e.g. ``"ellipsoidal (WGS 84, m)"`` for RPC pairs) goes into its tag ``riverbed_heights``.
     """
     t0 = time.perf_counter()
@@ -34,7 +35,7 @@ def merge_dsm(laz_paths, output, resolution, agg="max", crs=None, chunk_size=1_0
             xyz = ch["xyz"]
             acc.add(xyz[:, 0], xyz[:, 1], xyz[:, 2])
             n += len(xyz)
-    dsm = acc.result()
+    dsm = close_lattice(acc.result())[0]  # the image points' sampling lattice, as each pair's DSM closes it
     write_geotiff(output, dsm, grid.transform, crs, float("nan"), None, overwrite=True, band_descriptions=["height"],
                   tags={"riverbed_aggregation": agg, "riverbed_pairs": len(laz_paths),
                         **({"riverbed_heights": heights} if heights else {})})

@@ -26,7 +26,7 @@ from ...matching.lidar_offset import correct_large
 from ...matching.pipeline import check_disparity_values, match_pair, resolve_disparity_range
 from ...matching.registry import get_guide
 from ...matching.tubes import ranges_from_disparity, spacing_window
-from ...products.dsm import Accumulator, Grid, default_resolution, disparity_points
+from ...products.dsm import Accumulator, Grid, close_lattice, default_resolution, disparity_points
 from ..tiles import Tile, match_tile, plan_tiles, scan_range_map, tube_widths
 from .plan import DONE, OUTPUTS, WORK, clean_temps, rectify_rpc, riverbed_version, sha256_file, write_json
 from .settings import match_params
@@ -310,7 +310,8 @@ def n_tasks(proj):
 
 def pair_dsm(disp, pair, image, resolution, agg, block_rows=256):
     """A pair's points and DSM, triangulated once: :func:`~riverbed_cli.products.dsm.build_dsm` without LiDAR
-    (the same points in the same order into the same grid and accumulator: the same DSM), keeping the points it
+    (the same points in the same order into the same grid and accumulator, the lattice closed: the same DSM),
+    keeping the points it
     would hand its point sink instead of triangulating twice (extent, then rasterisation).
 
     Returns ``(dsm, grid, xyz, rgb)``: float32 heights (NaN empty), the
@@ -338,7 +339,7 @@ def pair_dsm(disp, pair, image, resolution, agg, block_rows=256):
         acc.add(xyz[:, 0], xyz[:, 1], xyz[:, 2])
     xyz = np.concatenate([b[0] for b in blocks])
     rgb = np.concatenate([b[1] for b in blocks]) if all(b[1] is not None for b in blocks) else None
-    return acc.result().astype(np.float32), grid, xyz, rgb
+    return close_lattice(acc.result())[0], grid, xyz, rgb
 
 
 def finish_stage(job, proj, tiles):
