@@ -2,13 +2,12 @@
 
 **The lattice.** An image DSM at its default cell (the left image's ground sample distance at the median depth) gets
 about one point per cell, unevenly: perspective, relief and the rectification stretch the pixel grid against the map
-grid, so about a tenth of the cells get none, in a regular pattern (9-10 % of the footprint on the sample block and
-on a real DMC pair), plainly visible in a hillshade. :func:`close_lattice` gives an empty cell with at least
+grid, so about a tenth of the cells get none, in a regular pattern plainly visible in a hillshade. :func:`close_lattice` gives an empty cell with at least
 :data:`LATTICE_NEIGHBOURS` of its 8 neighbours holding heights their median: those holes are the sampling's, not
-the surface's (a wider gap has fewer neighbours with data). Measured (``riverbed dsm`` defaults, docs/dsm.md): the
-holes inside the footprint fall from 9.1-9.7 % to 1.2-3.1 %, the NMAD against the references moves by 0 to +4 %.
-A larger cell closes them too but biases the ``max`` aggregation upwards (on the real pair: median +0.19 m at 1.25
-cells, +0.43 m at 1.5); the neighbours' maximum instead of their median costs 3-5 % of RMSE.
+the surface's (a wider gap has fewer neighbours with data). Measured by ``benchmarks/bench_overlap.py`` (its
+``holes`` columns, docs/rectify.md): about a tenth of the footprint open, a few % closed, the NMAD against the
+references within a few %. A larger cell closes them too but biases the ``max`` aggregation upwards; the neighbours'
+maximum instead of their median costs a few % of RMSE (docs/dsm.md).
 
 **Gaps.** ``--fill-holes N`` fills enclosed gaps up to N cells across by GDAL's inverse-distance interpolation,
 flagged in a second band (:func:`fill_holes`).
