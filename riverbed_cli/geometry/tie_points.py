@@ -99,8 +99,9 @@ def rectification_check(left, right, *, valid_areas=(None, None)):
 
     Returns a dict: ``tie_points`` (count), ``dy_median_px`` (median |y_left - y_right|), ``dy_p90_px``,
     ``dy_mean_px`` (signed: a shift of one image), and ``disparity`` (``[lo, hi]`` px: the span of the tie points
-    whose disparity agrees with their neighbours' (:func:`agreeing`), :data:`TRIM` of them left out at each end, widened by :data:`RANGE_MARGIN` px and
-    :data:`RANGE_GROWTH` of the span), or only ``tie_points`` when there are fewer than :data:`MIN_POINTS`.
+    whose disparity agrees with their neighbours' (:func:`agreeing`), :data:`TRIM` of them left out at each end,
+    widened by :data:`RANGE_MARGIN` px and :data:`RANGE_GROWTH` of the span), or only ``tie_points`` when there are
+    fewer than :data:`MIN_POINTS`.
     """
     pl, pr = tie_points(left, right, valid_areas=valid_areas)
     out = {"tie_points": int(len(pl))}

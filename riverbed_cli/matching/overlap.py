@@ -1,19 +1,27 @@
 """Where a match is possible at all: the overlap rule, applied to every match by :func:`keep_to_overlap` and
-:func:`keep_fusion_to_lidar`.
+:func:`keep_fusion_to_lidar` (docs/rectify.md, "the overlap").
 
 A pixel ``(y, x)`` of the left (reference) image can be matched only if at least one disparity ``d`` of its searched
-range (``[d_min, d_max]``, or its tube) puts its candidate ``x - d`` inside the right image (``0 <= x - d < W``) and, when the right
-image has a valid area (a rectified frame's area that its source covers), on a valid right pixel; a left pixel outside
-the left image's own valid area has nothing to match. A pixel whose tube (the LiDAR's bound on its disparity, narrower than the range) reaches outside
-needs the tube's middle inside: beyond that its true match most likely lies outside, and the stereo would pick a
-wrong one inside. Every other pixel is *outside the overlap*: whatever a matcher
-or an interpolation puts there is a guess. Such pixels are invalid in the disparity (NaN), have confidence 0, are
-never filled by the fusion and are never triangulated. On frame pairs this is most of the image: with 27 % forward
-overlap, 71-74 % of a rectified left frame has ``x - d < 0`` for every disparity the terrain allows.
+range (``[d_min, d_max]``, or its tube) puts its candidate ``x - d`` inside the right image (``0 <= x - d < W``) and,
+when the right image has a valid area (a rectified frame's area that its source covers), on a valid right pixel; a
+left pixel outside the left image's own valid area has nothing to match. A pixel whose tube (the LiDAR's bound on
+its disparity, narrower than the range) reaches outside needs the tube's middle inside: beyond that its true match
+most likely lies outside, and the stereo would pick a wrong one inside. Every other pixel is *outside the overlap*.
+On frame pairs this is most of the image: with 27 % forward overlap, about 70 % of a rectified left frame.
 
-The fusion's output is also held to the range that was searched: a value outside ``[d_min - 1, d_max + 1]`` (the
-sub-pixel refinement reaches half a pixel beyond the ends) is an extrapolation of the LiDAR's planes, not a
-measurement, and is invalid.
+The rule, for every matcher, guided or not, fused or not:
+
+- outside the overlap, and wherever the matcher's choice puts the match beyond the right image's edge (the
+  smoothness term carrying its neighbours on), there is no stereo: NaN, and a failing left-right status;
+- with LiDAR guiding the cost, such a pixel keeps the guided matcher's value inside the LiDAR's coverage (the points'
+  convex hull and one mean spacing around it): the guidance carried along the image, an interpolation of the LiDAR;
+- the fusion fills a pixel without stereo from the LiDAR only inside the same coverage, and none of its values lies
+  beyond the searched range (``[d_min - 1, d_max + 1]``: the sub-pixel refinement reaches half a pixel beyond its
+  ends); what it drops is NaN with confidence 0.
+
+``riverbed project`` keeps only LiDAR points seen in both images, so on a real pair nothing outside the overlap is
+filled; a benchmark's LiDAR, sampled from the ground truth over the whole left image, covers the left edge whose
+match lies outside the right image, and fills it.
 """
 
 import math

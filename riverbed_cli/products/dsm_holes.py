@@ -4,9 +4,9 @@
 about one point per cell, unevenly: perspective, relief and the rectification stretch the pixel grid against the map
 grid, so about a tenth of the cells get none, in a regular pattern plainly visible in a hillshade.
 :func:`close_lattice` gives an empty cell with at least :data:`LATTICE_NEIGHBOURS` of its 8 neighbours holding
-heights their median: those holes are the sampling's, not the surface's (a wider gap has fewer neighbours with data). Measured by ``benchmarks/bench_overlap.py`` (its
-``holes`` columns, docs/rectify.md): about a tenth of the footprint open, a few % closed, the NMAD against the
-references within a few %. A larger cell closes them too but biases the ``max`` aggregation upwards; the neighbours'
+heights their median: those holes are the sampling's, not the surface's (a wider gap has fewer neighbours with data).
+Measured by ``benchmarks/bench_overlap.py`` (its ``holes`` columns, docs/rectify.md): about a tenth of the footprint
+open, a few % closed, the NMAD against the references within a few %. A larger cell closes them too but biases the ``max`` aggregation upwards; the neighbours'
 maximum instead of their median costs a few % of RMSE (docs/dsm.md).
 
 **Gaps.** ``--fill-holes N`` fills enclosed gaps up to N cells across by GDAL's inverse-distance interpolation,
