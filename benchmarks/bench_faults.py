@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from datasets import DEV_SCENES, KITTI2015, kitti2015, middlebury  # noqa: E402
+from datasets import DEV_SCENES, KITTI2015, kitti2015, middlebury, rewrite_block  # noqa: E402
 
 from riverbed_cli.matching.pipeline import match_pair  # noqa: E402
 from riverbed_cli.products.densify import densify  # noqa: E402
@@ -127,10 +127,7 @@ def tables(rows):
 
 
 def write_docs(rows, path):
-    text = Path(path).read_text()
-    head, rest = text.split(BEGIN)
-    _, tail = rest.split(END)
-    Path(path).write_text(f"{head}{BEGIN}\n{tables(rows)}\n{END}{tail}")
+    rewrite_block(path, BEGIN, END, tables(rows))
 
 
 def main():

@@ -35,8 +35,11 @@ import cv2
 import numpy as np
 import rasterio
 
-from riverbed_cli.io.disparity import read_disparity
-from riverbed_cli.matching.overlap import matchable_mask
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from datasets import rewrite_block  # noqa: E402
+
+from riverbed_cli.io.disparity import read_disparity  # noqa: E402
+from riverbed_cli.matching.overlap import matchable_mask  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 NGI = "aerial_ngi_orthority/ngi"
@@ -141,10 +144,7 @@ def table(rows):
 
 
 def write_docs(rows, path):
-    text = Path(path).read_text()
-    head, rest = text.split(BEGIN)
-    _, tail = rest.split(END)
-    Path(path).write_text(f"{head}{BEGIN}\n{table(rows)}\n{END}{tail}")
+    rewrite_block(path, BEGIN, END, table(rows))
 
 
 def main():

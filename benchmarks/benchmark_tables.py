@@ -11,8 +11,12 @@ doc's tables, between the doc's ``<!-- benchmark_tables: NAME -->`` markers:
 
 import argparse
 import json
+import sys
 from collections import defaultdict
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from datasets import rewrite_block  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 METRICS = ("bad1", "bad2", "bad3", "avg", "rmse")
@@ -98,13 +102,8 @@ BLOCKS = {f"{name}": (lambda name=name: f"{command(name)}\n\n{mean_table(name)}"
 
 
 def write_docs(path):
-    text = Path(path).read_text()
     for name, make in BLOCKS.items():
-        begin, end = f"<!-- benchmark_tables: {name} -->", f"<!-- benchmark_tables: {name} end -->"
-        head, rest = text.split(begin)
-        _, tail = rest.split(end)
-        text = f"{head}{begin}\n{make()}\n{end}{tail}"
-    Path(path).write_text(text)
+        rewrite_block(path, f"<!-- benchmark_tables: {name} -->", f"<!-- benchmark_tables: {name} end -->", make())
 
 
 def main():

@@ -84,3 +84,12 @@ def speed_pair(data_dir, seed=0, share=0.05, beyond=False):
         idx = np.random.default_rng(seed + 1).choice(far, n, replace=False)
         sparse.flat[idx] = scene.flat[idx]
     return left, right, sparse
+
+
+def rewrite_block(path, begin, end, body):
+    """Replace the text between the markers ``begin`` and ``end`` of the file ``path`` by ``body`` (the generated
+    tables of a doc page)."""
+    text = Path(path).read_text()
+    head, rest = text.split(begin)
+    _, tail = rest.split(end)
+    Path(path).write_text(f"{head}{begin}\n{body}\n{end}{tail}")

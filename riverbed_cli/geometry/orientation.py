@@ -163,7 +163,8 @@ def _mapping(data, key, allowed, path):
     return data
 
 
-def _scalar(value, key, path, positive=False):
+def scalar(value, key, path, positive=False):
+    """``value`` as a finite float (positive if asked), or a :class:`RiverbedError` naming ``key`` in ``path``."""
     x = parse_number(value)
     if x is None:
         raise RiverbedError(f"{key}: expected a number, got {value!r}", path)
@@ -242,9 +243,9 @@ def orientation_from_dict(data, path=None, image_size=None):
             size[key] = int(actual)
     ps = None
     if inner.get("pixel_size_mm") is not None:
-        ps = _scalar(inner["pixel_size_mm"], "interior.pixel_size_mm", path, positive=True)
+        ps = scalar(inner["pixel_size_mm"], "interior.pixel_size_mm", path, positive=True)
     fkey = _one_of(inner, ("focal_length_mm", "focal_length_px"), "interior", path)
-    f = _scalar(inner[fkey], f"interior.{fkey}", path, positive=True)
+    f = scalar(inner[fkey], f"interior.{fkey}", path, positive=True)
     pkey = _one_of(inner, ("principal_point_mm", "principal_point_px"), "interior", path)
     pp = _vector(inner[pkey], 2, f"interior.{pkey}", path)
     for key in (fkey, pkey):
@@ -265,7 +266,7 @@ def orientation_from_dict(data, path=None, image_size=None):
     if inner.get("distortion") is not None:
         dist = _mapping(inner["distortion"], "interior.distortion", DISTORTION_KEYS, path)
         for key, value in dist.items():
-            coeffs[key] = _scalar(value, f"interior.distortion.{key}", path)
+            coeffs[key] = scalar(value, f"interior.distortion.{key}", path)
     dist = np.array([coeffs["k1"], coeffs["k2"], coeffs["p1"], coeffs["p2"], coeffs["k3"]])
 
     # -- exterior

@@ -21,8 +21,7 @@ from pyproj.exceptions import CRSError, ProjError
 
 from ..errors import RiverbedError
 from ..io.textfiles import load_text_data, read_text
-from .cameras import parse_number
-from .orientation import FrameOrientation, opk_to_matrix
+from .orientation import FrameOrientation, opk_to_matrix, scalar
 
 #: Photogrammetric image axes (x right, y up, z back) <-> OpenCV camera axes (x right, y down, z forward).
 PHOTO_TO_CV = np.diag([1.0, -1.0, -1.0])
@@ -76,15 +75,11 @@ class Interior:
 
 
 def number(value, key, path, *, positive=False):
-    """``value`` as a finite float, or a :class:`RiverbedError` naming ``key`` in ``path``."""
-    x = None if isinstance(value, bool) else parse_number(value)
-    if x is None:
+    """``value`` as a finite float (not a YAML/JSON boolean), or a :class:`RiverbedError` naming ``key`` in
+    ``path`` (:func:`~riverbed_cli.geometry.orientation.scalar`)."""
+    if isinstance(value, bool):
         raise RiverbedError(f"{key}: expected a number, got {value!r}", path)
-    if not math.isfinite(x):
-        raise RiverbedError(f"{key}: not finite: {value!r}", path)
-    if positive and x <= 0:
-        raise RiverbedError(f"{key}: must be positive, got {value!r}", path)
-    return x
+    return scalar(value, key, path, positive)
 
 
 def numbers(value, n, key, path, *, positive=False):
