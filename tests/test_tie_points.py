@@ -97,3 +97,26 @@ def test_the_real_ngi_pair_and_its_transposed_twin(shared_data, tmp_path):
     assert "the tie points' rows differ by 6." in got["transposed"][1]
     # the DEM's disparities there span 441..477 px: the tie points show most of it
     assert right["disparity"][0] <= 441 and right["disparity"][1] >= 465
+
+
+def test_the_earth_curvature_bound_the_docs_state(shared_data, tmp_path):
+    """docs/rectify.md, Limits: D^2 / 2R at the NGI frames' corners, from the orientation and the DEM's heights."""
+    import rasterio
+
+    from riverbed_cli.geometry.orientation import load_orientation
+
+    ngi = shared_data / "aerial_ngi_orthority" / "ngi"
+    r = CliRunner().invoke(cli, ["orient", str(ngi / "ngi_int_param.yaml"), str(ngi / "ngi_xyz_opk.csv"), "-o",
+                                 str(tmp_path), "--images", "3324c_2015_1004_05_0184_RGB"])
+    assert r.exit_code == 0, r.output
+    o = load_orientation(tmp_path / "3324c_2015_1004_05_0184_RGB.yaml", (640, 1152))
+    with rasterio.open(ngi / "dem.tif") as ds:
+        dem = ds.read(1, masked=True)
+    above = o.centre[2] - float(np.ma.median(dem))
+    corners = np.array([[0, 0], [639, 0], [0, 1151], [639, 1151]], float)
+    tan = np.hypot(corners[:, 0] - o.K[0, 2], corners[:, 1] - o.K[1, 2]).max() / o.K[0, 0]
+    D = above * tan
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "rectify.md").read_text()
+    assert f"{D * D / (2 * 6371000.0):.1f} m at the NGI frames' corners (D = {D / 1000:.1f} km, " \
+           f"{above / 1000:.1f} km above the ground" in doc
+    assert f"{500.0 ** 2 / (2 * 6371000.0) * 100:.0f} cm at 500 m" in doc
