@@ -494,18 +494,25 @@ def test_every_shared_las_file(shared_data):
     assert len(malformed) == len(SHARED_MALFORMED)
     messages = _refuse_all([("read_lidar", p) for p in malformed])
     assert messages == [f"{p}: {SHARED_MALFORMED[p.relative_to(shared_data).as_posix()]}" for p in malformed]
-    failures = []
+    failures, coloured = [], 0
     for path in files:
         if path in malformed:
             continue
         las = laspy.read(path)
         pts = read_lidar(path)
+        # every point, in the file's order, as laspy reads the whole file: coordinates (scaled and offset),
+        # classes, and colours where the point format has them
         ref = np.column_stack([las.x, las.y, las.z]).reshape(-1, 3)
-        if pts["xyz"].shape != ref.shape or (len(ref) and not (
-                np.array_equal(pts["xyz"].min(axis=0), ref.min(axis=0))
-                and np.array_equal(pts["xyz"].max(axis=0), ref.max(axis=0)))):
-            failures.append(f"{path}: {pts['xyz'].shape} vs laspy {ref.shape}")
+        same = pts["xyz"].shape == ref.shape and np.array_equal(pts["xyz"], ref)
+        same = same and np.array_equal(pts["classification"], np.asarray(las.classification))
+        if "red" in las.point_format.dimension_names:
+            coloured += 1
+            same = same and pts.get("rgb") is not None and np.array_equal(
+                pts["rgb"], np.column_stack([las.red, las.green, las.blue]))
+        if not same:
+            failures.append(f"{path}: {pts['xyz'].shape} differs from laspy's {ref.shape}")
     assert not failures, "\n".join(failures)
+    assert coloured > 5, coloured
 
 
 @pytest.mark.data
