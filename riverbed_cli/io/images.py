@@ -439,6 +439,11 @@ def check_pair(left, right, left_path=None, right_path=None):
         )
 
 
+def has_mask(ds):
+    """True when a rasterio dataset has a valid area (alpha, mask band or nodata), not only valid pixels."""
+    return not all(flags == [rasterio.enums.MaskFlags.all_valid] for flags in ds.mask_flag_enums)
+
+
 def read_valid_area(path):
     """The valid area of an image file: (H, W) bool, True where the pixel shows the scene, from its alpha channel
     (PNG grey + alpha or RGBA; TIFF alpha band, mask band or nodata, as GDAL gives them); None when the file has
@@ -460,7 +465,7 @@ def read_valid_area(path):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
                 with rasterio.open(path) as ds:
-                    if all(flags == [rasterio.enums.MaskFlags.all_valid] for flags in ds.mask_flag_enums):
+                    if not has_mask(ds):
                         return None
                     valid = ds.dataset_mask() > 0
         except MemoryError:

@@ -11,7 +11,7 @@ from rasterio.windows import Window
 from ..errors import RiverbedError
 from .atomic import c_stderr_silenced
 from .disparity import TIFF_COMPRESSION, disparity_format, read_disparity
-from .images import TIFF_MAGIC, effective_bits, read_image, read_valid_area
+from .images import TIFF_MAGIC, effective_bits, has_mask, read_image, read_valid_area
 from .paths import require_file
 
 
@@ -96,16 +96,8 @@ def valid_area_source(path):
     the image: None when every pixel is valid, a :class:`WindowedRaster` of kind ``valid`` for a TIFF (read by
     windows), else an (H, W) bool array."""
     if is_tiff(path):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
-            try:
-                with rasterio.open(path) as ds:
-                    flags = ds.mask_flag_enums
-            except rasterio.errors.RasterioError as e:
-                raise RiverbedError(f"cannot read raster ({str(e).splitlines()[0]})", path) from None
-        if all(f == [rasterio.enums.MaskFlags.all_valid] for f in flags):
-            return None
-        return WindowedRaster(path, "valid")
+        src = WindowedRaster(path, "valid")
+        return src if has_mask(src._ds) else None
     return read_valid_area(path)
 
 

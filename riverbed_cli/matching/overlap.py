@@ -60,43 +60,24 @@ def matchable_mask(shape, d_min, d_max, right_valid=None, left_valid=None, tubes
     H, W = int(shape[0]), int(shape[1])
     lo, hi = int(d_min), int(d_max)
     if tubes is not None:
-        out = _matchable_tubes(tubes.offset, tubes.width, np.int64(lo), np.int64(hi - lo + 1),
-                               np.ones((1, 1), np.bool_) if right_valid is None else
-                               np.ascontiguousarray(right_valid, np.bool_))
-    elif right_valid is None:
-        # candidates x - hi .. x - lo overlap [0, W - 1] exactly for lo <= x <= W - 1 + hi
-        x = np.arange(W)
-        row = (x >= lo) & (x <= W - 1 + hi)
-        out = np.broadcast_to(row, (H, W)).copy()
-    else:
-        out = _matchable_rows(np.ascontiguousarray(right_valid, np.bool_), np.int64(lo), np.int64(hi))
+        offset, width = tubes.offset, tubes.width
+    else:  # one range for every pixel: a 1 x 1 layout the kernel reads for all
+        offset, width = np.zeros((1, 1), np.int32), np.full((1, 1), hi - lo + 1, np.int32)
+    valid = np.ones((1, 1), np.bool_) if right_valid is None else np.ascontiguousarray(right_valid, np.bool_)
+    out = _matchable(np.ascontiguousarray(offset, np.int32), np.ascontiguousarray(width, np.int32), np.int64(lo),
+                     np.int64(hi - lo + 1), valid, np.int64(H), np.int64(W))
     if left_valid is not None:
         out &= np.asarray(left_valid, np.bool_)
     return out
 
 
 @njit(cache=True, parallel=True)
-def _matchable_rows(right_valid, lo, hi):
-    # Per row, the running count of valid right pixels: a left pixel is matchable when its candidate columns
-    # [x - hi, x - lo] (cut to the image) hold at least one. Rows in parallel; O(W) per row whatever the range.
-    H, W = right_valid.shape
-    out = np.empty((H, W), np.bool_)
-    for y in prange(H):
-        count = np.zeros(W + 1, np.int32)
-        for x in range(W):
-            count[x + 1] = count[x] + (1 if right_valid[y, x] else 0)
-        for x in range(W):
-            a = max(x - hi, 0)
-            b = min(x - lo, W - 1)
-            out[y, x] = b >= a and count[b + 1] - count[a] > 0
-    return out
-
-
-@njit(cache=True, parallel=True)
-def _matchable_tubes(offset, width, d_min, nominal, right_valid):
-    # _matchable_rows with each pixel's own range [d_min + offset, d_min + offset + width - 1], a tube narrower than
-    # the ``nominal`` range needing its middle candidate inside; right_valid of shape (1, 1): no valid area
-    H, W = offset.shape
+def _matchable(offset, width, d_min, nominal, right_valid, H, W):
+    # Per row, the running count of valid right pixels: a pixel with range [lo, hi] (d_min + offset, width wide) is
+    # matchable when its candidate columns [x - hi, x - lo] (cut to the image) hold at least one, or, for a tube
+    # narrower than the ``nominal`` range, when its middle candidate is valid. ``offset``, ``width`` of shape (1, 1):
+    # one range for every pixel; ``right_valid`` of shape (1, 1): no valid area. Rows in parallel, O(W) per row.
+    per_pixel = offset.shape[0] == H and offset.shape[1] == W
     masked = right_valid.shape[0] == H
     out = np.empty((H, W), np.bool_)
     for y in prange(H):
@@ -104,9 +85,11 @@ def _matchable_tubes(offset, width, d_min, nominal, right_valid):
         for x in range(W):
             count[x + 1] = count[x] + (1 if (not masked or right_valid[y, x]) else 0)
         for x in range(W):
-            lo = d_min + offset[y, x]
-            hi = lo + width[y, x] - 1
-            if width[y, x] < nominal:  # a tube from the LiDAR: its middle inside, else the truth likely lies outside
+            k = offset[y, x] if per_pixel else offset[0, 0]
+            w = width[y, x] if per_pixel else width[0, 0]
+            lo = d_min + k
+            hi = lo + w - 1
+            if w < nominal:  # a tube from the LiDAR: its middle inside, else the truth likely lies outside
                 mid = (lo + hi) // 2
                 out[y, x] = x - mid >= 0 and x - mid <= W - 1 and (not masked or right_valid[y, x - mid])
             else:
@@ -170,24 +153,22 @@ def outside_searched_range(disparity, d_min, d_max):
         return (disparity < d_min - RANGE_SLACK) | (disparity > d_max + RANGE_SLACK)
 
 
-def keep_to_overlap(out, d_min, d_max, valid_areas=None, tubes=None, guided_by=None):
+def keep_to_overlap(out, d_min, d_max, valid_areas=None, tubes=None, kept=None):
     """Invalidate, in a matcher's output ``out`` (:class:`~riverbed_cli.matching.matchers.MatcherOutput`, changed in
     place), the pixels outside the overlap and the choices whose match lies outside the right image; their left-right
     status becomes failing.
 
     ``valid_areas``: ``(left_valid, right_valid)`` or None; ``tubes``: the searched tubes (None: ``[d_min, d_max]``
-    everywhere). ``guided_by``: the LiDAR points ``(rows, cols, values)`` that guided the cost, if any: inside their
-    convex hull such a pixel keeps the guided matcher's value, the LiDAR's guidance carried along the image's
-    paths (an image-guided interpolation of the LiDAR, not a stereo measurement, hence its failing status).
+    everywhere). ``kept``: with LiDAR guiding the cost, its coverage (:func:`lidar_coverage`, (H, W) bool): there
+    such a pixel keeps the guided matcher's value, the LiDAR's guidance carried along the image's paths (an
+    image-guided interpolation of the LiDAR, not a stereo measurement, hence its failing status).
     Returns ``(outside, no_stereo)``: the pixels without any candidate (the overlap's complement) and every pixel
     the output leaves without a disparity, (H, W) bool each."""
     left_valid, right_valid = valid_areas if valid_areas is not None else (None, None)
     outside = ~matchable_mask(out.disparity.shape, d_min, d_max, right_valid, left_valid, tubes=tubes)
     unmatched = outside | match_outside(out.disparity, right_valid)
     if unmatched.any():
-        drop = unmatched
-        if guided_by is not None:
-            drop = unmatched & ~lidar_coverage(guided_by, out.disparity.shape)
+        drop = unmatched if kept is None else unmatched & ~kept
         if left_valid is not None:
             drop |= ~np.asarray(left_valid, np.bool_)
         out.disparity[drop] = np.nan
@@ -196,13 +177,16 @@ def keep_to_overlap(out, d_min, d_max, valid_areas=None, tubes=None, guided_by=N
     return outside, ~np.isfinite(out.disparity)
 
 
-def keep_fusion_to_lidar(fused, no_stereo, points, d_min, d_max, valid_areas=None):
+def keep_fusion_to_lidar(fused, no_stereo, points, d_min, d_max, valid_areas=None, coverage=None):
     """A fusion's output (:class:`~riverbed_cli.matching.fusion.FusionOutput`) without what it cannot know: a pixel
-    with no stereo (``no_stereo``) keeps the LiDAR's value only inside the convex hull of the LiDAR ``points`` (an
-    interpolation, not an extrapolation of its planes) and inside the left image's valid area; no value lies beyond
-    the searched range. Dropped pixels are NaN with confidence 0, and counted in the stats' ``invalid``."""
+    with no stereo (``no_stereo``) keeps the LiDAR's value only inside the coverage of the LiDAR ``points``
+    (:func:`lidar_coverage`, or ``coverage`` if already made: an interpolation, not an extrapolation of its planes)
+    and inside the left image's valid area; no value lies beyond the searched range. Dropped pixels are NaN with
+    confidence 0, and counted in the stats' ``invalid``."""
     shape = fused.disparity.shape
-    dropped = no_stereo & ~lidar_coverage(points, shape)
+    if coverage is None:
+        coverage = lidar_coverage(points, shape)
+    dropped = no_stereo & ~coverage
     if valid_areas is not None and valid_areas[0] is not None:
         dropped |= ~np.asarray(valid_areas[0], np.bool_)
     dropped |= outside_searched_range(fused.disparity, d_min, d_max)

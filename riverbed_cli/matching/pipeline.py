@@ -19,7 +19,7 @@ from ..errors import RiverbedError
 from . import fusion, guides, matchers  # noqa: F401  (importing them fills the registries)
 from ..geometry.coverage import lidar_share_of_row_ends
 from .config import MatchConfig
-from .overlap import keep_fusion_to_lidar, keep_to_overlap
+from .overlap import keep_fusion_to_lidar, keep_to_overlap, lidar_coverage
 from .lidar_offset import correct_lidar
 from .registry import get_fusion, get_guide, get_matcher
 from .results import MatchInfo, MatchResult
@@ -481,8 +481,11 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
     try:
         out, mode, stats, tubes = _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, matcher,
                                                 share, range_map, stages, fuser.needs_status, points, share_all)
+        # where the LiDAR reaches: a guided value outside the overlap is kept there, the fusion fills only there
+        needs = points is not None and (guide.needs_sparse or fuser.name != "none")
+        coverage = lidar_coverage(points, shape) if needs else None
         outside, no_stereo = keep_to_overlap(out, d_min, d_max, valid_areas, tubes,
-                                             points if guide.needs_sparse else None)
+                                             coverage if guide.needs_sparse else None)
         t0 = time.perf_counter()  # the fusion's stage is the time it adds after the matcher
         fused = fuser.fuse(out.disparity, out.status, sparse, config,
                            lidar_side.result() if lidar_side is not None else None)
@@ -490,7 +493,7 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
         if lidar_side is not None:  # not left running behind an error
             lidar_side.join()
     if fuser.name != "none":
-        fused = keep_fusion_to_lidar(fused, no_stereo, points, d_min, d_max, valid_areas)
+        fused = keep_fusion_to_lidar(fused, no_stereo, points, d_min, d_max, valid_areas, coverage)
         stages["fusion"] = round(time.perf_counter() - t0, 4)
     info = MatchInfo(round(time.perf_counter() - t_all, 4), stages, config.guide, config.matcher, share,
                      len(points[0]) if points is not None else 0, out.window, d_min, d_max,

@@ -141,7 +141,6 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     H, W = left_src.shape[:2]
     # the images' valid areas (a rectified frame's alpha): pixels outside them are not matched (matching/overlap.py)
     valid = tuple(valid_area_source(p) for p in (left, right))
-    valid = valid if any(v is not None for v in valid) else None
     if (min_disp is None or max_disp is None) and not sparse and not range_map:
         if max_disp is None:
             raise RiverbedError("give --max-disp (and --min-disp), or --sparse or --range-map to derive the disparity range "
@@ -207,7 +206,7 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
         step()
     try:
         whole_map = tuple(b[:, :] for b in rmap) if rmap is not None else None
-        areas = None if valid is None else tuple(None if v is None else np.asarray(v[:, :]) for v in valid)
+        areas = tuple(None if v is None else np.asarray(v[:, :]) for v in valid)
         result = match_pair(left_img, right_img, sparse_map, min_disp, max_disp, config, range_map=whole_map,
                             valid_areas=areas)
     except RiverbedError as e:

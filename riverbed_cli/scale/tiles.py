@@ -385,11 +385,9 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
         range_map = (lo, hi)
     # the fusion's LiDAR side in this thread: a thread's malloc arena would keep its freed memory from tile to tile
     # (10 MP: 1233-1267 MiB peak against 1193-1201)
-    crops = None
-    if valid_areas is not None and any(v is not None for v in valid_areas):
-        lv, rv = valid_areas
-        crops = (None if lv is None else np.asarray(lv[ya:yb, a:b]),
-                 None if rv is None else np.asarray(rv[ya:yb, a - off:b - off]))
+    lv, rv = valid_areas if valid_areas is not None else (None, None)
+    crops = (None if lv is None else np.asarray(lv[ya:yb, a:b]),
+             None if rv is None else np.asarray(rv[ya:yb, a - off:b - off]))
     res = match_pair(lc, rc, sc, lo_c, hi_c, p, range_map=range_map, beside=False, valid_areas=crops)
     block = res.disparity[t.y0 - ya:t.y1 - ya, t.x0 - a:t.x1 - a] + np.float32(off)
     tubes = res.info.get("tubes")

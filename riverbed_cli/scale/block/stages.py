@@ -279,7 +279,6 @@ def tile_stage(job, proj, index):
         sparse = read_disparity(folder / "sparse.tif")
         rmap = _load_range_map(folder, proj)
         valid = tuple(read_valid_area(path) for path in (pair.left, pair.right))
-        valid = valid if any(v is not None for v in valid) else None
         if rmap is None:
             res = match_pair(left, right, sparse, s["min_disp"], s["max_disp"], p, valid_areas=valid)
         else:  # the pair's range, widened to hold the map
