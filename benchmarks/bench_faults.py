@@ -81,7 +81,7 @@ def run(data):
                 off = px if px is not None else rel * span
                 biased = sparse + np.float32(off)
                 auto = match_pair(left, right, biased)
-                kept = match_pair(left, right, biased, lidar_offset="none")
+                kept = match_pair(left, right, biased, lidar_offset="none", lidar_check="off")
                 lidar = densify(biased, "planes")
                 rows.append({**base, "offset": label, "offset_px": round(off, 3),
                              "estimated": auto.info["lidar_offset"]["estimated"],

@@ -88,12 +88,16 @@ def run(data, work, single=None):
     split = riverbed("block", "split-rpc", *imgs, "--cloud", cloud, "--size", SIZE, "--overlap", OVERLAP,
                      "--region", REGION, "--dem", hgt, *vert, "--resolution", "0.5", "-o", work / "split.yaml",
                      "--json", "--overwrite")
+    # the SRTM guides as it is (lidar_check off): the figures measure the geometry against that same SRTM
+    manifest = yaml.safe_load((work / "split.yaml").read_text())
+    manifest.setdefault("defaults", {})["lidar_check"] = "off"
+    (work / "split.yaml").write_text(yaml.safe_dump(manifest))
     out_split = riverbed("block", work / "split.yaml", "-o", work / "split", "--workers", "2", "--json",
                          "--overwrite")
     entry = {"left": str(imgs[0]), "left_rpc": str(imgs[1]), "right": str(imgs[2]), "right_rpc": str(imgs[3]),
              "dem": str(hgt), **({"vertical": "ellipsoid"} if vert else {}),
              **({"roi": [int(v) for v in single.split(",")]} if single else {})}
-    whole = {"defaults": {"crs": "EPSG:32631", "resolution": 0.5},
+    whole = {"defaults": {"crs": "EPSG:32631", "resolution": 0.5, "lidar_check": "off"},
              "pairs": [{"name": "whole", "rpc": entry, "cloud": str(cloud)}]}
     (work / "whole.yaml").write_text(yaml.safe_dump(whole))
     out_whole = riverbed("block", work / "whole.yaml", "-o", work / "whole", "--workers", "0", "--json",

@@ -41,7 +41,8 @@ def test_match_guided_json_and_accuracy(work):
     assert r.exit_code == 0, r.output
     s = json.loads(r.output)
     assert s["guide"] == "riverbed" and s["window"] == 9
-    assert set(s["stages"]) == {"lidar_offset", "range", "cost", "guidance", "aggregation", "refinement", "fusion"}
+    assert set(s["stages"]) == {"lidar_offset", "lidar_check", "range", "cost", "guidance", "aggregation", "refinement",
+                                "fusion"}
     assert s["fusion"] == "confidence" and set(s["fusion_stats"]) == {"stereo_sigma", "agree", "lidar", "stereo", "invalid",
                                                                       "mean_confidence"}
     assert s["range"] == "tube" and s["tubes"]["nominal"] == s["d_max"] - s["d_min"] + 1

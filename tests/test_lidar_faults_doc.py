@@ -69,7 +69,7 @@ def test_a_row_measured_again_is_the_committed_one(shared_data):
     sparse = simulate_lidar(scene.gt, 0.05, seed=0)
     biased = sparse + np.float32(row["offset_px"])
     auto = match_pair(scene.left, scene.right, biased)
-    kept = match_pair(scene.left, scene.right, biased, lidar_offset="none")
+    kept = match_pair(scene.left, scene.right, biased, lidar_offset="none", lidar_check="off")
     assert auto.info["lidar_offset"]["estimated"] == row["estimated"]
     assert bench_faults._score(auto.disparity, scene.gt, sparse) == row["default"]
     assert bench_faults._score(kept.disparity, scene.gt, sparse) == row["kept"]

@@ -209,7 +209,7 @@ def test_guided_matcher_keeps_its_value_outside_the_overlap_only_inside_the_lida
     left, right = shifted_pair()
     y, x = np.mgrid[0:H, 0:W]
     everywhere = np.where((y % 6 == 0) & (x % 6 == 0), np.float32(D), np.float32(np.nan)).astype(np.float32)
-    paper = dict(guide="riverbed", range="full", fusion="none", lidar_offset="none")
+    paper = dict(guide="riverbed", range="full", fusion="none", lidar_offset="none", lidar_check="off")
     d = match_pair(left, right, everywhere, **paper).disparity
     assert np.isfinite(d[:55, :D]).all() and np.abs(d[:55, :D] - D).max() <= 1.0
     projected = np.where(x >= D, everywhere, np.nan).astype(np.float32)

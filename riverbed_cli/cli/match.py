@@ -33,6 +33,10 @@ _RUN = [s for s in MATCH_SETTINGS if s.group is None and s.name not in ("tile", 
               help="Also write the fusion's per-pixel confidence (.tif, float32 in [0, 1]: the estimated "
                    "probability that the disparity is within 1 px of the truth; tiled: each tile's own fusion; "
                    "docs/fusion.md).")
+@click.option("--lidar-mask", "lidar_mask", type=click.Path(dir_okay=False), default=None,
+              help="Also write what the LiDAR did per pixel (.png, uint8): 0 no LiDAR, 1 a point used, 2 a point "
+                   "dropped as an outlier, 3 a point dropped in a changed region, 4 a pixel of a changed area "
+                   "(--lidar-check; docs/lidar_faults.md).")
 @click.option("--tile", default="auto", show_default=True,
               help="Tile side (px) for large images, 'auto' (untiled when the whole range fits the memory budget, "
                    "else tiles sized for the widest LiDAR range; the rule blocks use) or 0 (never tile). Tiles of "
@@ -42,8 +46,8 @@ _RUN = [s for s in MATCH_SETTINGS if s.group is None and s.name not in ("tile", 
               help="With tiles and --sparse: each tile searches only the disparities its LiDAR allows.")
 @json_opt
 @overwrite_opt
-def match_cmd(left, right, output, sparse, sparse_scale, range_map, color_png, confidence, tile, overlap, lidar_range,
-              as_json, overwrite, **settings):
+def match_cmd(left, right, output, sparse, sparse_scale, range_map, color_png, confidence, lidar_mask, tile, overlap,
+              lidar_range, as_json, overwrite, **settings):
     """Match rectified images LEFT (reference) and RIGHT into a disparity map OUTPUT.
 
     Disparity d = x_left - x_right (px). OUTPUT format by extension: .tif (float32, NaN invalid), .pfm
@@ -67,7 +71,8 @@ def match_cmd(left, right, output, sparse, sparse_scale, range_map, color_png, c
         summary = match_files(left, right, output, config, sparse=sparse, sparse_scale=sparse_scale,
                               min_disp=run["min_disp"], max_disp=run["max_disp"], max_pixels=run["max_pixels"],
                               tile=tile, overlap=overlap, lidar_range=lidar_range, color_png=color_png,
-                              confidence=confidence, overwrite=overwrite, progress=progress, range_map=range_map)
+                              confidence=confidence, overwrite=overwrite, progress=progress, range_map=range_map,
+                              lidar_mask=lidar_mask)
     finally:
         for bar in bars:
             bar.close()

@@ -39,6 +39,8 @@ FORMS = ("additive", "product")
 CONFIDENCES = ("lr", "none")
 GUIDE_STAGES = ("aggregated", "initial")
 RANGES = ("auto", "tube", "tile", "full")
+#: the LiDAR check's modes (matching/lidar_check.py)
+LIDAR_CHECKS = ("auto", "off")
 #: what pixels with no LiDAR within a tube's reach search: the nominal range, or a coarse stereo match's range
 TUBE_HOLES = ("full", "coarse")
 #: the fusion's interpolations of the LiDAR (``fusion_lidar``): auto, local planes, the Delaunay triangulation
@@ -176,6 +178,7 @@ class MatchConfig:
     range: str = "auto"  # disparity search range: auto (tube with LiDAR guidance, else full), tube, tile, full
     fusion: str = "auto"  # auto (confidence with LiDAR guidance, else none), confidence, none
     lidar_offset: object = "auto"  # the LiDAR's disparity offset: auto (estimated), none, DD or "DX,DY,DD" (px)
+    lidar_check: str = "auto"  # drop the LiDAR the images contradict (outliers, changed regions): auto or off
     sgm: SGMConfig = field(default_factory=SGMConfig)
     guidance: GuidanceConfig = field(default_factory=GuidanceConfig)
     diffusion: DiffusionConfig = field(default_factory=DiffusionConfig)
@@ -368,6 +371,15 @@ def lidar_offset(v):
     raise SettingError(f"expected auto, none, DD or DX,DY,DD (px; DX and DY at most 64), got {show(v)}")
 
 
+def lidar_check_mode(v):
+    """``'auto'`` or ``'off'`` (YAML's unquoted ``off`` and ``on`` read as booleans: taken as ``off`` and ``auto``)."""
+    if isinstance(v, bool):
+        return "auto" if v else "off"
+    if isinstance(v, str) and v.strip().lower() in LIDAR_CHECKS:
+        return v.strip().lower()
+    raise SettingError(f"expected one of {', '.join(LIDAR_CHECKS)}, got {show(v)}")
+
+
 def tile_size(v):
     """A tile side: ``'auto'``, ``0`` (never tile) or an integer >= 16 (px)."""
     if v == "auto" or v == 0 and not isinstance(v, bool):
@@ -403,6 +415,10 @@ MATCH_SETTINGS = (
             "LiDAR points, removed when at least 1 px; docs/lidar_faults.md), none (the LiDAR as it is: the paper's "
             "method), DD (a disparity offset removed) or DX,DY,DD (the points also moved back by DX, DY px).",
             "match", "lidar_offset"),
+    Setting("lidar_check", "auto", lidar_check_mode,
+            "Check the LiDAR against the images before it guides: auto drops gross outliers and the points of "
+            "changed regions (docs/lidar_faults.md), off keeps every point (the paper's method).",
+            "match", "lidar_check"),
     # census + SGM
     *_group_rows("sgm", SGMConfig, "", "sgm", _SGM_HELP, {"paths": "choice-int", "outside_cost": "auto-int"},
                  _SGM_CHECKS),

@@ -20,6 +20,8 @@ from . import fusion, guides, matchers  # noqa: F401  (importing them fills the 
 from ..geometry.coverage import lidar_share_of_row_ends
 from .config import MatchConfig
 from .overlap import keep_fusion_to_lidar, keep_to_overlap, lidar_coverage
+from .lidar_check import check_pair, prefer_stereo
+from .lidar_check import warm_up as warm_check
 from .lidar_offset import correct_lidar
 from .registry import get_fusion, get_guide, get_matcher
 from .results import MatchInfo, MatchResult
@@ -403,7 +405,7 @@ def fill_tube_holes(left, right, lo, hi, hole, d_min, d_max, config):
 
 
 def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, range_map=None, beside="auto",
-               valid_areas=None, **overrides):
+               valid_areas=None, changed_area=None, **overrides):
     """Dense disparity of a rectified pair, optionally guided by sparse LiDAR disparities.
 
     Parameters
@@ -430,6 +432,9 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
     valid_areas : (left_valid, right_valid), optional
         The images' valid areas ((H, W) bool or None each; e.g. a rectified frame's alpha): left pixels outside the
         left one, and those whose every candidate falls outside the right one, are not matched (:mod:`.overlap`).
+    changed_area : (H, W) bool, optional
+        The changed area of a LiDAR check made already (a tiled match checks the whole image once,
+        :mod:`.lidar_check`): ``sparse`` is taken as checked, and the area is searched and fused as the check's.
 
     Returns
     -------
@@ -460,6 +465,14 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
         sparse, offset = correct_lidar(left, right, sparse, config.lidar_offset)
         stages["lidar_offset"] = round(time.perf_counter() - t_all, 4)
     d_min, d_max = resolve_disparity_range(d_min, d_max, sparse, width=left.shape[1])
+    check, changed = None, changed_area
+    if sparse is not None and config.lidar_check == "auto" and changed_area is None:
+        t0 = time.perf_counter()  # the points the images contradict guide nothing
+        sparse, check = check_pair(left, right, sparse, d_min, d_max, config, match_pair)
+        stages["lidar_check"] = round(time.perf_counter() - t0, 4)
+        changed = check.changed
+    if changed is not None and not changed.any():
+        changed = None
 
     shape = left.shape[:2]
     lidar = None
@@ -480,7 +493,8 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
         lidar_side = (_Beside if beside else _After)(fuser.prepare, sparse, config, points)
     try:
         out, mode, stats, tubes = _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, matcher,
-                                                share, range_map, stages, fuser.needs_status, points, share_all)
+                                                share, range_map, stages, fuser.needs_status, points, share_all,
+                                                changed)
         # where the LiDAR reaches: a guided value outside the overlap is kept there, the fusion fills only there
         needs = points is not None and (guide.needs_sparse or fuser.name != "none")
         coverage = lidar_coverage(points, shape) if needs else None
@@ -493,19 +507,21 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
         if lidar_side is not None:  # not left running behind an error
             lidar_side.join()
     if fuser.name != "none":
-        fused = keep_fusion_to_lidar(fused, no_stereo, points, d_min, d_max, valid_areas, coverage)
+        fused = keep_fusion_to_lidar(prefer_stereo(fused, out.disparity, out.status, changed), no_stereo, points,
+                                     d_min, d_max, valid_areas, coverage)
         stages["fusion"] = round(time.perf_counter() - t0, 4)
     info = MatchInfo(round(time.perf_counter() - t_all, 4), stages, config.guide, config.matcher, share,
                      len(points[0]) if points is not None else 0, out.window, d_min, d_max,
                      [int(shape[1]), int(shape[0])], out.refinement, mode,
                      stats.to_dict() if stats is not None else None, fuser.name,
                      fused.stats.to_dict() if fused.stats is not None else None,
-                     offset.to_dict() if offset is not None else None, round(float(outside.mean()), 6))
-    return MatchResult(fused.disparity, info, fused.confidence)
+                     offset.to_dict() if offset is not None else None, round(float(outside.mean()), 6),
+                     check.report.to_dict() if check is not None else None)
+    return MatchResult(fused.disparity, info, fused.confidence, check)
 
 
 def _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, matcher, share, range_map, stages,
-                  return_status, points=None, share_all=0.0):
+                  return_status, points=None, share_all=0.0, changed=None):
     # match_pair's range (tubes), guide preparation and matcher: the matcher's output, the range mode, tube stats,
     # the tubes (None: the whole range)
     shape = left.shape[:2]
@@ -517,10 +533,19 @@ def _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, match
         # their disparity lies beyond the range, where no search finds it. Only the points inside guide the cost.
         # The spacing counts every point (share_all), as match_tiled's tubes do.
         if range_map is not None:
-            layout = TubeLayout.from_bounds(*check_range_map(range_map, shape, d_min, d_max), d_min)
-        elif config.tube.holes == "coarse":
+            lo, hi = check_range_map(range_map, shape, d_min, d_max)
+            if changed is not None:  # a changed area searches the nominal range
+                lo, hi = np.where(changed, np.int32(d_min), lo), np.where(changed, np.int32(d_max), hi)
+            layout = TubeLayout.from_bounds(lo, hi, d_min)
+        elif config.tube.holes == "coarse" or changed is not None:  # a changed area searches as a hole
             lo, hi, hole = lidar_tubes(lidar, d_min, d_max, share=share_all, return_holes=True, **asdict(config.tube))
-            layout = TubeLayout.from_bounds(*fill_tube_holes(left, right, lo, hi, hole, d_min, d_max, config), d_min)
+            if changed is not None:
+                hole |= changed
+            if config.tube.holes == "coarse":
+                lo, hi = fill_tube_holes(left, right, lo, hi, hole, d_min, d_max, config)
+            else:
+                lo, hi = np.where(hole, np.int32(d_min), lo), np.where(hole, np.int32(d_max), hi)
+            layout = TubeLayout.from_bounds(lo, hi, d_min)
         else:  # the layout straight from the rule's cells
             layout = lidar_tube_layout(lidar, d_min, d_max, share=share_all, **asdict(config.tube))
         stats = tube_stats(layout, d_min, d_max)
@@ -552,6 +577,8 @@ def warm_up(matcher="sgm", guide_names=("none", "gauss", "riverbed"), config=Non
     if config is not None:
         if fusion_lidar is not None:
             config = config.replace(fusion_lidar=fusion_lidar)
+        if config.lidar_check == "auto":  # the tiny pair is too small for the check's reference
+            warm_check()
         match_pair(left, right, sparse if get_guide(config.guide).needs_sparse or config.range != "full" else None,
                    0, 7, config)
         if config.tube.holes == "coarse" and config.range != "full":  # the coarse match of the tube rule's holes

@@ -21,7 +21,8 @@ class MatchInfo(RecordMapping):
     guides without one); ``size`` ``[width, height]``; ``refinement`` AD-Census's outlier counts and timings;
     ``range`` the search-range mode (``tube`` or ``full``); ``tubes`` with tubes: ``mean_width``, ``max_width``,
     ``nominal`` (disparities of ``[d_min, d_max]``) and ``full_share`` (share of pixels searching the nominal
-    range); ``lidar_offset`` with LiDAR, its disparity offset against the images (:mod:`.lidar_offset`).
+    range); ``lidar_offset`` with LiDAR, its disparity offset against the images (:mod:`.lidar_offset`);
+    ``lidar_check`` with LiDAR, what the check dropped (:class:`~riverbed_cli.matching.lidar_check.CheckReport`).
     """
 
     seconds: float
@@ -41,8 +42,9 @@ class MatchInfo(RecordMapping):
     fusion_stats: dict = None
     lidar_offset: dict = None
     outside_overlap: float = 0.0
+    lidar_check: dict = None
 
-    _optional = ("refinement", "tubes", "fusion_stats", "lidar_offset")
+    _optional = ("refinement", "tubes", "fusion_stats", "lidar_offset", "lidar_check")
 
 
 @dataclass
@@ -69,8 +71,9 @@ class TiledMatchInfo(RecordMapping):
     range: str = "tile"
     tubes: dict = None
     lidar_offset: dict = None
+    lidar_check: dict = None
 
-    _optional = ("tubes", "lidar_offset")
+    _optional = ("tubes", "lidar_offset", "lidar_check")
 
 
 @dataclass
@@ -82,3 +85,4 @@ class MatchResult:
     disparity: np.ndarray
     info: RecordMapping
     confidence: np.ndarray = None
+    lidar_check: object = None

@@ -16,10 +16,11 @@ from ..io.disparity import disparity_format, read_disparity, write_disparity
 from ..io.images import check_pair, read_image
 from ..io.windowed import TiffSink, WindowedRaster, is_tiff, open_range_map, sparse_points_any, valid_area_source
 from ..matching.fusion import lidar_kind
+from ..matching.lidar_check import lidar_mask as lidar_mask_of
 from ..matching.pipeline import (ABSURD_WIDTHS, check_disparity_values, check_lidar_count, clamp_to_width,
                                  disparity_range_from_sparse, match_pair, resolve_fusion, warm_up)
 from ..matching.registry import get_guide
-from ..products.visualize import disparity_picture, write_picture
+from ..products.visualize import disparity_picture, write_picture, write_png
 from ..matching.guidance import lidar_share_of_points
 from .collector import start_up_done
 from .heap import match_heap_bytes, prefault_heap
@@ -108,7 +109,7 @@ def _heap_estimate(H, W, rng, widths, plan, overlap):
 @releases_claims
 def match_files(left, right, output, config, sparse=None, sparse_scale=None, min_disp=None, max_disp=None,
                 max_pixels=None, tile="auto", overlap=128, lidar_range=True, color_png=None, overwrite=False,
-                progress=None, range_map=None, confidence=None):
+                progress=None, range_map=None, confidence=None, lidar_mask=None):
     """Match the files ``left`` (reference) and ``right`` into the disparity file ``output``.
 
     ``config`` is a :class:`~riverbed_cli.matching.config.MatchConfig`; ``tile`` ``"auto"``, 0 (never) or a side
@@ -116,16 +117,22 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     steps and returns a callable advanced after each (or None); ``range_map`` a 2-band TIFF of per-pixel min and
     max disparity (:func:`~riverbed_cli.io.windowed.open_range_map`), searched instead of the LiDAR's tubes;
     ``confidence`` a ``.tif`` path for the fusion's per-pixel confidence (float32 in [0, 1]: the estimated
-    probability that the disparity is within 1 px of the truth; :mod:`~riverbed_cli.matching.fusion`).
-    Returns the ``--json`` summary (a dict).
+    probability that the disparity is within 1 px of the truth; :mod:`~riverbed_cli.matching.fusion`);
+    ``lidar_mask`` a ``.png`` path for what the LiDAR did per pixel (uint8,
+    :func:`~riverbed_cli.matching.lidar_check.lidar_mask`: 0 none, 1 used, 2 outlier, 3 changed region, 4 changed
+    area). Returns the ``--json`` summary (a dict).
     """
     disparity_format(output)  # refuse what cannot be written, or would clobber, before any work
     if color_png and not color_png.lower().endswith(".png"):
         raise RiverbedError("colour preview must be a .png file", color_png)
     if confidence and not confidence.lower().endswith((".tif", ".tiff")):
         raise RiverbedError("confidence must be written to a .tif file", confidence)
+    if lidar_mask and not lidar_mask.lower().endswith(".png"):
+        raise RiverbedError("the LiDAR mask must be written to a .png file", lidar_mask)
+    if lidar_mask and not sparse:
+        raise RiverbedError("--lidar-mask needs --sparse (it maps what the LiDAR did)", lidar_mask)
     # claimed (locked against another run) until written; never one of the inputs, nor two outputs in one file
-    check_outputs([output, color_png, confidence], overwrite, inputs=[left, right, sparse, range_map])
+    check_outputs([output, color_png, confidence, lidar_mask], overwrite, inputs=[left, right, sparse, range_map])
     guide = get_guide(config.guide)
     if guide.needs_sparse and not sparse:
         raise RiverbedError(f"--guide {config.guide} needs --sparse")
@@ -196,6 +203,9 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
         warm_up(config=config, fusion_lidar=kind)
     start_up_done()  # the command's collector back on, start-up's objects frozen (scale/collector.py)
     if plan is not None and plan.tiled:
+        if lidar_mask:
+            raise RiverbedError(f"--lidar-mask is written for a whole match: this {W}x{H} pair is matched in tiles; "
+                                "give --tile 0", lidar_mask)
         return _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, plan.size, overlap,
                             lidar_range, output, color_png, overwrite, progress, rmap, confidence, scan, valid)
 
@@ -228,6 +238,8 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
                         tags={"riverbed_confidence": CONFIDENCE_TAG})
     if color_png:
         write_picture(color_png, disparity_picture(result.disparity), overwrite=overwrite)
+    if lidar_mask:
+        write_png(lidar_mask, lidar_mask_of(sparse_map, result.lidar_check), overwrite=overwrite)
     if step:
         step()
     log.info("%s: %dx%d, d in [%d, %d], guide %s, %.3f s", output, *info["size"], info["d_min"], info["d_max"],

@@ -27,6 +27,7 @@ from ..matching.guidance import lidar_share, lidar_share_of_points
 from ..matching.pipeline import (check_disparity_values, check_inside, check_lidar_count, check_range_map_shape,
                                  check_range_summary, fill_tube_holes, lidar_points_needed, make_config, match_pair,
                                  range_map_ends, resolve_disparity_range, resolve_range)
+from ..matching.lidar_check import check_pair
 from ..matching.lidar_offset import correct_large
 from ..matching.registry import get_guide, get_matcher
 from ..matching.tubes import cell_widths_from_points, lidar_tubes_window, range_map_summary
@@ -323,8 +324,19 @@ def plan_tiles(height, width, sparse, d_min, d_max, tile=TILE_DEFAULT, overlap=O
     return TilePlan(plan(tile), tile, True)
 
 
+def check_whole(left, right, sparse, d_min, d_max, params):
+    """The LiDAR check (:mod:`~riverbed_cli.matching.lidar_check`) once for a whole pair matched in tiles (a tile's
+    own check could drop other points than its neighbour's), its reference matched in tiles too: ``(sparse, report,
+    changed)``, the checked sparse map (an array), the :class:`~riverbed_cli.matching.lidar_check.CheckReport` and
+    the changed area ((H, W) bool, None when nothing changed). ``left``, ``right`` and ``sparse`` may be windowed
+    rasters (read whole here)."""
+    arrays = [np.asarray(a[:, :]) for a in (left, right)]
+    checked, check = check_pair(*arrays, np.asarray(sparse[:, :], np.float32), d_min, d_max, params, match_tiled)
+    return checked, check.report, check.changed
+
+
 def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None, global_range=None, range_map=None,
-               confidence=False, valid_areas=None):
+               confidence=False, valid_areas=None, changed=None):
     """Match one :class:`Tile` (sources sliced like numpy arrays: arrays, memory maps, :class:`WindowedRaster`).
 
     Returns ``(block, evaluations, stages, tubes)``: the tile's own disparities (float32, ``t.y1 - t.y0`` x ``t.x1 -
@@ -337,7 +349,8 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
     instead.
     With ``confidence`` a fifth value: the fusion's confidence of the tile's own pixels (NaN where the tile was not
     fused: no LiDAR in its range). ``valid_areas``: the images' valid areas ``(left, right)``, each None or sliced
-    like the images (:func:`~riverbed_cli.io.windowed.valid_area_source`).
+    like the images (:func:`~riverbed_cli.io.windowed.valid_area_source`). ``changed``: the whole pair's changed
+    area from its LiDAR check (:func:`check_whole`; sliced like the images), searched on the tile's whole range.
     """
     H, W = left.shape[:2]
     ya, yb = max(0, t.y0 - overlap), min(H, t.y1 + overlap)
@@ -383,12 +396,14 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
             # whole image: the untiled match's)
             lo, hi = fill_tube_holes(lc, rc, lo, hi, hole[0], lo_c, hi_c, p)
         range_map = (lo, hi)
+    ch = None if changed is None else np.asarray(changed[ya:yb, a:b], np.bool_)
     # the fusion's LiDAR side in this thread: a thread's malloc arena would keep its freed memory from tile to tile
     # (10 MP: 1233-1267 MiB peak against 1193-1201)
     lv, rv = valid_areas if valid_areas is not None else (None, None)
     crops = (None if lv is None else np.asarray(lv[ya:yb, a:b]),
              None if rv is None else np.asarray(rv[ya:yb, a - off:b - off]))
-    res = match_pair(lc, rc, sc, lo_c, hi_c, p, range_map=range_map, beside=False, valid_areas=crops)
+    res = match_pair(lc, rc, sc, lo_c, hi_c, p, range_map=range_map, beside=False, valid_areas=crops,
+                     changed_area=ch)
     block = res.disparity[t.y0 - ya:t.y1 - ya, t.x0 - a:t.x1 - a] + np.float32(off)
     tubes = res.info.get("tubes")
     n = int(lc.shape[0] * lc.shape[1] * (tubes["mean_width"] if tubes else (t.d_max - t.d_min + 1)))
@@ -463,6 +478,13 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
                 pr, pc, pv = sparse_points_any(sparse)
             offset_seconds = round(time.perf_counter() - t0, 4)
         d_min, d_max = resolve_disparity_range(d_min, d_max, pv if sparse is not None else None, width=W)
+        check, changed = None, None
+        if sparse is not None and p.lidar_check == "auto":  # once for every tile, as the offset
+            t0 = time.perf_counter()
+            sparse, check, changed = check_whole(left, right, sparse, d_min, d_max, p)
+            p = p.replace(lidar_check="off")
+            pr, pc, pv = sparse_points_any(sparse)
+            check_seconds = round(time.perf_counter() - t0, 4)
         if scan is not None:
             scan.check(d_min, d_max)
         if overlap < 0:
@@ -490,7 +512,7 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
         tube_parts = []
         for t in plan.tiles:
             block, n, st, tube, *conf = match_tile(left, right, sparse, t, overlap, p, bits, share, (d_min, d_max),
-                                                   rmap, confidence_out is not None, valid_areas)
+                                                   rmap, confidence_out is not None, valid_areas, changed)
             tube_parts.append(tube)
             out[t.y0:t.y1, t.x0:t.x1] = block
             if conf:
@@ -504,8 +526,11 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
     mode = "tube" if tubes is not None else ("tile" if sparse is not None and lidar_range else "full")
     if offset is not None:
         stages["lidar_offset"] = offset_seconds  # the tiles' own (forced) ones are free
+    if check is not None:
+        stages["lidar_check"] = check_seconds
     info = TiledMatchInfo(round(time.perf_counter() - t_all, 4), stages, p.guide, guide_share,
                           p.guidance.window if guide.uses_window else None, d_min, d_max, [W, H], len(plan.tiles),
                           plan.size, overlap, int(evaluations), plan.to_dict()["tile_ranges"], mode, tubes,
-                          offset.to_dict() if offset is not None else None)
+                          offset.to_dict() if offset is not None else None,
+                          check.to_dict() if check is not None else None)
     return MatchResult(out, info)

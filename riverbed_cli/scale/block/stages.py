@@ -27,7 +27,7 @@ from ...matching.pipeline import check_disparity_values, match_pair, resolve_dis
 from ...matching.registry import get_guide
 from ...matching.tubes import ranges_from_disparity, spacing_window
 from ...products.dsm import Accumulator, Grid, close_lattice, default_resolution, disparity_points
-from ..tiles import Tile, match_tile, plan_tiles, scan_range_map, tube_widths
+from ..tiles import Tile, check_whole, match_tile, plan_tiles, scan_range_map, tube_widths
 from .plan import DONE, OUTPUTS, WORK, clean_temps, rectify_rpc, riverbed_version, sha256_file, write_json
 from .settings import match_params
 
@@ -164,15 +164,22 @@ def project_stage(job):
     check_disparity_values(sparse, W)  # a point next to a camera is no disparity of the pair
     pr, pc = np.nonzero(np.isfinite(sparse))
     sparse, offset = correct_large(*srcs, sparse, (pr, pc, sparse[pr, pc]), p.lidar_offset, image_bits(*srcs))
+    d_min, d_max = resolve_disparity_range(s["min_disp"], s["max_disp"], sparse[np.isfinite(sparse)], width=W)
+    # and the LiDAR check, once for the pair too: sparse.tif holds the points kept, .work/changed.npy the changed area
+    check = changed = None
+    if p.lidar_check == "auto":
+        sparse, check, changed = check_whole(*srcs, sparse, d_min, d_max, p)
     tags = {"riverbed_pair": job.pair, "riverbed_clouds": json.dumps(used), "riverbed_block_pair": job.name,
             "riverbed_lidar_offset": json.dumps(offset.to_dict())}
     write_disparity(folder / "sparse.tif", sparse, overwrite=True, tags=tags)
+    if changed is not None:
+        (folder / WORK).mkdir(exist_ok=True)
+        _save_npy(changed, folder / WORK / "changed.npy")
 
     # The matching plan, as match_tiled makes it.
     guide = get_guide(p.guide)
     pr, pc, pv = sparse_points_any(sparse)
     share = lidar_share_of_points(pr, pc, (H, W))
-    d_min, d_max = resolve_disparity_range(s["min_disp"], s["max_disp"], pv, width=W)
 
     rmap, dsm_stats = None, {}
     if job.range_map:
@@ -204,7 +211,8 @@ def project_stage(job):
                 _save_npy(valid, work / f"{side}_valid.npy")
     stats = {"clouds": len(used), "clouds_without_points": len(empty), "lidar_points_read": counts["points_read"],
              "lidar_points_kept": counts["kept"], "lidar_share": share, "lidar_crs": counts["crs"],
-             "tile": int(plan.size) if tiles else None, "lidar_offset": offset.to_dict(), **dsm_stats}
+             "tile": int(plan.size) if tiles else None, "lidar_offset": offset.to_dict(),
+             **({"lidar_check": check.to_dict()} if check is not None else {}), **dsm_stats}
     return {"tiles": tiles, "window": window, "bits": bits, "d_min": d_min, "d_max": d_max, "stats": stats,
             "shape": [H, W], "range_map": rmap is not None, "rectify_seconds": t_rectify,
             "seconds": round(time.perf_counter() - t0, 4)}
@@ -265,9 +273,12 @@ def tile_stage(job, proj, index):
     """
     t0 = time.perf_counter()
     s = job.settings
-    p = match_params(s).replace(lidar_offset="none")  # sparse.tif holds the corrected LiDAR (project_stage)
+    # sparse.tif holds the corrected and checked LiDAR, .work/changed.npy the check's changed area (project_stage)
+    p = match_params(s).replace(lidar_offset="none", lidar_check="off")
     folder = Path(job.folder)
     H, W = proj["shape"]
+    at = folder / WORK / "changed.npy"
+    changed = np.load(at, mmap_mode="r") if at.exists() else None
     if not proj["tiles"]:
         pair = load_pairfile(job.pair, accept_rpc=True)
         left = read_image(pair.left, s["max_pixels"])
@@ -279,11 +290,13 @@ def tile_stage(job, proj, index):
         sparse = read_disparity(folder / "sparse.tif")
         rmap = _load_range_map(folder, proj)
         valid = tuple(read_valid_area(path) for path in (pair.left, pair.right))
+        ch = None if changed is None else np.asarray(changed)
         if rmap is None:
-            res = match_pair(left, right, sparse, s["min_disp"], s["max_disp"], p, valid_areas=valid)
+            res = match_pair(left, right, sparse, s["min_disp"], s["max_disp"], p, valid_areas=valid,
+                             changed_area=ch)
         else:  # the pair's range, widened to hold the map
             res = match_pair(left, right, sparse, proj["d_min"], proj["d_max"], p, range_map=rmap,
-                             valid_areas=valid)
+                             valid_areas=valid, changed_area=ch)
         n_d = res.info["d_max"] - res.info["d_min"] + 1
         return {"index": 0, "disparity": res.disparity, "evaluations": H * W * n_d, "stages": res.info["stages"],
                 "seconds": round(time.perf_counter() - t0, 4)}
@@ -297,7 +310,7 @@ def tile_stage(job, proj, index):
                   for f in (folder / WORK / f"{side}_valid.npy" for side in ("left", "right")))
     disp, n, stages, _ = match_tile(left, right, sparse, tile, s["overlap"], p, proj["bits"],
                                     proj["stats"]["lidar_share"], (proj["d_min"], proj["d_max"]),
-                                    _load_range_map(folder, proj), valid_areas=valid)
+                                    _load_range_map(folder, proj), valid_areas=valid, changed=changed)
     return {"index": index, "disparity": disp, "evaluations": n, "stages": stages,
             "seconds": round(time.perf_counter() - t0, 4)}
 

@@ -1,0 +1,177 @@
+"""LiDAR that disagrees with the images in places: changed regions (a block of the image whose LiDAR shows an older
+surface) and gross outliers, checked by riverbed (``--lidar-check auto``, the default) against the LiDAR kept as
+it is (``--lidar-check off``: the paper's method with today's offset estimate, tubes and fusion), unguided
+matching, the LiDAR alone and the oracle (the faulty points deleted).
+
+Every dev scene (Middlebury Cones, Reindeer, Cloth3, Wood2; the DublinCity aerial half tile) and the held-out KITTI
+2015 frame, LiDAR sampled from the GT at 5 % and 1.23 % of the image pixels (seed 0). Errors (bad3 %, mean px) over
+the GT pixels not sampled: for a changed region inside it and outside it, for outliers over the whole image.
+
+    python benchmarks/bench_changes.py [DATA] --write benchmarks/results_changes.json --docs docs/lidar_faults.md
+
+``--write`` stores the rows (the committed result file), ``--docs`` rewrites the tables of docs/lidar_faults.md from
+it (``tests/test_lidar_faults_doc.py`` checks that the committed doc is that rewrite, and the claims it states).
+"""
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_faults import SHARES, scenes  # noqa: E402
+from datasets import rewrite_block  # noqa: E402
+
+from riverbed_cli.matching.pipeline import match_pair  # noqa: E402
+from riverbed_cli.products.densify import densify  # noqa: E402
+from riverbed_cli.products.evaluate import evaluate_disparity  # noqa: E402
+from riverbed_cli.products.simulate import simulate_lidar  # noqa: E402
+
+#: changed regions: (label, top, left, side as shares of the image's height and width, offset as a share of the
+#: LiDAR's disparity span: + the LiDAR above the images (a building since torn down), - below (one since built))
+REGIONS = (("A: 25 %, +20 %", 0.30, 0.30, 0.25, 0.20), ("B: 20 %, -20 %", 0.55, 0.15, 0.20, -0.20),
+           ("C: 15 %, +10 %", 0.10, 0.60, 0.15, 0.10))
+#: gross outliers: a share of the points given a uniform random disparity over the LiDAR's span, at least 3 px off
+OUTLIERS = (("2 % outliers", 0.02), ("5 % outliers", 0.05))
+BEGIN, END = "<!-- bench_changes: begin -->", "<!-- bench_changes: end -->"
+
+
+def _score(disp, gt, sparse, where=None):
+    g = gt if where is None else np.where(where, gt, np.nan)
+    e = evaluate_disparity(disp, g, exclude=sparse)
+    return [round(float(e["bad3"]), 3), round(float(e["avg"]), 4)]
+
+
+def _outliers(sparse, share, seed=1):
+    # a share of the points moved to a random disparity of the span, at least 3 px from where they were
+    rng = np.random.default_rng(seed)
+    idx = np.flatnonzero(np.isfinite(sparse))
+    pick = rng.choice(idx, int(round(share * idx.size)), replace=False)
+    lo, hi = float(np.nanmin(sparse)), float(np.nanmax(sparse))
+    out = sparse.copy()
+    old = sparse.flat[pick]
+    new = rng.uniform(lo, hi, pick.size).astype(np.float32)
+    close = np.abs(new - old) < 3
+    new[close] = np.where(old[close] - lo > hi - old[close], lo, hi)  # to the far end of the span
+    out.flat[pick] = new
+    faulty = np.zeros(sparse.shape, bool)
+    faulty.flat[pick] = True
+    return out, faulty
+
+
+def _dropped(res, faulty, have):
+    # shares of the faulty points and of the other points the check dropped
+    d = res.lidar_check.dropped if res.lidar_check is not None and res.lidar_check.dropped is not None else None
+    if d is None:
+        return [0.0, 0.0]
+    return [round(float((d[faulty & have] > 0).mean()), 4), round(float((d[~faulty & have] > 0).mean()), 5)]
+
+
+def run(data):
+    rows = []
+    for name, left, right, gt in scenes(data):
+        H, W = gt.shape
+        for share in SHARES:
+            t0 = time.perf_counter()
+            sparse = simulate_lidar(gt, share, seed=0)
+            have = np.isfinite(sparse)
+            vals = sparse[have]
+            span = float(vals.max() - vals.min())
+            clean = match_pair(left, right, sparse)
+            off = match_pair(left, right, sparse, lidar_check="off")
+            unguided = match_pair(left, right, None, int(np.floor(vals.min())) - 8, int(np.ceil(vals.max())) + 8,
+                                  guide="none").disparity
+            check = clean.info["lidar_check"]
+            base = {"scene": name, "share": share, "span": round(span, 2)}
+            rows.append({**base, "fault": "clean", "default": _score(clean.disparity, gt, sparse),
+                         "off": _score(off.disparity, gt, sparse), "unguided": _score(unguided, gt, sparse),
+                         "dropped": [0.0, round((check["outliers"] + check["changed"]) / check["points"], 5)],
+                         "seconds_check": clean.info["stages"]["lidar_check"], "seconds": clean.info["seconds"],
+                         "seconds_off": off.info["seconds"]})
+            faults = []
+            for label, top, lft, side, rel in REGIONS:
+                block = np.zeros((H, W), bool)
+                block[int(top * H):int(top * H) + int(side * H), int(lft * W):int(lft * W) + int(side * W)] = True
+                faults.append((label, np.where(block, sparse + np.float32(rel * span), sparse), block & have, block))
+            for label, frac in OUTLIERS:
+                bad, faulty = _outliers(sparse, frac)
+                faults.append((label, bad, faulty, None))
+            for label, bad, faulty, block in faults:
+                res = match_pair(left, right, bad)
+                kept = match_pair(left, right, bad, lidar_check="off")
+                oracle = match_pair(left, right, np.where(faulty, np.nan, bad), lidar_check="off")
+                lidar = densify(bad, "planes")
+                row = {**base, "fault": label, "dropped": _dropped(res, faulty, have)}
+                for key, disp in (("default", res.disparity), ("off", kept.disparity), ("unguided", unguided),
+                                  ("lidar_only", lidar), ("oracle", oracle.disparity)):
+                    row[key] = _score(disp, gt, sparse, block)
+                    if block is not None:
+                        row[key + "_outside"] = _score(disp, gt, sparse, ~block)
+                if block is not None:
+                    row["clean_outside"] = _score(clean.disparity, gt, sparse, ~block)
+                else:
+                    row["clean"] = _score(clean.disparity, gt, sparse)
+                rows.append(row)
+            print(f"{name} {share:.2%}: {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+    return rows
+
+
+def tables(rows):
+    """The Markdown tables of docs/lidar_faults.md's changes section from the result rows."""
+    cell = lambda v: f"{v[0]:.2f} / {v[1]:.3f}"  # noqa: E731
+    out = ["LiDAR shares are of the image pixels (sampled from the GT, seed 0); errors over the GT pixels not "
+           "sampled; cells are bad3 % / mean px. `default`: the check on (`--lidar-check auto`); `off`: every point "
+           "kept (`--lidar-check off`); `LiDAR only`: the faulty LiDAR interpolated by local planes (`riverbed "
+           "densify --method planes`); `oracle`: the faulty points deleted, check off. `dropped`: the share of the "
+           "faulty points the check dropped, and of the others.", "",
+           "Changed regions (a block of the image, its side a share of the image's, whose LiDAR is offset by a "
+           "share of the LiDAR's disparity span), scored inside the block:", "",
+           "| scene | LiDAR | region | dropped (faulty / others) | default | off | unguided | LiDAR only | oracle "
+           "| default outside | clean outside |",
+           "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        if "clean_outside" in r:
+            out.append(f"| {r['scene']} | {r['share'] * 100:.2f} % | {r['fault']} | {r['dropped'][0] * 100:.1f} % / "
+                       f"{r['dropped'][1] * 100:.2f} % | {cell(r['default'])} | {cell(r['off'])} | "
+                       f"{cell(r['unguided'])} | {cell(r['lidar_only'])} | {cell(r['oracle'])} | "
+                       f"{cell(r['default_outside'])} | {cell(r['clean_outside'])} |")
+    out += ["", "Gross outliers (a share of the points moved to a random disparity of the span, at least 3 px off), "
+            "scored over the whole image:", "",
+            "| scene | LiDAR | outliers | dropped (faulty / others) | default | off | unguided | LiDAR only "
+            "| oracle | clean |", "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        if "clean" in r and r["fault"] != "clean":
+            out.append(f"| {r['scene']} | {r['share'] * 100:.2f} % | {r['fault']} | {r['dropped'][0] * 100:.1f} % / "
+                       f"{r['dropped'][1] * 100:.2f} % | {cell(r['default'])} | {cell(r['off'])} | "
+                       f"{cell(r['unguided'])} | {cell(r['lidar_only'])} | {cell(r['oracle'])} | {cell(r['clean'])} |")
+    out += ["", "Clean LiDAR (no fault): the share of its points the check drops, the accuracy with the check and "
+            "without, and the check's share of the default match's `seconds`:", "",
+            "| scene | LiDAR | dropped | default | off | check's share of `seconds` |", "|---|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        if r["fault"] == "clean":
+            out.append(f"| {r['scene']} | {r['share'] * 100:.2f} % | {r['dropped'][1] * 100:.2f} % | "
+                       f"{cell(r['default'])} | {cell(r['off'])} | {r['seconds_check'] / r['seconds'] * 100:.0f} % |")
+    return "\n".join(out)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("data", nargs="?", default=os.environ.get("RIVERBED_DATA", "../shared/data"))
+    ap.add_argument("--write", help="store the rows in this JSON file")
+    ap.add_argument("--docs", help="rewrite the tables of this Markdown file from the rows")
+    ap.add_argument("--rows", help="take the rows from this JSON file instead of running")
+    a = ap.parse_args()
+    rows = json.loads(Path(a.rows).read_text()) if a.rows else run(a.data)
+    if a.write:
+        Path(a.write).write_text(json.dumps(rows, indent=1) + "\n")
+    if a.docs:
+        rewrite_block(a.docs, BEGIN, END, tables(rows))
+    print(tables(rows))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,472 @@
+"""The LiDAR checked against the images before it guides: gross outliers and changed regions dropped.
+
+Real LiDAR was flown months or years before the images: buildings were raised or torn down, trees grew or were
+cut, and some points are plain wrong (birds, multipath, low points). Guided by such a point riverbed would follow
+it: its tube never visits the true disparity and the fusion averages the error in. The images know better.
+
+Stage: ``(left, right, LiDAR disparities, a coarse unguided match of the pair) -> (LiDAR kept, LidarCheck)``.
+
+* **The images' alternative.** Each LiDAR point is compared with what the images say at its pixel: the coarse
+  reference (an unguided census SGM of the pair at 1 / :data:`FACTOR` resolution over the whole range, with its
+  left-right check), where it is valid and smooth around the point (its 3 x 3 coarse neighbourhood spans at most
+  :data:`SMOOTH` px: no depth edge, where a coarse match fattens the foreground); else the median of the other
+  LiDAR points within :data:`NEAR` spacings (the mean spacing: ``sqrt(pixels / points)``).
+* **Disagreement.** A point disagrees when its disparity lies more than :data:`TAU` px from the alternative and the
+  images prefer the alternative clearly: the best ``1 - ZNCC`` of a 5 x 5 patch within ``FACTOR`` px of it is at
+  least :data:`MARGIN` below the cost at the LiDAR's disparity
+  (:func:`~riverbed_cli.matching.lidar_offset.patch_costs`). A flat patch, or one leaving the right image, prefers
+  nothing: its LiDAR stays.
+* **Occlusions and depth edges.** A disagreement the LiDAR around the point explains is not a change: a point
+  behind the images' alternative with a LiDAR point to its right (within the disparity difference plus two
+  spacings, one spacing up or down) at least as near as the alternative is hidden from the right image by that
+  foreground; a point in front of it with a LiDAR point within two spacings at the alternative sits beside a depth
+  edge the coarse reference moved.
+* **Changed regions.** Change comes in regions (a building, a stand of trees), and one disagreeing point may be the
+  reference's mistake. The image is cut into square cells of :data:`CELL` spacings; a cell is a seed when at least
+  :data:`REGION_SHARE` of its points with a reference disagree with the same sign (at least :data:`MIN_POINTS`);
+  seed cells are closed and grown into neighbouring cells where :data:`GROW_SHARE` disagree that way. A group of
+  cells is a change when it holds at least :data:`MIN_COMPARED` points with a reference, their median
+  ``LiDAR - images`` lies beyond ``TAU`` and the images prefer the alternative by at least :data:`REGION_MARGIN`
+  on average (a patch of the reference's own mistakes on repeated texture costs about the same either way). From
+  its disagreeing points the change spreads to the points within ``NEAR`` spacings: through points the images
+  contradict the same way, through at most :data:`UNKNOWN_HOPS` in a row they cannot judge, never through a point
+  the reference confirms (within ``TAU``). A change is kept when the images contradict at least
+  :data:`SEEN_SHARE` of the points it took. Every point it took is dropped.
+* **Gross outliers.** A point the reference contradicts, outside the changes, is dropped when no other LiDAR point
+  within ``NEAR`` spacings lies within ``TAU`` px of it: nothing around it supports it.
+* **Downstream** (:func:`~riverbed_cli.matching.pipeline.match_pair`). The points dropped guide nothing, bound no
+  tube and are not interpolated by the fusion. The changed area (a disc of one spacing round each changed point,
+  closed over two) searches the whole range instead of the tubes of the LiDAR around it, and there the fusion keeps
+  the stereo where it passed its left-right check (with the stereo's confidence); elsewhere in the area its value
+  is the LiDAR's interpolation across the change, with confidence 0.
+
+``--lidar-check off`` keeps every point (the paper's method). Conventions: the left image is the reference,
+``d = x_left - x_right`` (px), NaN where there is no LiDAR; a change is ``LiDAR - images`` (px).
+"""
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numba import njit, prange
+
+from ..io.images import effective_bits, to_grey
+from ..records import RecordMapping
+from .lidar_offset import patch_costs
+
+#: the coarse reference's scale: 1 / FACTOR of the image's resolution
+FACTOR = 2
+#: the patch cost of a flat patch or one leaving the right image: it says nothing (an informative one is at most 2)
+NO_INFO = 3.0
+#: a point disagrees with the images when it lies more than this (px) from their alternative ...
+TAU = 3.0
+#: ... and the images' best patch cost near the alternative is at least this below its own (1 - ZNCC)
+MARGIN = 0.1
+#: a reference whose 3 x 3 coarse neighbourhood spans more than this (px, full resolution) is at a depth edge
+SMOOTH = 3.0
+#: the square (half side, in mean LiDAR spacings) whose other points give a point's neighbours' alternative and
+#: its support
+NEAR = 1.5
+#: side of the cells regions are made of, in mean LiDAR spacings
+CELL = 3.0
+#: a cell is changed when this share of its points with an alternative disagree with the same sign ...
+REGION_SHARE = 0.6
+#: ... and at least this many do
+MIN_POINTS = 3
+#: changed regions grow into neighbouring cells where this share disagrees the same way
+GROW_SHARE = 0.3
+#: a changed region's points as a whole: the images' alternative costs at least this less than the LiDAR (mean
+#: 1 - ZNCC); a patch of the reference's mistakes on repeated texture costs about the same either way
+REGION_MARGIN = 0.2
+#: a region is judged only on at least this many points with the reference's alternative
+MIN_COMPARED = 8
+#: a change is kept when the images contradict at least this share of its points (the rest it passed through)
+SEEN_SHARE = 0.3
+#: a change spreads through at most this many LiDAR points in a row the images cannot judge
+UNKNOWN_HOPS = 2
+
+
+@dataclass
+class CheckReport(RecordMapping):
+    """What the check did: ``mode``; ``points`` (LiDAR points checked), ``compared`` (those with an alternative from
+    the images), ``disagree`` (of those, the ones the images contradict), ``outliers`` (single points dropped),
+    ``changed`` (points dropped in changed regions), ``regions`` (changed areas), ``changed_share`` (share of the
+    image's pixels in them), ``change`` (median ``LiDAR - images`` of the changed points with a reference, px)."""
+
+    mode: str
+    points: int = 0
+    compared: int = 0
+    disagree: int = 0
+    outliers: int = 0
+    changed: int = 0
+    regions: int = 0
+    changed_share: float = 0.0
+    change: float = None
+
+
+@dataclass
+class LidarCheck:
+    """The check's outcome: ``report`` (:class:`CheckReport`), ``changed`` ((H, W) bool: the changed area; None
+    when nothing changed), ``dropped`` ((H, W) uint8 per LiDAR pixel: 0 kept or no
+    LiDAR, 1 outlier, 2 in a changed region)."""
+
+    report: CheckReport
+    changed: np.ndarray = None
+    dropped: np.ndarray = None
+
+
+def reference_at(reference, rows, cols, factor=FACTOR):
+    """The coarse ``reference`` (float, NaN invalid, coarse px) at full-resolution pixels ``(rows, cols)``, in full
+    px, NaN where it is invalid or not smooth (its 3 x 3 neighbourhood spans more than :data:`SMOOTH` px)."""
+    h, w = reference.shape
+    r = np.clip(np.asarray(rows) // factor, 0, h - 1)
+    c = np.clip(np.asarray(cols) // factor, 0, w - 1)
+    pad = np.pad(reference, 1, constant_values=np.nan)
+    win = np.stack([pad[r + 1 + dy, c + 1 + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
+    with np.errstate(invalid="ignore"):
+        span = (np.max(win, axis=0) - np.min(win, axis=0)) * factor
+    out = reference[r, c].astype(np.float64) * factor
+    out[~np.isfinite(span) | (span > SMOOTH)] = np.nan
+    return out
+
+
+def _costs(gl, gr, rows, cols, values, alt, factor):
+    # 1 - ZNCC at each point's own disparity, and the best within factor px of its alternative; NO_INFO where the
+    # patch is flat or leaves the right image (uncapped otherwise: at most 2)
+    own = patch_costs(gl, gr, rows, cols, values.astype(np.float32), np.zeros(1), cap=NO_INFO)[:, 0]
+    steps = np.arange(-factor, factor + 0.25, 0.5)
+    # the alternative's costs: the patch at alt + s, written as offsets of the alternative's value
+    best = patch_costs(gl, gr, rows, cols, alt.astype(np.float32), -steps, cap=NO_INFO).min(axis=1)
+    return own, best
+
+
+def _prefers(own, best, margin):
+    # the images prefer the alternative clearly: both patches informative, the alternative's at least margin lower
+    return (own < NO_INFO) & (best < NO_INFO) & (best + margin <= own)
+
+
+def _verdicts(gl, gr, rows, cols, values, alt, factor):
+    # +1 / -1: the images contradict the point (LiDAR above / below them), 0: they agree or prefer nothing
+    far = np.isfinite(alt) & (np.abs(values - alt) > TAU)
+    out = np.zeros(values.size, np.int8)
+    if not far.any():
+        return out
+    i = np.flatnonzero(far)
+    own, best = _costs(gl, gr, rows[i], cols[i], values[i], alt[i], factor)
+    contradicted = _prefers(own, best, MARGIN)
+    out[i[contradicted]] = np.sign(values[i[contradicted]] - alt[i[contradicted]]).astype(np.int8)
+    return out
+
+
+def _cell_regions(rows, cols, verdict, has_alt, shape, side):
+    # changed cells (bool grid) from the points' verdicts
+    H, W = shape
+    gh, gw = -(-H // side), -(-W // side)
+    cell = (rows // side) * gw + cols // side
+    n = np.bincount(cell[has_alt], minlength=gh * gw).reshape(gh, gw)
+    up = np.bincount(cell[verdict > 0], minlength=gh * gw).reshape(gh, gw)
+    down = np.bincount(cell[verdict < 0], minlength=gh * gw).reshape(gh, gw)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        share_up, share_down = up / n, down / n
+    regions = np.zeros((gh, gw), np.uint8)
+    for votes, share in ((up, share_up), (down, share_down)):
+        seed = (votes >= MIN_POINTS) & (share >= REGION_SHARE)
+        if not seed.any():
+            continue
+        grid = cv2.morphologyEx(seed.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+        grow = (share >= GROW_SHARE) & (votes >= 1)
+        grid = grid.astype(bool) & (n > 0) | seed
+        for _ in range(max(gh, gw)):  # grow while neighbouring cells agree
+            more = cv2.dilate(grid.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & grow & ~grid
+            if not more.any():
+                break
+            grid |= more
+        regions |= grid.astype(np.uint8)
+    return regions.astype(bool), cell
+
+
+@njit(cache=True, parallel=True)
+def _explained_kernel(sparse, rows, cols, values, alt, band, tau, out):
+    # out[j]: the LiDAR around point j holds the images' alternative alt[j] (module docstring, "occlusion")
+    H, W = sparse.shape
+    for j in prange(rows.size):
+        r, c, v, a = rows[j], cols[j], values[j], alt[j]
+        if v < a:  # behind: a foreground point x' = x + (a - v) to the right hides it from the right image
+            y0, y1, x0, x1 = r - band, r + band + 1, c + 1, c + int(math.ceil(a - v)) + 2 * band + 1
+        else:  # in front: the background beside a depth edge the coarse reference moved
+            y0, y1, x0, x1 = r - 2 * band, r + 2 * band + 1, c - 2 * band, c + 2 * band + 1
+        found = False
+        for y in range(max(0, y0), min(H, y1)):
+            for x in range(max(0, x0), min(W, x1)):
+                s = sparse[y, x]
+                if s == s and (s >= a - tau if v < a else abs(s - a) <= tau):
+                    found = True
+                    break
+            if found:
+                break
+        out[j] = found
+
+
+@njit(cache=True, parallel=True)
+def _neighbour_kernel(sparse, rows, cols, radius, tau, around, supported):
+    H, W = sparse.shape
+    side = 2 * radius + 1
+    for j in prange(rows.size):
+        r, c = rows[j], cols[j]
+        v = sparse[r, c]
+        vals = np.empty(side * side, np.float32)
+        k = 0
+        ok = False
+        for y in range(max(0, r - radius), min(H, r + radius + 1)):
+            for x in range(max(0, c - radius), min(W, c + radius + 1)):
+                s = sparse[y, x]
+                if s == s and (y != r or x != c):
+                    i = k  # kept sorted (a few points): insertion
+                    while i > 0 and vals[i - 1] > s:
+                        vals[i] = vals[i - 1]
+                        i -= 1
+                    vals[i] = s
+                    k += 1
+                    if abs(s - v) <= tau:
+                        ok = True
+        if k == 0:
+            around[j] = np.nan
+        elif k % 2:
+            around[j] = vals[k // 2]
+        else:
+            around[j] = 0.5 * (np.float64(vals[k // 2 - 1]) + np.float64(vals[k // 2]))
+        supported[j] = ok
+
+
+def neighbour_stats(sparse, rows, cols, radius):
+    """Per LiDAR point ``(rows, cols)`` of ``sparse``: the median of the other points within a square of ``radius``
+    px (float64, NaN with none) and whether one of them lies within :data:`TAU` px of it (bool: a point no
+    neighbour supports may be an outlier)."""
+    around = np.empty(rows.size, np.float64)
+    supported = np.empty(rows.size, np.bool_)
+    _neighbour_kernel(np.ascontiguousarray(sparse, np.float32), np.asarray(rows, np.int64),
+                      np.asarray(cols, np.int64), int(radius), np.float32(TAU), around, supported)
+    return around, supported
+
+
+def _changed_area(rows, cols, shape, spacing):
+    # the changed points' surroundings: a disc of one spacing round each, closed over two: (H, W) bool
+    r = max(1, int(round(spacing)))
+    area = np.zeros(shape, np.uint8)
+    area[rows, cols] = 1
+    area = cv2.dilate(area, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    return cv2.morphologyEx(area, cv2.MORPH_CLOSE,
+                            cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (4 * r + 1, 4 * r + 1))).astype(bool)
+
+
+@njit(cache=True)
+def _flood(index, rows, cols, radius, state, seeds, hops):
+    # the points a change reaches from its seeds (seeds[i] = its sign), neighbours being the points within a square
+    # of the radius (index: the point at each pixel, -1 none): through points of state == sign (contradicted that
+    # way) freely, through unknown ones (0, or the other sign) hops in a row, never through confirmed ones (2).
+    # Breadth first; a point is taken with the most hops left it can be reached with
+    H, W = index.shape
+    n = state.size
+    left = np.full(n, -1, np.int64)
+    sign = np.zeros(n, np.int8)
+    queue = np.empty(n * (hops + 2), np.int64)
+    head, tail = 0, 0
+    for i in range(n):
+        if seeds[i] != 0:
+            left[i] = hops
+            sign[i] = seeds[i]
+            queue[tail] = i
+            tail += 1
+    while head < tail:
+        i = queue[head]
+        head += 1
+        for y in range(max(0, rows[i] - radius), min(H, rows[i] + radius + 1)):
+            for x in range(max(0, cols[i] - radius), min(W, cols[i] + radius + 1)):
+                j = index[y, x]
+                if j < 0 or state[j] == 2:
+                    continue
+                budget = hops if state[j] == sign[i] else left[i] - 1
+                if budget > left[j] and tail < queue.size:
+                    left[j] = budget
+                    sign[j] = sign[i]
+                    queue[tail] = j
+                    tail += 1
+    return left >= 0
+
+
+def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, searched=None):
+    """The LiDAR points the images do not contradict, and the :class:`LidarCheck` (module docstring).
+
+    Parameters
+    ----------
+    left, right : (H, W) or (H, W, 3) arrays
+        The rectified pair; the left image is the reference.
+    sparse : (H, W) float
+        LiDAR disparities of the left image (px, ``d = x_left - x_right``), NaN elsewhere.
+    reference : (h, w) float
+        An unguided match of the pair at ``1 / factor`` resolution (coarse px), NaN where it failed its
+        left-right check.
+    searched : (d_min, d_max), optional
+        The range the reference searched (px): points outside it are not judged (the reference cannot see them).
+
+    Returns
+    -------
+    (H, W) float32, LidarCheck
+        The sparse map without the dropped points, and what was dropped.
+    """
+    sparse = np.asarray(sparse, np.float32)
+    shape = sparse.shape
+    rows, cols = np.nonzero(np.isfinite(sparse))
+    values = sparse[rows, cols].astype(np.float64)
+    n = values.size
+    if n < 9:
+        return sparse, LidarCheck(CheckReport("auto", points=int(n)))
+    bits = effective_bits(left) if bits is None else bits
+    gl, gr = to_grey(left, bits), to_grey(right, bits)
+    spacing = math.sqrt(shape[0] * shape[1] / n)
+    near = max(1, int(math.ceil(NEAR * spacing)))
+    around, supported = neighbour_stats(sparse, rows, cols, near)
+    alt = reference_at(reference, rows, cols, factor)
+    if searched is not None:  # the reference cannot see a point outside its range: nothing judges it
+        outside = (values < searched[0]) | (values > searched[1])
+        alt[outside], around[outside] = np.nan, np.nan
+    from_ref = np.isfinite(alt)
+    alt = np.where(from_ref, alt, around)
+    raw = _verdicts(gl, gr, rows, cols, values, alt, factor)
+    # the images' alternative explained by the LiDAR around the point: an occluded background point, or one beside a
+    # depth edge the coarse reference fattened, not a change
+    explained = np.zeros(n, np.bool_)
+    i = np.flatnonzero(raw != 0)
+    if i.size:
+        out = np.zeros(i.size, np.bool_)
+        _explained_kernel(sparse, rows[i].astype(np.int64), cols[i].astype(np.int64), values[i], alt[i],
+                          max(1, int(round(spacing))), np.float64(TAU), out)
+        explained[i] = out
+    verdict = np.where(explained, 0, raw).astype(np.int8)
+
+    side = max(2, int(round(CELL * spacing)))
+    regions, cell = _cell_regions(rows, cols, np.where(from_ref, verdict, 0), from_ref, shape, side)
+    # a region is a change only when its points as a whole lie off the images: the median of LiDAR - images
+    # over its compared points beyond TAU, and the images' alternative clearly better on average (a patch of the
+    # reference's own mistakes on repeated texture costs about the same either way)
+    n_regions, labels = cv2.connectedComponents(regions.astype(np.uint8), connectivity=8)
+    label = labels.ravel()[cell]
+    seeds = np.zeros(n, np.int8)
+    state = np.where(from_ref & (np.abs(values - alt) <= TAU), 2, raw).astype(np.int8)
+    for k in range(1, n_regions):
+        i = np.flatnonzero((label == k) & from_ref)
+        if i.size < MIN_COMPARED:
+            continue
+        change = float(np.median(values[i] - alt[i]))
+        own, best = _costs(gl, gr, rows[i], cols[i], values[i], alt[i], factor)
+        informative = (own < NO_INFO) & (best < NO_INFO)
+        if abs(change) > TAU and informative.any() and np.mean((own - best)[informative]) >= REGION_MARGIN:
+            sign = 1 if change > 0 else -1
+            seeds[(label == k) & (raw == sign)] = sign
+    # from its seeds a change spreads over the LiDAR's Delaunay graph: through the points the images contradict the
+    # same way, and up to UNKNOWN_HOPS points in a row they cannot judge; it stops at points the images confirm
+    in_region = seeds != 0
+    if seeds.any():
+        index = np.full(shape, -1, np.int64)
+        index[rows, cols] = np.arange(n)
+        in_region = _flood(index, rows.astype(np.int64), cols.astype(np.int64), near, state, seeds, UNKNOWN_HOPS)
+    if in_region.any():  # a change the images mostly saw: most of its points contradicted, not passed through
+        area = _changed_area(rows[in_region], cols[in_region], shape, spacing)
+        n_area, labels = cv2.connectedComponents(area.astype(np.uint8), connectivity=8)
+        label = labels[rows, cols]
+        seen = np.bincount(label[in_region & (state == raw) & (raw != 0)], minlength=n_area)
+        size = np.bincount(label[in_region], minlength=n_area)
+        weak = seen < SEEN_SHARE * size
+        in_region &= ~weak[label]
+    unsupported = ~supported
+    outlier = (raw != 0) & from_ref & unsupported & ~in_region
+
+    dropped = np.zeros(shape, np.uint8)
+    dropped[rows[outlier], cols[outlier]] = 1
+    dropped[rows[in_region], cols[in_region]] = 2
+    kept = sparse.copy()
+    kept[dropped > 0] = np.nan
+    changed, n_regions = None, 0
+    if in_region.any():
+        changed = _changed_area(rows[in_region], cols[in_region], shape, spacing)
+        n_regions = cv2.connectedComponents(changed.astype(np.uint8), connectivity=8)[0] - 1
+    diff = values[in_region & from_ref] - alt[in_region & from_ref]
+    report = CheckReport("auto", int(n), int(from_ref.sum()), int((verdict != 0).sum()),
+                         int(outlier.sum()), int(in_region.sum()), int(n_regions),
+                         round(float(changed.mean()), 6) if changed is not None else 0.0,
+                         round(float(np.median(diff)), 3) if diff.size else None)
+    return kept, LidarCheck(report, changed, dropped)
+
+
+def coarse_reference(left, right, d_min, d_max, config, match, factor=FACTOR):
+    """The check's reference: ``match`` (:func:`~riverbed_cli.matching.pipeline.match_pair`) of the pair at
+    ``1 / factor`` resolution, unguided census SGM over ``[d_min, d_max] / factor`` with its left-right check and
+    ``config``'s other settings; (h, w) float32 in coarse px, NaN where it failed. None for a pair smaller than
+    16 px at that scale."""
+    H, W = left.shape[:2]
+    h, w = H // factor, W // factor
+    if min(h, w) < 16:
+        return None
+    small = [cv2.resize(np.ascontiguousarray(im), (w, h), interpolation=cv2.INTER_AREA) for im in (left, right)]
+    return match(small[0], small[1], None, int(math.floor(d_min / factor)), int(math.ceil(d_max / factor)), config,
+                 matcher="sgm", guide="none", range="full", fusion="none", lr_check=True, lidar_check="off",
+                 lidar_offset="none").disparity
+
+
+def check_pair(left, right, sparse, d_min, d_max, config, match):
+    """:func:`check_lidar` of ``sparse`` against its :func:`coarse_reference` (``config.lidar_check`` ``auto``):
+    the sparse map kept and the :class:`LidarCheck`. A pair too small for the reference keeps every point."""
+    reference = coarse_reference(left, right, d_min, d_max, config, match, FACTOR)
+    if reference is None:
+        n = int(np.isfinite(sparse).sum())
+        return sparse, LidarCheck(CheckReport("auto", points=n))
+    return check_lidar(left, right, sparse, reference, factor=FACTOR, searched=(d_min, d_max))
+
+
+def prefer_stereo(fused, stereo, status, changed):
+    """In the changed area (``changed``, (H, W) bool) the images win: a fusion's output (changed in place) takes the
+    matcher's disparity ``stereo`` wherever it passed its left-right check (``status`` 0; every finite value
+    without a status), with the stereo's confidence (``erf(1 / (sigma_s sqrt 2))``, :mod:`.fusion`); elsewhere in
+    the area its value is the LiDAR's interpolation across the change, kept with confidence 0."""
+    if changed is None:
+        return fused
+    take = changed & np.isfinite(stereo)
+    if status is not None:
+        take &= status == 0
+    fused.disparity[take] = stereo[take]
+    if fused.confidence is not None:
+        sigma = fused.stats.stereo_sigma if fused.stats is not None else None
+        fused.confidence[changed] = 0.0
+        if sigma:
+            fused.confidence[take] = math.erf(1.0 / (float(sigma) * math.sqrt(2.0)))
+    return fused
+
+
+def warm_up():
+    """Compile (or load from Numba's cache) the check's kernels on a tiny pair, so that a run's ``seconds`` hold
+    none of it."""
+    rng = np.random.default_rng(0)
+    left = rng.integers(0, 255, (64, 96), dtype=np.uint8)
+    right = np.roll(left, -3, axis=1)
+    sparse = np.full(left.shape, np.nan, np.float32)
+    sparse[::3, ::3] = 3.0
+    sparse[12:54:3, 24:84:3] = 13.0  # a raised block: the region and flood kernels run too
+    check_lidar(left, right, sparse, np.full((32, 48), 1.5, np.float32))
+
+
+def lidar_mask(sparse, check):
+    """Per pixel what the LiDAR did, uint8: 0 no LiDAR, 1 a point used, 2 a point dropped as an outlier, 3 a point
+    dropped in a changed region, 4 a pixel of a changed area without a point (:data:`MASK_LABELS`)."""
+    have = np.isfinite(np.asarray(sparse))
+    out = have.astype(np.uint8)
+    if check is not None and check.dropped is not None:
+        out[check.dropped == 1] = 2
+        out[check.dropped == 2] = 3
+    if check is not None and check.changed is not None:
+        out[check.changed & ~have] = 4
+    return out
+
+
+#: the values of :func:`lidar_mask`
+MASK_LABELS = {0: "no LiDAR", 1: "used", 2: "outlier", 3: "changed region", 4: "changed area"}
