@@ -112,8 +112,9 @@ def test_fused_riverbed_plus_beats_both_inputs_on_the_aerial_pair(shared_data, t
     for share in (0.05, 0.0123, 0.0016):
         for metric in ("bad1", "bad3", "avg"):
             assert beats_inputs(rows, scene, share, "riverbed+", metric)
-    # the default (riverbed) loses two cells (measured: 5 % bad3 4.54 vs 4.51 %, 0.16 % mean 3.22 vs 2.23 px)
-    assert not beats_inputs(rows, scene, 0.05, "riverbed", "bad3")
+    # the default (riverbed) loses one cell (measured: 0.16 % mean 3.22 vs 2.23 px); at 5 % its bad3 wins by a hair
+    # (4.49 vs 4.51 %: without the LiDAR check 4.54)
+    assert beats_inputs(rows, scene, 0.05, "riverbed", "bad3")
     assert not beats_inputs(rows, scene, 0.0016, "riverbed", "avg")
     assert beats_inputs(rows, scene, 0.0123, "riverbed", "bad1") and beats_inputs(rows, scene, 0.0123, "riverbed",
                                                                                    "avg")

@@ -73,3 +73,74 @@ def test_a_row_measured_again_is_the_committed_one(shared_data):
     assert auto.info["lidar_offset"]["estimated"] == row["estimated"]
     assert bench_faults._score(auto.disparity, scene.gt, sparse) == row["default"]
     assert bench_faults._score(kept.disparity, scene.gt, sparse) == row["kept"]
+
+
+import bench_changes  # noqa: E402
+
+CHANGES = json.loads((REPO / "benchmarks" / "results_changes.json").read_text())
+
+
+def test_the_check_tables_are_the_committed_results():
+    block = DOC.split(bench_changes.BEGIN)[1].split(bench_changes.END)[0]
+    assert block.strip() == bench_changes.tables(CHANGES).strip()
+
+
+def test_the_doc_states_the_check_rule_the_code_has():
+    from riverbed_cli.matching import lidar_check as c
+
+    doc = " ".join(DOC.split())
+    assert c.FACTOR == 2 and "at half resolution over the whole range" in doc
+    assert c.SMOOTH == 3.0 and "spans at most 3 px" in doc and c.NEAR == 1.5 and "within 1.5 spacings" in doc
+    assert c.TAU == 3.0 and "more than 3 px from the alternative" in doc
+    assert c.MARGIN == 0.1 and "at least 0.1 below the cost" in doc and "at most 0.9" in doc
+    assert c.EDGE == 8 and "plus 8 px" in doc and "within 8 px at the alternative" in doc
+    assert c.CELL == 3.0 and c.REGION_SHARE == 0.6 and c.MIN_POINTS == 3 and c.GROW_SHARE == 0.3
+    assert "Cells of 3 spacings where at least 60 % " in doc and "(at least 3 points)" in doc and "where 30 % do" in doc
+    assert c.MIN_COMPARED == 8 and "at least 8 points with a reference" in doc
+    assert c.REGION_MARGIN == 0.2 and "by at least 0.2 on average" in doc
+    assert c.UNKNOWN_HOPS == 2 and "at most 2 in a row" in doc
+    assert c.SEEN_SHARE == 0.3 and "at least 30 % of the points it took" in doc
+    assert c.MAX_SPACING == 16 and "Below one point per 16 x 16 px" in doc
+    assert c.MASK_LABELS == {0: "no LiDAR", 1: "used", 2: "outlier", 3: "changed region", 4: "changed area"}
+
+
+def test_every_scene_share_and_fault_of_the_check_is_in_the_results():
+    faults = {r["fault"] for r in CHANGES}
+    want = {"clean"} | {f[0] for f in bench_changes.REGIONS} | {f[0] for f in bench_changes.OUTLIERS}
+    assert faults == want
+    assert len(CHANGES) == 6 * len(bench_faults.SHARES) * len(want)
+
+
+@pytest.mark.parametrize("row", CHANGES, ids=lambda r: f"{r['scene']}-{r['share']}-{r['fault']}")
+def test_the_checks_claims_hold_on_every_row(row):
+    if row["fault"] == "clean":  # clean LiDAR: at most 0.5 % of it dropped, bad3 within 0.1 points of unchecked
+        assert row["dropped"][1] <= 0.005 and abs(row["default"][0] - row["off"][0]) <= 0.1
+    elif "clean_outside" in row:  # a changed region: never worse than keeping it, and outside it close to clean
+        assert row["default"][0] <= row["off"][0] and row["default"][1] <= row["off"][1]
+        assert row["dropped"][1] <= 0.03
+        assert row["default_outside"][0] <= 2 * row["clean_outside"][0] + 0.2
+    else:  # gross outliers: about half of them or more dropped, the result better than with them
+        assert row["dropped"][0] >= 0.45 and row["dropped"][1] <= 0.003
+        assert row["default"][0] < row["off"][0] and row["default"][1] < row["off"][1]
+
+
+def test_a_row_of_the_check_measured_again_is_the_committed_one(shared_data):
+    from datasets import middlebury
+
+    from riverbed_cli.matching.pipeline import match_pair
+    from riverbed_cli.products.simulate import simulate_lidar
+
+    row = next(r for r in CHANGES if (r["scene"], r["share"], r["fault"]) == ("Cones", 0.05, "A: 25 %, +20 %"))
+    scene = middlebury(shared_data, "Cones")
+    sparse = simulate_lidar(scene.gt, 0.05, seed=0)
+    have = np.isfinite(sparse)
+    rr, cc = np.nonzero(have)
+    h, w = rr.max() + 1 - rr.min(), cc.max() + 1 - cc.min()
+    block = np.zeros(sparse.shape, bool)
+    ya, xa = rr.min() + int(0.30 * h), cc.min() + int(0.30 * w)
+    block[ya:ya + int(0.25 * h), xa:xa + int(0.25 * w)] = True
+    vals = sparse[have]
+    stale = np.where(block, sparse + np.float32(0.20 * float(vals.max() - vals.min())), sparse)
+    res = match_pair(scene.left, scene.right, stale)
+    assert bench_changes._score(res.disparity, scene.gt, sparse, block) == row["default"]
+    assert bench_changes._score(res.disparity, scene.gt, sparse, ~block) == row["default_outside"]

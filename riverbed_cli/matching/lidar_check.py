@@ -14,13 +14,14 @@ Stage: ``(left, right, LiDAR disparities, a coarse unguided match of the pair) -
 * **Disagreement.** A point disagrees when its disparity lies more than :data:`TAU` px from the alternative and the
   images prefer the alternative clearly: the best ``1 - ZNCC`` of a 5 x 5 patch within ``FACTOR`` px of it is at
   least :data:`MARGIN` below the cost at the LiDAR's disparity
-  (:func:`~riverbed_cli.matching.lidar_offset.patch_costs`). A flat patch, or one leaving the right image, prefers
-  nothing: its LiDAR stays.
+  (:func:`~riverbed_cli.matching.lidar_offset.patch_costs`), or the LiDAR's patch leaves the right image where
+  the alternative's correlates (``1 - ZNCC`` at most ``1 - MARGIN``). A flat patch prefers nothing: its LiDAR
+  stays.
 * **Occlusions and depth edges.** A disagreement the LiDAR around the point explains is not a change: a point
-  behind the images' alternative with a LiDAR point to its right (within the disparity difference plus two
-  spacings, one spacing up or down) at least as near as the alternative is hidden from the right image by that
-  foreground; a point in front of it with a LiDAR point within two spacings at the alternative sits beside a depth
-  edge the coarse reference moved.
+  behind the images' alternative with a LiDAR point to its right (within the disparity difference plus
+  :data:`EDGE` px, one spacing up or down) at least as near as the alternative is hidden from the right image by
+  that foreground; a point in front of it with a LiDAR point within ``EDGE`` px at the alternative sits beside a
+  depth edge the coarse reference moved.
 * **Changed regions.** Change comes in regions (a building, a stand of trees), and one disagreeing point may be the
   reference's mistake. The image is cut into square cells of :data:`CELL` spacings; a cell is a seed when at least
   :data:`REGION_SHARE` of its points with a reference disagree with the same sign (at least :data:`MIN_POINTS`);
@@ -32,7 +33,7 @@ Stage: ``(left, right, LiDAR disparities, a coarse unguided match of the pair) -
   contradict the same way, through at most :data:`UNKNOWN_HOPS` in a row they cannot judge, never through a point
   the reference confirms (within ``TAU``). A change is kept when the images contradict at least
   :data:`SEEN_SHARE` of the points it took. Every point it took is dropped.
-* **Gross outliers.** A point the reference contradicts, outside the changes, is dropped when no other LiDAR point
+* **Gross outliers.** A point the images contradict, outside the changes, is dropped when no other LiDAR point
   within ``NEAR`` spacings lies within ``TAU`` px of it: nothing around it supports it.
 * **Downstream** (:func:`~riverbed_cli.matching.pipeline.match_pair`). The points dropped guide nothing, bound no
   tube and are not interpolated by the fusion. The changed area (a disc of one spacing round each changed point,
@@ -53,10 +54,13 @@ from numba import njit, prange
 
 from ..io.images import effective_bits, to_grey
 from ..records import RecordMapping
-from .lidar_offset import patch_costs
+from .lidar_offset import RADIUS, patch_costs
 
 #: the coarse reference's scale: 1 / FACTOR of the image's resolution
 FACTOR = 2
+#: LiDAR sparser than one point per MAX_SPACING x MAX_SPACING px is not checked: its neighbours lie too far apart to
+#: support a point or make a region (dropping one of its points costs more than it can save)
+MAX_SPACING = 16
 #: the patch cost of a flat patch or one leaving the right image: it says nothing (an informative one is at most 2)
 NO_INFO = 3.0
 #: a point disagrees with the images when it lies more than this (px) from their alternative ...
@@ -65,6 +69,8 @@ TAU = 3.0
 MARGIN = 0.1
 #: a reference whose 3 x 3 coarse neighbourhood spans more than this (px, full resolution) is at a depth edge
 SMOOTH = 3.0
+#: how far (px) the half-resolution reference may move a depth edge: its census window's half width, doubled
+EDGE = 8
 #: the square (half side, in mean LiDAR spacings) whose other points give a point's neighbours' alternative and
 #: its support
 NEAR = 1.5
@@ -89,12 +95,13 @@ UNKNOWN_HOPS = 2
 
 @dataclass
 class CheckReport(RecordMapping):
-    """What the check did: ``mode``; ``points`` (LiDAR points checked), ``compared`` (those with an alternative from
+    """What the check did: ``mode``; ``skipped`` (why it did not run, or None); ``points`` (LiDAR points checked), ``compared`` (those with an alternative from
     the images), ``disagree`` (of those, the ones the images contradict), ``outliers`` (single points dropped),
     ``changed`` (points dropped in changed regions), ``regions`` (changed areas), ``changed_share`` (share of the
     image's pixels in them), ``change`` (median ``LiDAR - images`` of the changed points with a reference, px)."""
 
     mode: str
+    skipped: str = None
     points: int = 0
     compared: int = 0
     disagree: int = 0
@@ -154,7 +161,10 @@ def _verdicts(gl, gr, rows, cols, values, alt, factor):
         return out
     i = np.flatnonzero(far)
     own, best = _costs(gl, gr, rows[i], cols[i], values[i], alt[i], factor)
-    contradicted = _prefers(own, best, MARGIN)
+    # a disparity whose patch leaves the right image, where the alternative's correlates, is contradicted too
+    xr = cols[i] - values[i]
+    leaves = (xr < RADIUS) | (xr >= gl.shape[1] - RADIUS - 1)
+    contradicted = _prefers(own, best, MARGIN) | (leaves & (best + MARGIN <= 1.0))
     out[i[contradicted]] = np.sign(values[i[contradicted]] - alt[i[contradicted]]).astype(np.int8)
     return out
 
@@ -187,15 +197,15 @@ def _cell_regions(rows, cols, verdict, has_alt, shape, side):
 
 
 @njit(cache=True, parallel=True)
-def _explained_kernel(sparse, rows, cols, values, alt, band, tau, out):
-    # out[j]: the LiDAR around point j holds the images' alternative alt[j] (module docstring, "occlusion")
+def _explained_kernel(sparse, rows, cols, values, alt, band, edge, tau, out):
+    # out[j]: the LiDAR around point j holds the images' alternative alt[j] (module docstring, "occlusions")
     H, W = sparse.shape
     for j in prange(rows.size):
         r, c, v, a = rows[j], cols[j], values[j], alt[j]
         if v < a:  # behind: a foreground point x' = x + (a - v) to the right hides it from the right image
-            y0, y1, x0, x1 = r - band, r + band + 1, c + 1, c + int(math.ceil(a - v)) + 2 * band + 1
+            y0, y1, x0, x1 = r - band, r + band + 1, c + 1, c + int(math.ceil(a - v)) + edge + 1
         else:  # in front: the background beside a depth edge the coarse reference moved
-            y0, y1, x0, x1 = r - 2 * band, r + 2 * band + 1, c - 2 * band, c + 2 * band + 1
+            y0, y1, x0, x1 = r - edge, r + edge + 1, c - edge, c + edge + 1
         found = False
         for y in range(max(0, y0), min(H, y1)):
             for x in range(max(0, x0), min(W, x1)):
@@ -295,6 +305,15 @@ def _flood(index, rows, cols, radius, state, seeds, hops):
     return left >= 0
 
 
+def _skip(n, shape):
+    # why n points over an image of shape are not checked, or None
+    if n < 9:
+        return "fewer than 9 points"
+    if shape[0] * shape[1] / n > MAX_SPACING ** 2:  # too far apart for a region or a neighbour to mean anything
+        return f"sparser than one point per {MAX_SPACING} x {MAX_SPACING} px"
+    return None
+
+
 def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, searched=None):
     """The LiDAR points the images do not contradict, and the :class:`LidarCheck` (module docstring).
 
@@ -320,8 +339,9 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
     rows, cols = np.nonzero(np.isfinite(sparse))
     values = sparse[rows, cols].astype(np.float64)
     n = values.size
-    if n < 9:
-        return sparse, LidarCheck(CheckReport("auto", points=int(n)))
+    why = _skip(n, shape)
+    if why is not None:
+        return sparse, LidarCheck(CheckReport("auto", why, points=int(n)))
     bits = effective_bits(left) if bits is None else bits
     gl, gr = to_grey(left, bits), to_grey(right, bits)
     spacing = math.sqrt(shape[0] * shape[1] / n)
@@ -341,7 +361,7 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
     if i.size:
         out = np.zeros(i.size, np.bool_)
         _explained_kernel(sparse, rows[i].astype(np.int64), cols[i].astype(np.int64), values[i], alt[i],
-                          max(1, int(round(spacing))), np.float64(TAU), out)
+                          max(1, int(round(spacing))), EDGE, np.float64(TAU), out)
         explained[i] = out
     verdict = np.where(explained, 0, raw).astype(np.int8)
 
@@ -380,7 +400,7 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
         weak = seen < SEEN_SHARE * size
         in_region &= ~weak[label]
     unsupported = ~supported
-    outlier = (raw != 0) & from_ref & unsupported & ~in_region
+    outlier = (raw != 0) & unsupported & ~in_region
 
     dropped = np.zeros(shape, np.uint8)
     dropped[rows[outlier], cols[outlier]] = 1
@@ -392,7 +412,7 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
         changed = _changed_area(rows[in_region], cols[in_region], shape, spacing)
         n_regions = cv2.connectedComponents(changed.astype(np.uint8), connectivity=8)[0] - 1
     diff = values[in_region & from_ref] - alt[in_region & from_ref]
-    report = CheckReport("auto", int(n), int(from_ref.sum()), int((verdict != 0).sum()),
+    report = CheckReport("auto", None, int(n), int(from_ref.sum()), int((verdict != 0).sum()),
                          int(outlier.sum()), int(in_region.sum()), int(n_regions),
                          round(float(changed.mean()), 6) if changed is not None else 0.0,
                          round(float(np.median(diff)), 3) if diff.size else None)
@@ -417,10 +437,11 @@ def coarse_reference(left, right, d_min, d_max, config, match, factor=FACTOR):
 def check_pair(left, right, sparse, d_min, d_max, config, match):
     """:func:`check_lidar` of ``sparse`` against its :func:`coarse_reference` (``config.lidar_check`` ``auto``):
     the sparse map kept and the :class:`LidarCheck`. A pair too small for the reference keeps every point."""
-    reference = coarse_reference(left, right, d_min, d_max, config, match, FACTOR)
+    n = int(np.count_nonzero(np.isfinite(sparse)))
+    why = _skip(n, sparse.shape)
+    reference = coarse_reference(left, right, d_min, d_max, config, match, FACTOR) if why is None else None
     if reference is None:
-        n = int(np.isfinite(sparse).sum())
-        return sparse, LidarCheck(CheckReport("auto", points=n))
+        return sparse, LidarCheck(CheckReport("auto", why or "the pair is too small for the reference", points=n))
     return check_lidar(left, right, sparse, reference, factor=FACTOR, searched=(d_min, d_max))
 
 
