@@ -99,8 +99,9 @@ def tables(rows):
     """The Markdown tables of docs/lidar_faults.md from the result rows."""
     out = ["LiDAR shares are of the image pixels (sampled from the GT, seed 0); errors over the GT pixels not sampled; "
            "cells are bad3 % / mean px. `default`: the offset estimated and removed (`--lidar-offset auto`); "
-           "`kept`: the LiDAR as given (`--lidar-offset none`); `LiDAR only`: the offset LiDAR interpolated by "
-           "local planes (`riverbed densify --method planes`); `oracle`: the clean LiDAR, default settings.", "",
+           "`kept`: the LiDAR as given (`--lidar-offset none --lidar-check off`); `LiDAR only`: the offset LiDAR "
+           "interpolated by local planes (`riverbed densify --method planes`); `oracle`: the clean LiDAR, default "
+           "settings.", "",
            "`estimate error`: the estimate minus the clean LiDAR's (below) minus the offset added (px).", "",
            "| scene | LiDAR | offset | estimate error px | default | kept | unguided | LiDAR only | oracle |",
            "|---|---:|---|---:|---:|---:|---:|---:|---:|"]
