@@ -18,6 +18,7 @@ from ..io.pointcloud import check_pointcloud_path, write_points
 from ..io.raster import parse_creation_options, write_geotiff
 from ..products.dsm import (AGGREGATIONS, build_dsm, check_bounds, check_creation_options, check_fill_holes,
                             check_min_confidence, hillshade, read_confidence)
+from ..products.change_map import change_map, read_lidar_mask
 from ..products.visualize import hillshade_picture, write_picture
 from .options import json_opt, overwrite_opt, print_json, progress_bar
 
@@ -74,10 +75,21 @@ class Number(click.ParamType):
                    "DISP PAIR couple in their order (repeatable); needs --min-confidence.")
 @click.option("--min-confidence", type=Number("--min-confidence"), default=None, metavar="X",
               help="Drop the points whose pixel's --confidence is below X (0..1) or NaN.")
+@click.option("--change-map", "change_out", type=click.Path(dir_okay=False), default=None,
+              help="Also write where the surface differs from the LiDAR's (.tif on the DSM's grid: median height "
+                   "change, m, match minus LiDAR, at the LiDAR points riverbed match's check dropped in changed "
+                   "regions; NaN elsewhere); needs --sparse and --lidar-mask per couple (docs/lidar_faults.md).")
+@click.option("--sparse", "sparses", multiple=True, type=click.Path(dir_okay=False), metavar="SPARSE.tif",
+              help="The LiDAR disparities a DISP was matched with (riverbed match --sparse), one per couple in their "
+                   "order (repeatable), for --change-map.")
+@click.option("--lidar-mask", "masks", multiple=True, type=click.Path(dir_okay=False), metavar="MASK.png",
+              help="The LiDAR mask of a DISP's match (riverbed match --lidar-mask), one per couple in their order "
+                   "(repeatable), for --change-map.")
 @json_opt
 @overwrite_opt
 def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill_holes, keep_lattice, crs, creation,
-            clouds, registration, hillshade_png, confidences, min_confidence, as_json, overwrite):
+            clouds, registration, hillshade_png, confidences, min_confidence, change_out, sparses, masks, as_json,
+            overwrite):
     """Triangulate DISP PAIR couples (disparity map of the left image, pair file) into a DSM.
 
     Every valid disparity is triangulated exactly (float64) with the pair's cameras, the pair's origin added back;
@@ -98,8 +110,10 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
         check_pointcloud_path(points_out)
     if hillshade_png and not hillshade_png.lower().endswith(".png"):
         raise RiverbedError("hillshade must be a .png file", hillshade_png)
-    check_outputs([output, points_out, hillshade_png], overwrite,
-                  inputs=[*disp_pair, *clouds, registration, *confidences])
+    if change_out and not change_out.lower().endswith((".tif", ".tiff")):
+        raise RiverbedError("the change map must be a .tif file", change_out)
+    check_outputs([output, points_out, hillshade_png, change_out], overwrite,
+                  inputs=[*disp_pair, *clouds, registration, *confidences, *sparses, *masks])
     if bounds is not None:
         bounds = check_bounds(bounds)
     check_fill_holes(fill_holes)
@@ -123,10 +137,15 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
     if confidences and len(confidences) != n_couples:
         raise RiverbedError(f"give one --confidence per DISP PAIR couple ({n_couples} couples, "
                             f"{len(confidences)} --confidence)")
+    if change_out and (len(sparses) != n_couples or len(masks) != n_couples):
+        raise RiverbedError(f"--change-map needs one --sparse and one --lidar-mask per DISP PAIR couple ({n_couples} "
+                            f"couples, {len(sparses)} --sparse, {len(masks)} --lidar-mask)")
+    if (sparses or masks) and not change_out:
+        raise RiverbedError("--sparse and --lidar-mask are read for --change-map FILE.tif; give it")
     co = parse_creation_options(creation)
     check_creation_options(co, bands=2 if fill_holes else 1, nodata=nodata)
 
-    sources, confs = [], []
+    sources, confs, changes = [], [], []
     for i, (disp_path, pair_path) in enumerate(zip(disp_pair[::2], disp_pair[1::2])):
         pair = load_pairfile(pair_path, accept_rpc=True, command="riverbed dsm")
         disp = read_disparity(disp_path)
@@ -140,6 +159,12 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
                 raise RiverbedError(f"left image {pair.left} is not the size of the disparity map", disp_path)
         sources.append((disp, pair, image))
         confs.append(read_confidence(confidences[i], disp.shape) if confidences else None)
+        if change_out:  # read before the work: a wrong file is refused now
+            sparse = read_disparity(sparses[i])
+            if sparse.shape != disp.shape:
+                raise RiverbedError(f"sparse map is {sparse.shape[1]}x{sparse.shape[0]} but the disparity map is "
+                                    f"{disp.shape[1]}x{disp.shape[0]} (W x H)", sparses[i])
+            changes.append((disp, sparse, read_lidar_mask(masks[i], disp.shape), pair))
     reg = load_registration(registration) if registration else None
     rpc = [getattr(p, "kind", None) == "rpc" for _, p, _ in sources]
     if any(rpc):  # RPC pairs: points converted to --crs (default: the scene's UTM zone), heights ellipsoidal
@@ -181,11 +206,18 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
             rgbs = [b[1] for b in blocks]
             rgb = np.concatenate(rgbs) if blocks and all(r is not None for r in rgbs) else None
             write_points(points_out, xyz, rgb, crs, overwrite=overwrite)
+        if change_out:
+            change, change_stats = change_map(changes, result.grid)
+            write_geotiff(change_out, change, result.grid.transform, crs, float("nan"), co, overwrite,
+                          band_descriptions=["height change (m), match minus LiDAR"],
+                          tags={"riverbed_change": "median height change of the LiDAR points the check dropped in "
+                                                   "changed regions"})
         if hillshade_png:
             res = result.grid.resolution
             write_picture(hillshade_png, hillshade_picture(hillshade(result.dsm, res), result.dsm, res),
                           overwrite=overwrite)
     summary = {"output": str(output), **result.stats, "crs": crs_name(crs),
+               **({"change_map": {"output": str(change_out), **change_stats}} if change_out else {}),
                "seconds": round(time.perf_counter() - t0, 3)}
     if as_json:
         print_json(summary)
