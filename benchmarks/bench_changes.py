@@ -26,6 +26,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_faults import SHARES, scenes  # noqa: E402
 from datasets import rewrite_block  # noqa: E402
 
+from riverbed_cli.matching.fusion import lidar_sigma  # noqa: E402
+from riverbed_cli.matching.lidar_offset import shift_points  # noqa: E402
 from riverbed_cli.matching.pipeline import match_pair  # noqa: E402
 from riverbed_cli.products.densify import densify  # noqa: E402
 from riverbed_cli.products.evaluate import evaluate_disparity  # noqa: E402
@@ -38,6 +40,9 @@ REGIONS = (("A: 25 %, +20 %", 0.30, 0.30, 0.25, 0.20), ("B: 20 %, -20 %", 0.55, 
            ("C: 15 %, +10 %", 0.10, 0.60, 0.15, 0.10))
 #: gross outliers: a share of the points given a uniform random disparity over the LiDAR's span, at least 3 px off
 OUTLIERS = (("2 % outliers", 0.02), ("5 % outliers", 0.05))
+#: misregistration: every point moved by (dx, dy) px, and Gaussian noise of sigma px on every disparity
+SHIFTS = (("shift 2, 0 px", 2, 0), ("shift 0, 2 px", 0, 2), ("shift 3, 3 px", 3, 3))
+NOISE = (("noise 0.25 px", 0.25), ("noise 0.5 px", 0.5), ("noise 1 px", 1.0))
 BEGIN, END = "<!-- bench_changes: begin -->", "<!-- bench_changes: end -->"
 
 
@@ -120,6 +125,16 @@ def run(data):
                 else:
                     row["clean"] = _score(clean.disparity, gt, sparse)
                 rows.append(row)
+            for label, dx, dy in SHIFTS:
+                rows.append(_whole_fault(left, right, gt, sparse, shift_points(sparse, -dx, -dy), label, base,
+                                         unguided, clean))
+            rng = np.random.default_rng(2)
+            for label, sigma in NOISE:
+                noisy = (sparse + rng.normal(0, sigma, sparse.shape)).astype(np.float32)
+                row = _whole_fault(left, right, gt, sparse, noisy, label, base, unguided, clean)
+                sig, _ = lidar_sigma(noisy)  # the fusion's estimate of the LiDAR's error, at its points
+                row["sigma"], row["sigma_estimate"] = sigma, round(float(np.median(sig[have])), 3)
+                rows.append(row)
             print(f"{name} {share:.2%}: {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
     return rows
 
@@ -139,7 +154,9 @@ def summary(rows):
     """The lines that sum the rows up (every figure from them)."""
     clean = [r for r in rows if r["fault"] == "clean"]
     regions = [r for r in rows if "clean_outside" in r]
-    outl = [r for r in rows if "clean" in r and r["fault"] != "clean"]
+    outl = [r for r in rows if "clean" in r and r["fault"] != "clean" and r.get("kind") != "whole"]
+    shifted = [r for r in rows if r.get("kind") == "whole" and "sigma" not in r]
+    noisy = [r for r in rows if "sigma" in r]
     met = [r for r in regions if r["default"][0] <= region_target(r)]
     missed = [f"{r['scene']} {r['share'] * 100:.2f} % {r['fault'].split(':')[0]} ({r['default'][0]:.1f} % against "
               f"{region_target(r):.1f} %)" for r in regions if r not in met]
@@ -157,9 +174,29 @@ def summary(rows):
             f"{max(r['dropped'][0] for r in outl) * 100:.0f} % of them (and at most "
             f"{max(r['dropped'][1] for r in outl) * 100:.2f} % of the other points); the default's bad3 is below the "
             f"unchecked run's in {sum(r['default'][0] < r['off'][0] for r in outl)} of {len(outl)} cases.",
+            f"- **Misregistration** (not estimated yet): moved by up to 3 px, the LiDAR makes the default's bad3 "
+            f"{max(r['default'][0] / r['clean'][0] for r in shifted):.1f} x the clean run's at worst; the check drops "
+            f"at most {max(r['dropped'][0] for r in shifted) * 100:.2f} % of the points and changes the result by at "
+            f"most {max(abs(r['default'][0] - r['off'][0]) for r in shifted):.2f} points.",
+            "- **Noise**: the fusion's estimate of the LiDAR's error (median at its points) is "
+            + ", ".join(f"{min(r['sigma_estimate'] for r in noisy if r['sigma'] == sg):.2f}–"
+                        f"{max(r['sigma_estimate'] for r in noisy if r['sigma'] == sg):.2f} px for {sg:g} px"
+                        for sg in sorted({r['sigma'] for r in noisy})) + " of noise.",
             f"- **Cost**: the check takes {min(r['seconds_check'] / r['seconds'] for r in clean) * 100:.0f}–"
             f"{max(r['seconds_check'] / r['seconds'] for r in clean) * 100:.0f} % of the default match's `seconds` "
             "(the half-resolution reference over the whole range is most of it)."]
+
+
+def _whole_fault(left, right, gt, sparse, bad, label, base, unguided, clean):
+    # a fault of every point (misregistration, noise): the default, the check off, the LiDAR alone, scored over the
+    # whole image beside unguided matching and the clean LiDAR's default
+    res = match_pair(left, right, bad)
+    kept = match_pair(left, right, bad, lidar_check="off")
+    check = res.info["lidar_check"]
+    return {**base, "fault": label, "kind": "whole", "default": _score(res.disparity, gt, sparse),
+            "off": _score(kept.disparity, gt, sparse), "unguided": _score(unguided, gt, sparse),
+            "lidar_only": _score(densify(bad, "planes"), gt, sparse), "clean": _score(clean.disparity, gt, sparse),
+            "dropped": [round((check["outliers"] + check["changed"]) / check["points"], 5), 0.0]}
 
 
 def tables(rows):
@@ -187,10 +224,21 @@ def tables(rows):
             "| scene | LiDAR | outliers | dropped (faulty / others) | default | off | unguided | LiDAR only "
             "| oracle | clean |", "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
-        if "clean" in r and r["fault"] != "clean":
+        if "clean" in r and r["fault"] != "clean" and r.get("kind") != "whole":
             out.append(f"| {r['scene']} | {r['share'] * 100:.2f} % | {r['fault']} | {r['dropped'][0] * 100:.1f} % / "
                        f"{r['dropped'][1] * 100:.2f} % | {cell(r['default'])} | {cell(r['off'])} | "
                        f"{cell(r['unguided'])} | {cell(r['lidar_only'])} | {cell(r['oracle'])} | {cell(r['clean'])} |")
+    out += ["", "Every point off: misregistered (moved by dx, dy px) or noisy (Gaussian, sigma px), scored over the "
+            "whole image; `dropped`: the share of the points the check dropped; `sigma est.`: the fusion's estimate "
+            "of the LiDAR's error at its points (median, px; at least its 0.25 px floor):", "",
+            "| scene | LiDAR | fault | dropped | default | off | unguided | LiDAR only | clean | sigma est. |",
+            "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        if r.get("kind") == "whole":
+            est = f"{r['sigma_estimate']:.2f}" if "sigma_estimate" in r else ""
+            out.append(f"| {r['scene']} | {r['share'] * 100:.2f} % | {r['fault']} | {r['dropped'][0] * 100:.2f} % | "
+                       f"{cell(r['default'])} | {cell(r['off'])} | {cell(r['unguided'])} | {cell(r['lidar_only'])} | "
+                       f"{cell(r['clean'])} | {est} |")
     out += ["", "Clean LiDAR (no fault): the share of its points the check drops, the accuracy with the check and "
             "without, and the check's share of the default match's `seconds`:", "",
             "| scene | LiDAR | dropped | default | off | check's share of `seconds` |",

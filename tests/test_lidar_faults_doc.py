@@ -107,6 +107,7 @@ def test_the_doc_states_the_check_rule_the_code_has():
 def test_every_scene_share_and_fault_of_the_check_is_in_the_results():
     faults = {r["fault"] for r in CHANGES}
     want = {"clean"} | {f[0] for f in bench_changes.REGIONS} | {f[0] for f in bench_changes.OUTLIERS}
+    want |= {f[0] for f in bench_changes.SHIFTS} | {f[0] for f in bench_changes.NOISE}
     assert faults == want
     assert len(CHANGES) == 6 * len(bench_faults.SHARES) * len(want)
 
@@ -119,6 +120,11 @@ def test_the_checks_claims_hold_on_every_row(row):
         assert row["default"][0] <= row["off"][0] and row["default"][1] <= row["off"][1]
         assert row["dropped"][1] <= 0.03
         assert row["default_outside"][0] <= 2 * row["clean_outside"][0] + 0.2
+    elif row.get("kind") == "whole":  # every point off: the check drops few of them and costs little
+        assert row["dropped"][0] <= 0.02
+        assert row["default"][0] <= row["off"][0] + 0.1 and row["default"][1] <= row["off"][1] + 0.02
+        if "sigma" in row:  # the fusion's estimate of the LiDAR's error grows with its noise
+            assert row["sigma_estimate"] >= 0.5 * row["sigma"]
     else:  # gross outliers: about half of them or more dropped, the result better than with them
         assert row["dropped"][0] >= 0.45 and row["dropped"][1] <= 0.003
         assert row["default"][0] < row["off"][0] and row["default"][1] < row["off"][1]
