@@ -33,4 +33,28 @@ step "evaluate: disparity on the pixels without LiDAR, DSM against the ground-tr
   echo; echo "DSM, unguided (m):";        riverbed evaluate --dsm "$out/dsm_unguided.tif" "$b/gt_dsm.tif"
 } | tee "$out/accuracy.txt"
 
-step "done: $out/ holds sparse.tif, disparity.tif + .png, points.laz, dsm.tif, dsm_hillshade.png, accuracy.txt"
+step "an older LiDAR (lidar_earlier.laz): its offset, the points the images contradict, what changed since"
+riverbed project "$b/lidar_earlier.laz" "$b/pair.yaml" -o "$out/sparse_earlier.tif" --overwrite --json \
+    > "$out/project_earlier.json"
+riverbed match "$b/left.png" "$b/right.png" --sparse "$out/sparse_earlier.tif" -o "$out/disparity_earlier.tif" \
+    --lidar-mask "$out/lidar_mask.png" --overwrite --json > "$out/match_earlier.json"
+riverbed dsm "$out/disparity_earlier.tif" "$b/pair.yaml" -o "$out/dsm_earlier.tif" --fill-holes 3 \
+    --change-map "$out/change.tif" --sparse "$out/sparse_earlier.tif" --lidar-mask "$out/lidar_mask.png" \
+    --overwrite --json > "$out/dsm_earlier.json"
+python3 - "$b/scene.json" "$out" <<'PY' | tee "$out/earlier.txt"
+import json, sys
+truth = json.load(open(sys.argv[1]))["lidar_earlier"]
+out = sys.argv[2]
+offset = json.load(open(f"{out}/project_earlier.json"))["lidar_offset"]
+check = json.load(open(f"{out}/match_earlier.json"))["lidar_check"]
+change = json.load(open(f"{out}/dsm_earlier.json"))["change_map"]
+print(f"height offset: estimated {offset['vertical_m']:+.2f} m, true {truth['offset_m'][2]:+.2f} m")
+print(f"check: {check['outliers']} outliers and {check['changed']} points of {check['regions']} changed regions "
+      f"dropped (of {check['points']})")
+x0, y0, x1, y1 = truth["removed_building"]["bounds"]
+print(f"change map: {change['cells']} cells, median {change['median']:+.2f} m; the building built since: "
+      f"{truth['removed_building']['height_m']:.2f} m tall at E {x0:.1f}-{x1:.1f}, N {y0:.1f}-{y1:.1f}")
+PY
+
+step "done: $out/ holds sparse.tif, disparity.tif + .png, points.laz, dsm.tif, dsm_hillshade.png, accuracy.txt,
+and for the older LiDAR lidar_mask.png, change.tif, earlier.txt"

@@ -53,7 +53,8 @@ MEASURED = {
 }
 #: Files run.sh's last line promises in OUTDIR (and the unguided ones beside them).
 OUTPUTS = ("sparse.tif", "disparity.tif", "disparity.png", "points.laz", "dsm.tif", "dsm_hillshade.png",
-           "accuracy.txt", "disparity_unguided.tif", "dsm_unguided.tif", "disparity_errors.png", "dsm_errors.png")
+           "accuracy.txt", "disparity_unguided.tif", "dsm_unguided.tif", "disparity_errors.png", "dsm_errors.png",
+           "lidar_mask.png", "change.tif", "earlier.txt")
 
 
 def parse_accuracy(text):
@@ -99,7 +100,8 @@ def test_readme_job_writes_its_outputs(job):
     out, stdout = job
     assert sorted(p.name for p in out.iterdir() if p.name in OUTPUTS) == sorted(OUTPUTS)
     assert stdout.rstrip().endswith(f"== done: {out}/ holds sparse.tif, disparity.tif + .png, points.laz, dsm.tif, "
-                                    "dsm_hillshade.png, accuracy.txt")
+                                    "dsm_hillshade.png, accuracy.txt,\nand for the older LiDAR lidar_mask.png, "
+                                    "change.tif, earlier.txt")
     # accuracy.txt is the tee of the printed tables.
     assert parse_accuracy((out / "accuracy.txt").read_text()) == parse_accuracy(stdout)
 
@@ -120,3 +122,28 @@ def test_readme_job_guided_beats_unguided(job):
             margin = MEASURED[b][metric] - expected
             assert got[b][metric] - got[a][metric] == pytest.approx(margin, rel=RELATIVE), (metric, margin)
             assert (got[a][metric] > got[b][metric]) if metric == "completeness" else (got[a][metric] < got[b][metric])
+
+
+def test_readme_job_finds_the_older_lidars_offset_and_the_building_built_since(job):
+    # sample_data/block/lidar_earlier.laz: the scan before a 7.42 m building was built, 2 m high and 0.15, -0.10 m
+    # off (scene.json); measured: offset +2.03 m, one changed region of 134 points, change map median +6.19 m
+    import json
+
+    import numpy as np
+    import rasterio
+
+    out, stdout = job
+    truth = json.loads((REPO / "sample_data" / "block" / "scene.json").read_text())["lidar_earlier"]
+    lines = (out / "earlier.txt").read_text().splitlines()
+    assert lines[0] == "height offset: estimated +2.03 m, true +2.00 m" and lines[0] in stdout
+    check = json.loads((out / "match_earlier.json").read_text())["lidar_check"]
+    assert check["regions"] == 1 and 120 <= check["changed"] <= 150 and check["outliers"] <= 5
+    with rasterio.open(out / "change.tif") as ds:
+        change = ds.read(1)
+        rows, cols = np.nonzero(np.isfinite(change))
+        xs, ys = rasterio.transform.xy(ds.transform, rows, cols)
+    x0, y0, x1, y1 = truth["removed_building"]["bounds"]
+    inside = (np.asarray(xs) >= x0 - 1) & (np.asarray(xs) <= x1 + 1) & (np.asarray(ys) >= y0 - 1) & \
+        (np.asarray(ys) <= y1 + 1)
+    assert len(rows) >= 120 and inside.mean() >= 0.95  # the change map finds the building, and nothing else
+    assert 5.5 <= float(np.median(change[rows, cols])) <= 7.0  # its height (7.42 m) less the edges' points

@@ -10,6 +10,7 @@ import numpy as np
 from ..errors import RiverbedError
 from ..geometry.cameras import PairGeometry
 from .cameras import FrameCamera, exposures, rectified_pair
+from .epoch import earlier_lidar
 from .layout import build_scene
 from .render import GAIN, expose, render_view
 from .scan import simulate_scan
@@ -45,6 +46,8 @@ class Block:
     dsm: np.ndarray
     dsm_grid: object
     seconds: dict = field(default_factory=dict)
+    lidar_earlier: dict = None  # the LiDAR of an earlier epoch (sample/epoch.py)
+    earlier: dict = None  # what differs in it: the building it lacks, its offset
 
     def pair(self, folder=None):
         """The pair as a :class:`~riverbed_cli.geometry.cameras.PairGeometry` (images in ``folder`` if given)."""
@@ -90,10 +93,12 @@ def make_block(size="small", seed=0, progress=None):
     done("ground_truth")
     t0 = time.perf_counter()
     lidar = simulate_scan(scene, spec, seed)
+    # the earlier epoch: a building in the middle of the pair not yet built
+    lidar_earlier, earlier = earlier_lidar(scene, spec, seed, W * spec.gsd / 4, H * spec.gsd / 4)
     seconds["lidar"] = time.perf_counter() - t0
     done("lidar")
     return Block(spec, seed, scene, frames, left_cam, right_cam, P_left, P_right, doffs, left, right, hits, mats,
-                 disp, occluded, lidar, dsm, grid, seconds)
+                 disp, occluded, lidar, dsm, grid, seconds, lidar_earlier, earlier)
 
 
 def _footprint_min(scene, half_u, half_v):

@@ -16,8 +16,8 @@ NODATA = -9999.0
 #: Stages of :func:`make_block` and :func:`generate_block`, in order (for progress reporting).
 STAGES = ("scene", "render", "ground_truth", "lidar", "write")
 #: Files of a block, in the order they are written.
-FILES = ("left.png", "right.png", "pair.yaml", "lidar.laz", "gt_disparity.tif", "gt_dsm.tif", "scene.json",
-         "MANIFEST.md", "raw")
+FILES = ("left.png", "right.png", "pair.yaml", "lidar.laz", "lidar_earlier.laz", "gt_disparity.tif", "gt_dsm.tif",
+         "scene.json", "MANIFEST.md", "raw")
 #: Raw (unrectified) frames of the pair written to ``raw/`` (``frameK.png`` and its orientation
 #: ``frameK.yaml``).
 RAW_FRAMES = (0, 1)

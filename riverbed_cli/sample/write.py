@@ -65,6 +65,10 @@ def scene_description(block):
                  "occluded_share": round(float(block.occluded.mean()), 5)},
         "lidar": {**lid["info"], "points": len(lid["xyz"]),
                   "classes": {str(int(c)): int(n) for c, n in zip(classes, counts)}},
+        "lidar_earlier": {**block.earlier, "points": len(block.lidar_earlier["xyz"]),
+                          "definition": "the scan of an earlier epoch: removed_building not yet built (bounds: "
+                                        "xmin, ymin, xmax, ymax, m), every point moved by offset_m (east, north, "
+                                        "up) from the images' world"},
         "dsm": {"resolution_m": g.resolution, "bounds": [float(v) for v in g.bounds], "width": g.width,
                 "height": g.height, "nodata": NODATA,
                 "definition": "surface height at cell centres; nodata outside the left image's footprint"},
@@ -74,6 +78,15 @@ def scene_description(block):
                   "height_range_m": [round(scene.zlo + origin[2], 3), round(scene.zhi + origin[2], 3)],
                   **scene.layout},
     }
+
+
+def _bounds(block):
+    x0, y0, x1, y1 = block.earlier["removed_building"]["bounds"]
+    return f"E {x0:.1f}-{x1:.1f}, N {y0:.1f}-{y1:.1f}"
+
+
+def _offset(block):
+    return ", ".join(f"{v:+g}" for v in block.earlier["offset_m"]) + " m"
 
 
 def _manifest(block, command):
@@ -100,6 +113,7 @@ regenerates these files, which `tests/test_sample.py` checks. Synthetic data mad
 | `left.png`, `right.png` | rectified stereo pair, {W}x{H} RGB 8-bit, rendered by ray casting |
 | `pair.yaml` | pair file: `P_left`, `P_right` (world minus `origin` -> pixels), `origin`, `crs` |
 | `lidar.laz` | airborne LiDAR, {len(lid["xyz"])} points, LAS 1.4 point format 7 (RGB, GPS time), WKT CRS, 1 mm |
+| `lidar_earlier.laz` | the LiDAR of an earlier epoch, {len(block.lidar_earlier["xyz"])} points: before the building at {_bounds(block)} ({block.earlier["removed_building"]["height_m"]:g} m tall) was built, and off the images by {_offset(block)} (east, north, up; `scene.json` `lidar_earlier`) |
 | `gt_disparity.tif` | ground-truth disparity of the left image, float32, `d = x_left - x_right`, NaN unknown |
 | `gt_dsm.tif` | ground-truth DSM, float32 cloud-optimised GeoTIFF, nodata {NODATA:g} off the left footprint |
 | `scene.json` | sun, flight line with the raw frame cameras, rectified cameras, LiDAR scanner, DSM grid, layout |
@@ -158,6 +172,7 @@ def write_block(block, outdir, overwrite=False, command=None):
         write_pairfile(tmp / "pair.yaml", block.pair(tmp),
                        comment=f"Rectified pair of the synthetic aerial block ({command}).")
         write_laz(tmp / "lidar.laz", block.lidar, block.scene.origin)
+        write_laz(tmp / "lidar_earlier.laz", block.lidar_earlier, block.scene.origin)
         write_disparity(tmp / "gt_disparity.tif", block.gt_disparity,
                         tags={"riverbed_ground_truth": "disparity d = x_left - x_right (px), NaN unknown",
                               "riverbed_sample": f"{block.spec.name} seed {block.seed}"})
