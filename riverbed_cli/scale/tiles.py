@@ -326,13 +326,12 @@ def plan_tiles(height, width, sparse, d_min, d_max, tile=TILE_DEFAULT, overlap=O
 
 def check_whole(left, right, sparse, d_min, d_max, params):
     """The LiDAR check (:mod:`~riverbed_cli.matching.lidar_check`) once for a whole pair matched in tiles (a tile's
-    own check could drop other points than its neighbour's), its reference matched in tiles too: ``(sparse, report,
-    changed)``, the checked sparse map (an array), the :class:`~riverbed_cli.matching.lidar_check.CheckReport` and
-    the changed area ((H, W) bool, None when nothing changed). ``left``, ``right`` and ``sparse`` may be windowed
-    rasters (read whole here)."""
+    own check could drop other points than its neighbour's), its reference matched in tiles too: ``(sparse,
+    check)``, the checked sparse map (an array) and the :class:`~riverbed_cli.matching.lidar_check.LidarCheck`
+    (its ``report``, the changed area ``changed``, the ``dropped`` points). ``left``, ``right`` and ``sparse`` may
+    be windowed rasters (read whole here)."""
     arrays = [np.asarray(a[:, :]) for a in (left, right)]
-    checked, check = check_pair(*arrays, np.asarray(sparse[:, :], np.float32), d_min, d_max, params, match_tiled)
-    return checked, check.report, check.changed
+    return check_pair(*arrays, np.asarray(sparse[:, :], np.float32), d_min, d_max, params, match_tiled)
 
 
 def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None, global_range=None, range_map=None,
@@ -481,7 +480,8 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, t
         check, changed = None, None
         if sparse is not None and p.lidar_check == "auto":  # once for every tile, as the offset
             t0 = time.perf_counter()
-            sparse, check, changed = check_whole(left, right, sparse, d_min, d_max, p)
+            sparse, lidar_check = check_whole(left, right, sparse, d_min, d_max, p)
+            check, changed = lidar_check.report, lidar_check.changed
             p = p.replace(lidar_check="off")
             pr, pc, pv = sparse_points_any(sparse)
             check_seconds = round(time.perf_counter() - t0, 4)

@@ -2,8 +2,10 @@
 
 import statistics
 import time
+from pathlib import Path
 
 import numpy as np
+import rasterio
 from pyproj import CRS
 
 from ...errors import RiverbedError
@@ -12,13 +14,16 @@ from ...io.raster import write_geotiff
 from ...products.dsm import Accumulator, Grid, close_lattice
 
 
-def merge_dsm(laz_paths, output, resolution, agg="max", crs=None, chunk_size=1_000_000, heights=None):
+def merge_dsm(laz_paths, output, resolution, agg="max", crs=None, chunk_size=1_000_000, heights=None,
+              changes=()):
     """Rasterise the points of several LAS/LAZ files onto one grid (snapped to multiples of ``resolution``).
 
     Chunks stream into one :class:`~riverbed_cli.products.dsm.Accumulator`, so the result is the aggregation over
     the union of the points, exact for every aggregation, its sampling lattice closed (:func:`~riverbed_cli.
     products.dsm_holes.close_lattice`). Writes a COG GeoTIFF (NaN nodata) and returns stats;
     ``heights`` (e.g. ``"ellipsoidal (WGS 84, m)"`` for RPC pairs) goes into its tag ``riverbed_heights``.
+    ``changes``: the pairs' change maps (``change.tif``, :mod:`~riverbed_cli.products.change_map`), merged onto the
+    same grid (the median of their cells' changes) into ``change.tif`` beside ``output``.
     """
     t0 = time.perf_counter()
     infos = [lidar_info(p) for p in laz_paths]
@@ -39,9 +44,27 @@ def merge_dsm(laz_paths, output, resolution, agg="max", crs=None, chunk_size=1_0
     write_geotiff(output, dsm, grid.transform, crs, float("nan"), None, overwrite=True, band_descriptions=["height"],
                   tags={"riverbed_aggregation": agg, "riverbed_pairs": len(laz_paths),
                         **({"riverbed_heights": heights} if heights else {})})
-    return {"points": n, "resolution": grid.resolution, "width": grid.width, "height": grid.height,
-            "bounds": list(grid.bounds), "cells_with_data": float(100.0 * np.isfinite(dsm).mean()),
-            "seconds": round(time.perf_counter() - t0, 4)}
+    out = {"points": n, "resolution": grid.resolution, "width": grid.width, "height": grid.height,
+           "bounds": list(grid.bounds), "cells_with_data": float(100.0 * np.isfinite(dsm).mean())}
+    if changes:
+        out["change_map"] = merge_change(changes, Path(output).parent / "change.tif", grid, crs)
+    return {**out, "seconds": round(time.perf_counter() - t0, 4)}
+
+
+def merge_change(paths, output, grid, crs):
+    """The pairs' change maps (GeoTIFFs) merged onto ``grid``: each cell the median of the changes of the pairs'
+    cells whose centre falls in it; written to ``output``; returns ``{"pairs", "cells"}``."""
+    acc = Accumulator(grid, "median")
+    for path in paths:
+        with rasterio.open(path) as ds:
+            band = ds.read(1)
+            rows, cols = np.nonzero(np.isfinite(band))
+            x, y = rasterio.transform.xy(ds.transform, rows, cols)
+        acc.add(np.asarray(x, np.float64), np.asarray(y, np.float64), band[rows, cols].astype(np.float64))
+    change = acc.result()
+    write_geotiff(output, change, grid.transform, crs, float("nan"), None, overwrite=True,
+                  band_descriptions=["height change (m), match minus LiDAR"], tags={"riverbed_pairs": len(paths)})
+    return {"pairs": len(paths), "cells": int(np.isfinite(change).sum())}
 
 
 def merge_settings(plan, records):

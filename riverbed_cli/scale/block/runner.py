@@ -66,9 +66,9 @@ def task_finish(job, proj, tiles, threads):
     return result
 
 
-def task_merge(laz_paths, output, resolution, agg, crs, heights=None):
-    clean_temps(Path(output).parent, (Path(output).name,))  # a merge killed mid-write and retried
-    return _guard("merge", merge_dsm, laz_paths, output, resolution, agg, crs, 1_000_000, heights)
+def task_merge(laz_paths, output, resolution, agg, crs, heights=None, changes=()):
+    clean_temps(Path(output).parent, (Path(output).name, "change.tif"))  # a merge killed mid-write and retried
+    return _guard("merge", merge_dsm, laz_paths, output, resolution, agg, crs, 1_000_000, heights, changes)
 
 
 def _describe(exc):
@@ -355,15 +355,17 @@ def _merge(plan, entries, client, retries):
         return {"status": "skipped", "output": str(output), **last.get("stats", {}),
                 "seconds": round(time.perf_counter() - t0, 3)}
     paths = [str(Path(j.folder) / "points.laz") for j in good]
+    changes = [str(Path(j.folder) / "change.tif") for j in good if (Path(j.folder) / "change.tif").is_file()]
+    (plan.outdir / "change.tif").unlink(missing_ok=True)  # a previous merge's: this one writes its own, if any
     if client is not None:
-        fut = client.submit(task_merge, paths, str(output), resolution, agg, crs, heights,
+        fut = client.submit(task_merge, paths, str(output), resolution, agg, crs, heights, changes,
                             key=f"merge-{uuid.uuid4().hex[:8]}", retries=retries, pure=False)
         try:
             stats = fut.result()
         except Exception as e:  # noqa: BLE001 - reported like a failed pair
             stats = PairFailure("merge", _describe(e))
     else:
-        stats = _guard("merge", merge_dsm, paths, output, resolution, agg, crs, 1_000_000, heights)
+        stats = _guard("merge", merge_dsm, paths, output, resolution, agg, crs, 1_000_000, heights, changes)
     if isinstance(stats, PairFailure):
         return {"status": "failed", "error": stats.message, "output": None}
     record["merged"] = {"key": key, "size": output.stat().st_size, "sha256": sha256_file(output), "stats": stats}

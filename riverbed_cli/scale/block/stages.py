@@ -27,6 +27,7 @@ from ...matching.pipeline import check_disparity_values, match_pair, resolve_dis
 from ...matching.registry import get_guide
 from ...matching.tubes import ranges_from_disparity, spacing_window
 from ...products.dsm import Accumulator, Grid, close_lattice, default_resolution, disparity_points
+from ...products.change_map import CHANGED_POINT, change_map
 from ..tiles import Tile, check_whole, match_tile, plan_tiles, scan_range_map, tube_widths
 from .plan import DONE, OUTPUTS, WORK, clean_temps, rectify_rpc, riverbed_version, sha256_file, write_json
 from .settings import match_params
@@ -168,7 +169,13 @@ def project_stage(job):
     # and the LiDAR check, once for the pair too: sparse.tif holds the points kept, .work/changed.npy the changed area
     check = changed = None
     if p.lidar_check == "auto":
-        sparse, check, changed = check_whole(*srcs, sparse, d_min, d_max, p)
+        given = sparse
+        sparse, lidar_check = check_whole(*srcs, sparse, d_min, d_max, p)
+        check, changed = lidar_check.report, lidar_check.changed
+        if lidar_check.dropped is not None and (lidar_check.dropped == 2).any():  # for the pair's change map
+            rr, cc = np.nonzero(lidar_check.dropped == 2)
+            (folder / WORK).mkdir(exist_ok=True)
+            np.save(folder / WORK / "changed_points.npy", np.stack([rr, cc, given[rr, cc]], axis=1).astype(np.float64))
     tags = {"riverbed_pair": job.pair, "riverbed_clouds": json.dumps(used), "riverbed_block_pair": job.name,
             "riverbed_lidar_offset": json.dumps(offset.to_dict())}
     write_disparity(folder / "sparse.tif", sparse, overwrite=True, tags=tags)
@@ -363,6 +370,7 @@ def finish_stage(job, proj, tiles):
     s = job.settings
     folder = Path(job.folder)
     clean_temps(folder, (*OUTPUTS, DONE))
+    (folder / "change.tif").unlink(missing_ok=True)  # a previous run's: this one writes its own, if any
     H, W = proj["shape"]
     tiled = bool(proj["tiles"])
     if tiled:
@@ -399,6 +407,10 @@ def finish_stage(job, proj, tiles):
                   band_descriptions=["height"],
                   tags={"riverbed_aggregation": s["agg"], "riverbed_block_pair": job.name,
                         **({"riverbed_heights": RPC_HEIGHTS} if rpc else {})})
+    change_stats = None
+    if (work / "changed_points.npy").exists():  # where the surface left the LiDAR's: the pair's change map
+        change_stats = _pair_change_map(disp, np.load(work / "changed_points.npy"), pair, grid, crs,
+                                        folder / "change.tif")
     t_match = sum(t["seconds"] for t in tiles)
     seconds = {"project": proj["seconds"], "match": round(t_match, 4), "dsm": round(time.perf_counter() - t0, 4)}
     if proj.get("rectify_seconds") is not None:  # included in "project"
@@ -406,7 +418,7 @@ def finish_stage(job, proj, tiles):
     summary = {"points": len(xyz), "resolution": grid.resolution, "crs": crs,
                **({"heights": RPC_HEIGHTS, "roi": list(pair.roi)} if rpc else {}),
                "bounds": list(grid.bounds), **proj["stats"], **info, "d_min": proj["d_min"],
-               "d_max": proj["d_max"], "seconds": seconds}
+               "d_max": proj["d_max"], **({"change_map": change_stats} if change_stats else {}), "seconds": seconds}
     outputs = {name: {"size": (folder / name).stat().st_size, "sha256": sha256_file(folder / name)}
                for name in OUTPUTS}
     record = {"name": job.name, "pair": job.pair, "clouds": job.clouds, "settings_hash": job.settings_hash,
@@ -415,6 +427,20 @@ def finish_stage(job, proj, tiles):
     write_json(folder / DONE, record)
     shutil.rmtree(work, ignore_errors=True)
     return summary
+
+
+def _pair_change_map(disp, points, pair, grid, crs, path):
+    # the pair's change map (products/change_map.py) on its DSM grid, from the points its LiDAR check dropped in
+    # changed regions (rows, cols, disparities of the corrected LiDAR)
+    rr, cc = points[:, 0].astype(np.intp), points[:, 1].astype(np.intp)
+    then = np.full(disp.shape, np.nan, np.float32)
+    then[rr, cc] = points[:, 2]
+    mask = np.zeros(disp.shape, np.uint8)
+    mask[rr, cc] = CHANGED_POINT
+    change, stats = change_map([(disp, then, mask, pair)], grid)
+    write_geotiff(path, change, grid.transform, crs, float("nan"), None, overwrite=True,
+                  band_descriptions=["height change (m), match minus LiDAR"])
+    return {k: v for k, v in stats.items() if k != "lidar_offset_px"}
 
 
 def run_pair(job, progress=None):
