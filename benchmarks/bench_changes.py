@@ -13,9 +13,6 @@ the GT pixels not sampled: for a changed region inside it and outside it, for ou
 it (``tests/test_lidar_faults_doc.py`` checks that the committed doc is that rewrite, and the claims it states).
 """
 
-import argparse
-import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -24,7 +21,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_faults import SHARES, scenes  # noqa: E402
-from datasets import rewrite_block  # noqa: E402
+from datasets import rows_main  # noqa: E402
 
 from riverbed_cli.matching.fusion import lidar_sigma  # noqa: E402
 from riverbed_cli.matching.lidar_offset import shift_points  # noqa: E402
@@ -251,18 +248,7 @@ def tables(rows):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("data", nargs="?", default=os.environ.get("RIVERBED_DATA", "../shared/data"))
-    ap.add_argument("--write", help="store the rows in this JSON file")
-    ap.add_argument("--docs", help="rewrite the tables of this Markdown file from the rows")
-    ap.add_argument("--rows", help="take the rows from this JSON file instead of running")
-    a = ap.parse_args()
-    rows = json.loads(Path(a.rows).read_text()) if a.rows else run(a.data)
-    if a.write:
-        Path(a.write).write_text(json.dumps(rows, indent=1) + "\n")
-    if a.docs:
-        rewrite_block(a.docs, BEGIN, END, tables(rows))
-    print(tables(rows))
+    rows_main(__doc__, run, tables, BEGIN, END)
 
 
 if __name__ == "__main__":

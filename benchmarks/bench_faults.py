@@ -16,9 +16,6 @@ clean LiDAR (``clean est``) is what unguided stereo sees too. ``est - clean`` is
 it (``tests/test_lidar_faults_doc.py`` checks that the committed doc is that rewrite, and the claims it states).
 """
 
-import argparse
-import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -26,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from datasets import DEV_SCENES, KITTI2015, kitti2015, middlebury, rewrite_block  # noqa: E402
+from datasets import DEV_SCENES, KITTI2015, kitti2015, middlebury, rows_main  # noqa: E402
 
 from riverbed_cli.matching.pipeline import match_pair  # noqa: E402
 from riverbed_cli.products.densify import densify  # noqa: E402
@@ -127,23 +124,8 @@ def tables(rows):
     return "\n".join(out)
 
 
-def write_docs(rows, path):
-    rewrite_block(path, BEGIN, END, tables(rows))
-
-
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("data", nargs="?", default=os.environ.get("RIVERBED_DATA", "../shared/data"))
-    ap.add_argument("--write", help="store the rows in this JSON file")
-    ap.add_argument("--docs", help="rewrite the tables of this Markdown file from the rows")
-    ap.add_argument("--rows", help="take the rows from this JSON file instead of running")
-    a = ap.parse_args()
-    rows = json.loads(Path(a.rows).read_text()) if a.rows else run(a.data)
-    if a.write:
-        Path(a.write).write_text(json.dumps(rows, indent=1) + "\n")
-    if a.docs:
-        write_docs(rows, a.docs)
-    print(tables(rows))
+    rows_main(__doc__, run, tables, BEGIN, END)
 
 
 if __name__ == "__main__":

@@ -22,10 +22,8 @@ outside the overlap that were triangulated anyway.
 default row again).
 """
 
-import argparse
 import json
 import math
-import os
 import subprocess
 import sys
 import tempfile
@@ -36,7 +34,7 @@ import numpy as np
 import rasterio
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from datasets import rewrite_block  # noqa: E402
+from datasets import rows_main  # noqa: E402
 
 from riverbed_cli.io.disparity import read_disparity  # noqa: E402
 from riverbed_cli.matching.overlap import matchable_mask  # noqa: E402
@@ -143,27 +141,13 @@ def table(rows):
     return "\n".join(out)
 
 
-def write_docs(rows, path):
-    rewrite_block(path, BEGIN, END, table(rows))
+def _run_in_temp(data):
+    with tempfile.TemporaryDirectory() as work:
+        return run(data, work)
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("data", nargs="?", default=os.environ.get("RIVERBED_DATA", "../shared/data"))
-    ap.add_argument("--write", help="store the rows in this JSON file")
-    ap.add_argument("--docs", help="rewrite the table of this Markdown file from the rows")
-    ap.add_argument("--rows", help="take the rows from this JSON file instead of running")
-    a = ap.parse_args()
-    if a.rows:
-        rows = json.loads(Path(a.rows).read_text())
-    else:
-        with tempfile.TemporaryDirectory() as work:
-            rows = run(a.data, work)
-    if a.write:
-        Path(a.write).write_text(json.dumps(rows, indent=1) + "\n")
-    if a.docs:
-        write_docs(rows, a.docs)
-    print(table(rows))
+    rows_main(__doc__, _run_in_temp, table, BEGIN, END)
 
 
 if __name__ == "__main__":

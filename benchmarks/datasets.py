@@ -93,3 +93,25 @@ def rewrite_block(path, begin, end, body):
     head, rest = text.split(begin)
     _, tail = rest.split(end)
     Path(path).write_text(f"{head}{begin}\n{body}\n{end}{tail}")
+
+
+def rows_main(doc, run, tables, begin, end):
+    """The command line of a benchmark whose rows make a doc page's tables: ``[DATA] [--write JSON] [--docs MD]
+    [--rows JSON]``; ``run(data)`` measures the rows, ``tables(rows)`` makes the Markdown put between the markers
+    ``begin`` and ``end`` of ``--docs``; prints the tables."""
+    import argparse
+    import json
+    import os
+
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    ap.add_argument("data", nargs="?", default=os.environ.get("RIVERBED_DATA", "../shared/data"))
+    ap.add_argument("--write", help="store the rows in this JSON file")
+    ap.add_argument("--docs", help="rewrite the tables of this Markdown file from the rows")
+    ap.add_argument("--rows", help="take the rows from this JSON file instead of running")
+    a = ap.parse_args()
+    rows = json.loads(Path(a.rows).read_text()) if a.rows else run(a.data)
+    if a.write:
+        Path(a.write).write_text(json.dumps(rows, indent=1) + "\n")
+    if a.docs:
+        rewrite_block(a.docs, begin, end, tables(rows))
+    print(tables(rows))
