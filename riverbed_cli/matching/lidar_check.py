@@ -95,8 +95,9 @@ UNKNOWN_HOPS = 2
 
 @dataclass
 class CheckReport(RecordMapping):
-    """What the check did: ``mode``; ``skipped`` (why it did not run, or None); ``points`` (LiDAR points checked), ``compared`` (those with an alternative from
-    the images), ``disagree`` (of those, the ones the images contradict), ``outliers`` (single points dropped),
+    """What the check did: ``mode``; ``skipped`` (why it did not run, or None); ``points`` (LiDAR points checked),
+    ``compared`` (those with an alternative from the images), ``disagree`` (of those, the ones the images
+    contradict), ``outliers`` (single points dropped),
     ``changed`` (points dropped in changed regions), ``regions`` (changed areas), ``changed_share`` (share of the
     image's pixels in them), ``change`` (median ``LiDAR - images`` of the changed points with a reference, px)."""
 
@@ -384,33 +385,32 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
         if abs(change) > TAU and informative.any() and np.mean((own - best)[informative]) >= REGION_MARGIN:
             sign = 1 if change > 0 else -1
             seeds[(label == k) & (raw == sign)] = sign
-    # from its seeds a change spreads over the LiDAR's Delaunay graph: through the points the images contradict the
-    # same way, and up to UNKNOWN_HOPS points in a row they cannot judge; it stops at points the images confirm
+    # from its seeds a change spreads to the points within NEAR spacings: through the points the images contradict
+    # the same way, and up to UNKNOWN_HOPS points in a row they cannot judge; it stops at points the images confirm
     in_region = seeds != 0
     if seeds.any():
-        index = np.full(shape, -1, np.int64)
-        index[rows, cols] = np.arange(n)
+        index = np.full(shape, -1, np.int32)
+        index[rows, cols] = np.arange(n, dtype=np.int32)
         in_region = _flood(index, rows.astype(np.int64), cols.astype(np.int64), near, state, seeds, UNKNOWN_HOPS)
+    changed, n_regions = None, 0
     if in_region.any():  # a change the images mostly saw: most of its points contradicted, not passed through
-        area = _changed_area(rows[in_region], cols[in_region], shape, spacing)
-        n_area, labels = cv2.connectedComponents(area.astype(np.uint8), connectivity=8)
+        changed = _changed_area(rows[in_region], cols[in_region], shape, spacing)
+        n_area, labels = cv2.connectedComponents(changed.astype(np.uint8), connectivity=8)
         label = labels[rows, cols]
         seen = np.bincount(label[in_region & (state == raw) & (raw != 0)], minlength=n_area)
-        size = np.bincount(label[in_region], minlength=n_area)
-        weak = seen < SEEN_SHARE * size
+        weak = seen < SEEN_SHARE * np.bincount(label[in_region], minlength=n_area)
         in_region &= ~weak[label]
-    unsupported = ~supported
-    outlier = (raw != 0) & unsupported & ~in_region
+        if weak[1:].any():  # the area of the changes kept, drawn again without the weak ones
+            changed = _changed_area(rows[in_region], cols[in_region], shape, spacing) if in_region.any() else None
+        if changed is not None:
+            n_regions = cv2.connectedComponents(changed.astype(np.uint8), connectivity=8)[0] - 1
+    outlier = (raw != 0) & ~supported & ~in_region
 
     dropped = np.zeros(shape, np.uint8)
     dropped[rows[outlier], cols[outlier]] = 1
     dropped[rows[in_region], cols[in_region]] = 2
     kept = sparse.copy()
     kept[dropped > 0] = np.nan
-    changed, n_regions = None, 0
-    if in_region.any():
-        changed = _changed_area(rows[in_region], cols[in_region], shape, spacing)
-        n_regions = cv2.connectedComponents(changed.astype(np.uint8), connectivity=8)[0] - 1
     diff = values[in_region & from_ref] - alt[in_region & from_ref]
     report = CheckReport("auto", None, int(n), int(from_ref.sum()), int((verdict != 0).sum()),
                          int(outlier.sum()), int(in_region.sum()), int(n_regions),

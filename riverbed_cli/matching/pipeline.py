@@ -520,6 +520,13 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
     return MatchResult(fused.disparity, info, fused.confidence, check)
 
 
+def _nominal_where(mask, lo, hi, d_min, d_max):
+    # the tubes (lo, hi) with the pixels of mask (None: none) searching the nominal range
+    if mask is None:
+        return lo, hi
+    return np.where(mask, np.int32(d_min), lo), np.where(mask, np.int32(d_max), hi)
+
+
 def _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, matcher, share, range_map, stages,
                   return_status, points=None, share_all=0.0, changed=None):
     # match_pair's range (tubes), guide preparation and matcher: the matcher's output, the range mode, tube stats,
@@ -534,9 +541,7 @@ def _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, match
         # The spacing counts every point (share_all), as match_tiled's tubes do.
         if range_map is not None:
             lo, hi = check_range_map(range_map, shape, d_min, d_max)
-            if changed is not None:  # a changed area searches the nominal range
-                lo, hi = np.where(changed, np.int32(d_min), lo), np.where(changed, np.int32(d_max), hi)
-            layout = TubeLayout.from_bounds(lo, hi, d_min)
+            layout = TubeLayout.from_bounds(*_nominal_where(changed, lo, hi, d_min, d_max), d_min)
         elif config.tube.holes == "coarse" or changed is not None:  # a changed area searches as a hole
             lo, hi, hole = lidar_tubes(lidar, d_min, d_max, share=share_all, return_holes=True, **asdict(config.tube))
             if changed is not None:
@@ -544,7 +549,7 @@ def _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, match
             if config.tube.holes == "coarse":
                 lo, hi = fill_tube_holes(left, right, lo, hi, hole, d_min, d_max, config)
             else:
-                lo, hi = np.where(hole, np.int32(d_min), lo), np.where(hole, np.int32(d_max), hi)
+                lo, hi = _nominal_where(hole, lo, hi, d_min, d_max)
             layout = TubeLayout.from_bounds(lo, hi, d_min)
         else:  # the layout straight from the rule's cells
             layout = lidar_tube_layout(lidar, d_min, d_max, share=share_all, **asdict(config.tube))

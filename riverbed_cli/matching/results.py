@@ -80,7 +80,8 @@ class TiledMatchInfo(RecordMapping):
 class MatchResult:
     """A dense disparity map (``(H, W)`` float32, NaN invalid, ``d = x_left - x_right``), its info, and with a
     fusion the per-pixel ``confidence`` ((H, W) float32 in [0, 1]: the estimated probability of an error below 1 px;
-    :mod:`~riverbed_cli.matching.fusion`)."""
+    :mod:`~riverbed_cli.matching.fusion`) and with the LiDAR check its ``lidar_check``
+    (:class:`~riverbed_cli.matching.lidar_check.LidarCheck`: what it dropped, the changed area)."""
 
     disparity: np.ndarray
     info: RecordMapping

@@ -122,7 +122,9 @@ def project_stage(job):
         (folder / DONE).unlink()  # from now on the folder is not a finished pair
     clean_temps(folder, ("sparse.tif",))
     clean_temps(folder / WORK, ("left.npy", "right.npy", "left_valid.npy", "right_valid.npy", "range_lo.npy",
-                                "range_hi.npy"))
+                                "range_hi.npy", "changed.npy"))
+    for name in ("changed.npy", "changed_points.npy"):  # an earlier run's check: this one writes its own, if any
+        (folder / WORK / name).unlink(missing_ok=True)
     t_rectify = None
     if job.rpc is not None:  # an rpc: entry: its ROI rectified (unless done for the same inputs)
         try:
@@ -167,21 +169,18 @@ def project_stage(job):
     sparse, offset = correct_large(*srcs, sparse, (pr, pc, sparse[pr, pc]), p.lidar_offset, image_bits(*srcs))
     d_min, d_max = resolve_disparity_range(s["min_disp"], s["max_disp"], sparse[np.isfinite(sparse)], width=W)
     # and the LiDAR check, once for the pair too: sparse.tif holds the points kept, .work/changed.npy the changed area
-    check = changed = None
+    check = None
     if p.lidar_check == "auto":
         given = sparse
-        sparse, lidar_check = check_whole(*srcs, sparse, d_min, d_max, p)
-        check, changed = lidar_check.report, lidar_check.changed
-        if lidar_check.dropped is not None and (lidar_check.dropped == 2).any():  # for the pair's change map
-            rr, cc = np.nonzero(lidar_check.dropped == 2)
+        sparse, check = check_whole(*srcs, sparse, d_min, d_max, p)
+        if check.changed is not None:  # the changed area for the tiles, its points for the pair's change map
             (folder / WORK).mkdir(exist_ok=True)
+            _save_npy(check.changed, folder / WORK / "changed.npy")
+            rr, cc = np.nonzero(check.dropped == 2)
             np.save(folder / WORK / "changed_points.npy", np.stack([rr, cc, given[rr, cc]], axis=1).astype(np.float64))
     tags = {"riverbed_pair": job.pair, "riverbed_clouds": json.dumps(used), "riverbed_block_pair": job.name,
             "riverbed_lidar_offset": json.dumps(offset.to_dict())}
     write_disparity(folder / "sparse.tif", sparse, overwrite=True, tags=tags)
-    if changed is not None:
-        (folder / WORK).mkdir(exist_ok=True)
-        _save_npy(changed, folder / WORK / "changed.npy")
 
     # The matching plan, as match_tiled makes it.
     guide = get_guide(p.guide)
@@ -219,7 +218,7 @@ def project_stage(job):
     stats = {"clouds": len(used), "clouds_without_points": len(empty), "lidar_points_read": counts["points_read"],
              "lidar_points_kept": counts["kept"], "lidar_share": share, "lidar_crs": counts["crs"],
              "tile": int(plan.size) if tiles else None, "lidar_offset": offset.to_dict(),
-             **({"lidar_check": check.to_dict()} if check is not None else {}), **dsm_stats}
+             **({"lidar_check": check.report.to_dict()} if check is not None else {}), **dsm_stats}
     return {"tiles": tiles, "window": window, "bits": bits, "d_min": d_min, "d_max": d_max, "stats": stats,
             "shape": [H, W], "range_map": rmap is not None, "rectify_seconds": t_rectify,
             "seconds": round(time.perf_counter() - t0, 4)}
