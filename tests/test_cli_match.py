@@ -83,8 +83,8 @@ CASES = {
     "range": ([LEFT, RIGHT, "--sparse", "{w}/sparse.tif", "--min-disp", "70", "--max-disp", "90"],
               "{w}/sparse.tif: disparity range [70, 90] excludes all sparse disparities (they span [9.25, 55.00])"),
     "empty": ([LEFT, RIGHT, "--sparse", "{w}/empty.tif"], "{w}/empty.tif: sparse map has no valid disparities"),
-    "no range": ([LEFT, RIGHT], "give --max-disp (and --min-disp), or --sparse or --range-map to derive the "
-                                    "disparity range from"),
+    "no range": ([LEFT, RIGHT], "give --max-disp (and --min-disp), --pair (the pair file riverbed rectify wrote), "
+                                    "or --sparse or --range-map to derive the disparity range from"),
     "format": ([LEFT, RIGHT, "--max-disp", "50", "-o", "{w}/d.xyz"],
                "{w}/d.xyz: unsupported disparity format '.xyz' (use .pfm, .png or .tif)"),
     "guide": ([LEFT, RIGHT, "--max-disp", "50", "--guide", "gauss"], "--guide gauss needs --sparse"),

@@ -58,6 +58,10 @@ def test_write_read_exact_and_relative_paths(tmp_path):
         for key in ("P_left", "P_right", "origin", "registration"):
             assert np.array_equal(getattr(back, key), getattr(pair, key)), key  # bit-exact floats
         assert back.left == (tmp_path / "img" / "l.png").absolute() and back.image_size == (375, 450)
+        assert back.disparity is None
+    ranged = pair.replace(disparity=[12, 57.5])
+    write_pairfile(tmp_path / "sub/ranged.yaml", ranged)
+    assert load_pairfile(tmp_path / "sub/ranged.yaml").disparity == (12.0, 57.5)
     assert "left: ../img/l.png" in (tmp_path / "sub/pair.yaml").read_text()
     with pytest.raises(RiverbedError, match="output exists"):
         write_pairfile(tmp_path / "sub/pair.yaml", pair)
@@ -72,7 +76,7 @@ RECT = ("a rectified pair differs only by a horizontal shift (equal rows 1 and 2
 CASES = {
     "not a mapping": ("- 1\n- 2\n", "not a pair file (expected a mapping with P_left and P_right)"),
     "unknown key": (_bad(P_lft=PL), ("unknown key 'P_lft' (pair file keys: left, right, width, height, "
-                                     "P_left, P_right, origin, crs, registration)")),
+                                     "P_left, P_right, origin, crs, registration, disparity)")),
     "missing": (_bad(P_right=None), "P_right: missing (a 3x4 projection matrix)"),
     "rows": (_bad(P_left=PL[:2]), "P_left: expected a 3x4 matrix, got 2 rows"),
     "row length": (_bad(P_right=[PR[0], PR[1][:3], PR[2]]),
@@ -107,6 +111,10 @@ CASES = {
     "width": (_bad(width=-3), "width: expected a positive integer (pixels), got -3"),
     "crs": (_bad(crs=["EPSG", 2154]), "crs: expected a string such as EPSG:32632, got list"),
     "left": (_bad(left=5), "left: expected a file name, got 5"),
+    "disparity shape": (_bad(disparity=[1, 2, 3]), "disparity: expected [low, high] in pixels, got [1, 2, 3]"),
+    "disparity order": (_bad(disparity=[50, 10]),
+                        "disparity: expected finite [low, high] with low <= high, got [50, 10]"),
+    "disparity text": (_bad(disparity="wide"), "disparity: expected [low, high] in pixels, got 'wide'"),
     "yaml": ("P_left: [[1, 2]\n  bad: }",
              "invalid YAML at line 2, column 3: expected ',' or ']', but got '<scalar>'"),
 }

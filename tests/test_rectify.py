@@ -639,3 +639,39 @@ def test_rgb_16_bit_frames(raw, rectified, tmp_path):
     assert np.abs(left[:, :, 1].astype(float) / 257 - rectified.left).max() <= 1.0
     pair = load_pairfile(tmp_path / "out" / "pair.yaml")
     np.testing.assert_array_equal(pair.P_left, rectified.pair.P_left)
+
+
+def test_the_pair_file_holds_the_tie_points_range_and_match_pair_searches_it(written, lidar, tmp_path):
+    """``rectify`` writes the disparity range its tie points show into pair.yaml; ``riverbed match --pair`` searches
+    it (the same map as --min-disp/--max-disp given by hand). Measured: 477..527 px around the LiDAR's
+    491.6..513.9 seen in both images."""
+    out, summary = written
+    pair = load_pairfile(out / "pair.yaml")
+    assert pair.disparity == tuple(float(v) for v in summary["tie_points"]["disparity"]) == (477.0, 527.0)
+    lo, hi = _d_range(pair, lidar, margin=0.0)
+    assert pair.disparity[0] < lo and hi < pair.disparity[1]
+    r = _run("match", out / "left.png", out / "right.png", "--pair", out / "pair.yaml", "-o", tmp_path / "a.tif",
+             "--json")
+    assert r.exit_code == 0, r.output
+    assert [json.loads(r.stdout)[k] for k in ("d_min", "d_max")] == [477, 527]
+    r = _run("match", out / "left.png", out / "right.png", "--min-disp", 477, "--max-disp", 527,
+             "-o", tmp_path / "b.tif")
+    assert r.exit_code == 0, r.output
+    assert np.array_equal(read_disparity(tmp_path / "a.tif"), read_disparity(tmp_path / "b.tif"), equal_nan=True)
+    # --min-disp/--max-disp given win over the pair file's
+    r = _run("match", out / "left.png", out / "right.png", "--pair", out / "pair.yaml", "--min-disp", 480,
+             "-o", tmp_path / "c.tif", "--json")
+    assert [json.loads(r.stdout)[k] for k in ("d_min", "d_max")] == [480, 527]
+
+
+def test_match_pair_without_a_range_is_one_line(tmp_path):
+    bare = tmp_path / "pair.yaml"
+    text = (SAMPLE / "pair.yaml").read_text()
+    bare.write_text("\n".join(line for line in text.splitlines() if not line.startswith(("left", "right"))))
+    assert load_pairfile(bare).disparity is None
+    r = _run("match", SAMPLE / "left.png", SAMPLE / "right.png", "--pair", bare, "-o", tmp_path / "d.tif")
+    assert r.exit_code == 1
+    assert r.output.strip().endswith(
+        f"error: {bare}: no disparity range in the pair file (riverbed rectify writes one when it finds tie points);"
+        " give --min-disp/--max-disp, --sparse or --range-map")
+    assert not (tmp_path / "d.tif").exists()

@@ -373,11 +373,13 @@ def test_ventoux_crops_rectified_read_back_and_matched(shared_data, tmp_path, eg
     assert rl.dtype == rr.dtype == np.uint16
     sift = sift_parallax(rl, rr, *pair.disparity, lk=True)
     assert sift["matches"] > 300 and sift["dy_median_abs"] < 0.2 and sift["dy_p95_abs"] < 0.5
-    # riverbed match takes the rectified pair with the pair file's disparity range: it agrees with SIFT's disparities
+    # riverbed match takes the rectified pair with the pair file's disparity range (--pair): it agrees with SIFT's
+    # disparities
     disp = tmp_path / "disp.tif"
-    r = run(["match", out / "left.tif", out / "right.tif", "--min-disp", int(np.floor(pair.disparity[0])),
-             "--max-disp", int(np.ceil(pair.disparity[1])), "-o", disp])
+    r = run(["match", out / "left.tif", out / "right.tif", "--pair", out / "pair.yaml", "-o", disp, "--json"])
     assert r.exit_code == 0, r.output
+    got = json.loads(r.stdout)
+    assert [got["d_min"], got["d_max"]] == [int(np.floor(pair.disparity[0])), int(np.ceil(pair.disparity[1]))]
     from riverbed_cli.io.disparity import read_disparity
 
     d = read_disparity(disp)

@@ -5,14 +5,37 @@ MATCH_SETTINGS`), so ``riverbed match`` and a block manifest take the same names
 module loads no Numba kernel: the matching library is imported when the command runs.
 """
 
+import logging
+import math
+import os
+
 import click
 
 from .cached_kernels import skip_refresh_on_cache_loads
+from ..errors import RiverbedError
 from ..matching.config import MATCH_SETTINGS, MatchConfig
 from .options import input_path, json_opt, output_opt, overwrite_opt, print_json, progress_bar, setting_options
 
 _MATCH = [s for s in MATCH_SETTINGS if s.group is not None]
 _RUN = [s for s in MATCH_SETTINGS if s.group is None and s.name not in ("tile", "overlap", "lidar_range")]
+
+log = logging.getLogger(__name__)
+
+
+def pair_range(path, left):
+    """The disparity range ``(lo, hi)`` (whole px, widened to them) a pair file states (``riverbed rectify``'s
+    tie-point range, or an RPC pair's over its heights); one line naming the file when it states none. Warns
+    when the pair file names another left image than ``left``."""
+    from ..geometry.pairfile import load_pairfile  # the geometry stack (scipy) loads only for --pair
+
+    pair = load_pairfile(path, accept_rpc=True)
+    if pair.left is not None and os.path.abspath(left) != os.path.abspath(pair.left):
+        log.warning("%s: its left image is %s, not %s", path, pair.left, left)
+    if pair.disparity is None:
+        raise RiverbedError("no disparity range in the pair file (riverbed rectify writes one when it finds tie "
+                            "points); give --min-disp/--max-disp, --sparse or --range-map", path)
+    lo, hi = pair.disparity
+    return int(math.floor(lo)), int(math.ceil(hi))
 
 
 @click.command("match")
@@ -22,6 +45,9 @@ _RUN = [s for s in MATCH_SETTINGS if s.group is None and s.name not in ("tile", 
 @click.option("--sparse", type=input_path(), default=None,
               help="Sparse LiDAR disparities of the left image (.tif/.pfm/.png; NaN, inf or 0 = none).")
 @click.option("--sparse-scale", type=float, default=None, help="Stored value per pixel for an 8-bit PNG --sparse.")
+@click.option("--pair", "pair_file", type=input_path(), default=None,
+              help="The pair file riverbed rectify wrote: its disparity range is searched where --min-disp/--max-disp "
+                   "are not given (also with --sparse).")
 @click.option("--range-map", type=input_path(), default=None,
               help="Per-pixel search range from elsewhere (a coarse DSM, a previous run): a 2-band TIFF of min and "
                    "max disparity (NaN: the nominal range); searched as tubes instead of the LiDAR's.")
@@ -46,8 +72,8 @@ _RUN = [s for s in MATCH_SETTINGS if s.group is None and s.name not in ("tile", 
               help="With tiles and --sparse: each tile searches only the disparities its LiDAR allows.")
 @json_opt
 @overwrite_opt
-def match_cmd(left, right, output, sparse, sparse_scale, range_map, color_png, confidence, lidar_mask, tile, overlap,
-              lidar_range, as_json, overwrite, **settings):
+def match_cmd(left, right, output, pair_file, sparse, sparse_scale, range_map, color_png, confidence, lidar_mask, tile,
+              overlap, lidar_range, as_json, overwrite, **settings):
     """Match rectified images LEFT (reference) and RIGHT into a disparity map OUTPUT.
 
     Disparity d = x_left - x_right (px). OUTPUT format by extension: .tif (float32, NaN invalid), .pfm
@@ -60,6 +86,10 @@ def match_cmd(left, right, output, sparse, sparse_scale, range_map, color_png, c
     if settings["guide"] is None:
         settings["guide"] = "riverbed" if sparse else "none"
     run = {s.name: settings.pop(s.name) for s in _RUN}
+    if pair_file is not None:
+        lo, hi = pair_range(pair_file, left)
+        run["min_disp"] = lo if run["min_disp"] is None else run["min_disp"]
+        run["max_disp"] = hi if run["max_disp"] is None else run["max_disp"]
     config = MatchConfig.from_settings(settings)
     bars = []
 

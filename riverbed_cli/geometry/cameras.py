@@ -134,6 +134,17 @@ def check_rectified(P_left, P_right):
     return s, t, v, u
 
 
+def check_range(value):
+    """A disparity range ``[lo, hi]`` (px) as a tuple of two floats; :class:`RiverbedError` for anything else."""
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise RiverbedError(f"disparity: expected [low, high] in pixels, got {value!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi)) or lo > hi:
+        raise RiverbedError(f"disparity: expected finite [low, high] with low <= high, got {value!r}")
+    return lo, hi
+
+
 @dataclass(frozen=True, eq=False)
 class PairGeometry:
     """A rectified stereo pair: cameras, world origin, LiDAR registration, CRS, image paths and size.
@@ -152,6 +163,9 @@ class PairGeometry:
         The rectified images (absolute once loaded from a pair file).
     width, height : int or None
         Image size in pixels, if known.
+    disparity : (lo, hi) or None
+        The pair's disparity range (px, ``d = x_left - x_right``), if known: what ``riverbed rectify`` found (tie
+        points) and ``riverbed match --pair`` searches.
     """
 
     P_left: np.ndarray
@@ -163,6 +177,7 @@ class PairGeometry:
     right: Path | None = None
     width: int | None = None
     height: int | None = None
+    disparity: tuple | None = None
 
     def __post_init__(self):
         set_ = object.__setattr__.__get__(self)
@@ -191,6 +206,8 @@ class PairGeometry:
             val = getattr(self, key)
             if val is not None:
                 set_(key, Path(val))
+        if self.disparity is not None:
+            set_("disparity", check_range(self.disparity))
 
     # -- derived quantities ------------------------------------------------------------------------------
     @property
@@ -226,7 +243,7 @@ class PairGeometry:
     def replace(self, **changes):
         """A copy with some fields changed (validated again)."""
         fields = {k: getattr(self, k) for k in ("P_left", "P_right", "origin", "registration", "crs", "left",
-                                                  "right", "width", "height")}
+                                                  "right", "width", "height", "disparity")}
         fields.update(changes)
         return PairGeometry(**fields)
 

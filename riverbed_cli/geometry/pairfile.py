@@ -10,6 +10,7 @@ P_right: [[f, 0, cx1, -f*B], [0, f, cy, 0], [0, 0, 1, 0]]
 origin: [x0, y0, z0]     # optional, default 0: subtracted from world coordinates before any projection
 crs: EPSG:32632          # optional: CRS of world coordinates
 registration: [[...4...], [...4...], [...4...], [0, 0, 0, 1]]   # optional LiDAR -> world (default identity)
+disparity: [435, 466]    # optional: the pair's disparity range (px; riverbed rectify, from tie points)
 ```
 
 A pair file with an ``rpc:`` key is an *RPC pair* (``riverbed rectify --rpc``; its keys in
@@ -40,7 +41,7 @@ from .rpc_pair import relative_path, rpc_pair_from_dict
 
 #: Pair files and registration files larger than this are refused before parsing.
 MAX_BYTES = 1_000_000
-KEYS = ("left", "right", "width", "height", "P_left", "P_right", "origin", "crs", "registration")
+KEYS = ("left", "right", "width", "height", "P_left", "P_right", "origin", "crs", "registration", "disparity")
 #: Who needs a pinhole pair file, when the caller does not say (named when an RPC pair file reaches it).
 RPC_REFUSERS = "this use"
 
@@ -90,7 +91,7 @@ def load_pairfile(path, accept_rpc=False, command=None):
         if key not in data:
             raise RiverbedError(f"{key}: missing (a 3x4 projection matrix)", path)
     fields = {k: data[k] for k in ("P_left", "P_right", "width", "height") if data.get(k) is not None}
-    for key in ("origin", "registration"):
+    for key in ("origin", "registration", "disparity"):
         if data.get(key) is not None:
             fields[key] = data[key]
     if data.get("crs") is not None:
@@ -162,6 +163,8 @@ def pair_to_dict(pair, folder=None):
         out["crs"] = pair.crs
     if np.any(pair.registration != np.eye(4)):
         out["registration"] = pair.registration.tolist()
+    if pair.disparity is not None:
+        out["disparity"] = [float(v) for v in pair.disparity]
     return out
 
 

@@ -323,23 +323,27 @@ def rectify_files(left_image, left_orientation, right_image, right_orientation, 
         raise RiverbedError(f"image is {w1}x{h1} but {left_image} is {w0}x{h0} (WxH); stereoRectify needs "
                             "frames of one camera size", right_image)
     result = rectify(images[0], orients[0], images[1], orients[1], alpha=alpha, size=size)
+    # the rectification checked on the rectified images: tie points' rows, and the disparities they show (the
+    # pair file's range, which riverbed match --pair searches)
+    check = rectification_check(result.left, result.right, valid_areas=result.valid_areas)
     outdir.mkdir(exist_ok=True)
     paths = [outdir / name for name in OUTPUTS]
-    pair = result.pair.replace(left=paths[0].absolute(), right=paths[1].absolute())
+    pair = result.pair.replace(left=paths[0].absolute(), right=paths[1].absolute(), disparity=check.get("disparity"))
     info = result.info
     names = [Path(p).name for p in (left_image, left_orientation, right_image, right_orientation)]
+    found = (f"disparity range {check['disparity'][0]}..{check['disparity'][1]} px from {check['tie_points']} tie "
+             "points (riverbed match --pair searches it)" if "disparity" in check
+             else f"no disparity range: {check['tie_points']} tie points")
     comment = (f"Rectified by riverbed rectify from {names[0]} ({names[1]}) and {names[2]} ({names[3]}).\n"
                f"f = {info['focal_px']:.6f} px, baseline {info['baseline']:.6f}: d = x_left - x_right = "
                f"{info['fB']:.6f} / depth (px); images turned by {info['turn_deg'][0]} (left) and "
-               f"{info['turn_deg'][1]} deg (right).")
+               f"{info['turn_deg'][1]} deg (right); {found}.")
     with atomic_output(paths[0], overwrite) as t_left, atomic_output(paths[1], overwrite) as t_right, \
             atomic_output(paths[2], overwrite) as t_pair:
         write_png_file(t_left, result.left, valid=result.valid_areas[0])
         write_png_file(t_right, result.right, valid=result.valid_areas[1])
         write_pairfile(t_pair, pair, comment=comment)
     files = {name: p.stat().st_size for name, p in zip(OUTPUTS, paths)}
-    # the rectification checked on the written images: tie points' rows (and the disparities they show)
-    check = rectification_check(result.left, result.right, valid_areas=result.valid_areas)
     warn_on_parallax(check, str(outdir))
     return {"outdir": str(outdir), "files": files, **info, "tie_points": check,
             "seconds": round(time.perf_counter() - t0, 3)}

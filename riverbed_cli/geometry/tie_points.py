@@ -22,7 +22,7 @@ from scipy.spatial import cKDTree
 log = logging.getLogger(__name__)
 
 #: Features detected per image.
-FEATURES = 2000
+FEATURES = 4000
 #: Lowe's ratio (nearest / second-nearest Hamming distance).
 RATIO = 0.8
 #: Fewest tie points for a verdict.
@@ -35,7 +35,7 @@ NEIGHBOURS, AGREE_PX = 16, 16.0
 #: Share of the agreeing tie points left out at each end of the range (a cluster of wrong matches on repeated texture)
 TRIM = 0.005
 #: The range's margin: px, and share of its span.
-RANGE_MARGIN, RANGE_GROWTH = 4, 0.10
+RANGE_MARGIN, RANGE_GROWTH = 4, 0.50
 
 
 def _grey8(img):

@@ -162,8 +162,8 @@ def resolve_disparity_range(d_min, d_max, sparse_values, width=None):
     with ``width`` (the images', px) clamped to what they can match (:func:`clamp_to_width`)."""
     if d_min is None or d_max is None:
         if sparse_values is None:
-            raise RiverbedError("give the disparity range (--min-disp/--max-disp), or a sparse map or a range map to "
-                                "derive it from")
+            raise RiverbedError("give the disparity range (--min-disp/--max-disp, or --pair with the pair file "
+                                "riverbed rectify wrote), or --sparse or --range-map to derive it from")
         lo, hi = disparity_range_from_sparse(sparse_values)
         d_min = lo if d_min is None else d_min
         d_max = hi if d_max is None else d_max

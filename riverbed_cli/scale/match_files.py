@@ -150,8 +150,8 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     valid = tuple(valid_area_source(p) for p in (left, right))
     if (min_disp is None or max_disp is None) and not sparse and not range_map:
         if max_disp is None:
-            raise RiverbedError("give --max-disp (and --min-disp), or --sparse or --range-map to derive the disparity range "
-                                "from")
+            raise RiverbedError("give --max-disp (and --min-disp), --pair (the pair file riverbed rectify wrote), or "
+                                "--sparse or --range-map to derive the disparity range from")
         min_disp = 0
     min_disp, max_disp = clamp_to_width(min_disp, max_disp, W)  # one warning here rather than one per tile
     if guide.uses_window and config.guidance.window != "auto" and config.guidance.window > min(H, W):
