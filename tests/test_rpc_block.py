@@ -323,7 +323,8 @@ def test_rectify_lidar_bad_inputs(scene, tmp_path):
         ([*args, "--lidar", far], f"{far}: does not cover the ROI 0,0,240,240 of the left image: no point of the kept "
                                   f"classes lands in it ({n} read)"),
         ([*args, "--lidar", cloud, "--heights", "470,530"],
-         "give the terrain's height range: --dem DEM, --heights LO,HI or --lidar CLOUD (one of them)"),
+         "give the terrain's height range by one of --dem DEM, --heights LO,HI or --lidar CLOUD (or none: from tie "
+         "points)"),
         ([*args, "--lidar", cloud, "--vertical", "EPSG:5773"],
          "--vertical does not apply to --lidar (the cloud's CRS gives its heights' datum)"),
         ([*args, "--lidar", tmp_path / "none.laz"], f"{tmp_path / 'none.laz'}: file not found"),

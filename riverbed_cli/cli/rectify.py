@@ -91,7 +91,7 @@ def rectify_cmd(ctx, left_img, left_orient, right_img, right_orient, outdir, rpc
     With --rpc: LEFT_ORIENT and RIGHT_ORIENT are the images' RPC models; a region of interest (--roi) of
     LEFT_IMG is rectified the s2p way (affine epipolar geometry, the RPCs' pointing error removed on tie points)
     into OUTDIR/left.tif, OUTDIR/right.tif and OUTDIR/pair.yaml (both RPCs, the rectification, ROI, heights,
-    disparity range). The height range comes from --dem, --heights or --lidar.
+    disparity range). The height range comes from --dem, --heights or --lidar, or without them from tie points.
     """
     skip_refresh_on_cache_loads()  # Numba's cached kernels load without its compiler's start-up
     if max_pixels is not None and max_pixels < 1:

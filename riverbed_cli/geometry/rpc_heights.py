@@ -14,7 +14,8 @@ from ..io.lidar import class_mask, iter_lidar, lidar_info, resolve_crs
 from .outliers import sor_inliers
 from .rpc_dem import geoid_to_ellipsoid_transformer, read_dem
 from .rpc_geometry import cloud_to_wgs84
-from .rpc_rectify import heights_over_roi
+from .rpc_rectify import heights_over_roi, rectify_rpc_pair
+from .tie_points import rectification_check
 
 #: Margin (m) added below and above the terrain's height range from a DEM or a LiDAR cloud.
 HEIGHT_MARGIN_M = 20.0
@@ -150,3 +151,37 @@ def heights_to_ellipsoid(heights, rpc_left, roi, vertical):
     lon, lat = rpc_left.localize(x + (w - 1) / 2, y + (h - 1) / 2, float(np.mean(heights)))
     _, _, out = tr.transform([float(lon)] * 2, [float(lat)] * 2, list(heights))
     return float(out[0]), float(out[1])
+
+
+#: the margin (px) rectify_rpc_pair puts below the lowest virtual match's disparity
+FRAME_MARGIN_PX = 5.0
+#: the frames of the tie-point search are widened by at most this many ROI widths
+MAX_WIDENING = 4
+
+
+def heights_from_tie_points(rpc_left, rpc_right, roi, rectified, margin_m=20.0):
+    """The ``(lo, hi)`` ellipsoidal height range (m) the images themselves show over the left ROI, without a DEM or
+    LiDAR (as s2p's tie-point range): the pair rectified over the left model's height domain (``height_off +-
+    height_scale``), the disparity range of its tie points
+    (:func:`~riverbed_cli.geometry.tie_points.rectification_check`) turned into heights by the rectification's
+    disparity per metre, widened by ``margin_m`` and kept inside the domain.
+
+    ``rectified(H_left, H_right, size)`` returns the two images resampled by those affinities into frames of
+    ``size`` (w, h) and their valid areas: both frames are widened by the domain's disparity span, the right one
+    shifted by it, so that every height of the domain keeps its matches inside them. Returns the range and the
+    number of tie points; too few tie points is a :class:`RiverbedError`.
+    """
+    domain = (rpc_left.height_off - rpc_left.height_scale, rpc_left.height_off + rpc_left.height_scale)
+    rect = rectify_rpc_pair(rpc_left, rpc_right, roi, domain, margin_px=FRAME_MARGIN_PX)
+    w, h = rect.size
+    span = int(min(math.ceil(rect.disparity[1]), MAX_WIDENING * w))
+    shift = np.array([[1.0, 0.0, span], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    left, right, valid = rectified(rect.H_left, shift @ rect.H_right, (w + span, h))
+    check = rectification_check(left, right, valid_areas=valid)
+    if "disparity" not in check:
+        raise RiverbedError(f"{check['tie_points']} tie points between the images: too few to find the terrain's "
+                            "height range; give --dem, --heights or --lidar")
+    k = rect.info["disparity_per_metre"]
+    # the frame puts the lowest virtual match's disparity at its margin: height is linear in disparity from there
+    hs = [domain[0] + (d + span - FRAME_MARGIN_PX) / k for d in check["disparity"]]
+    return (max(min(hs) - margin_m, domain[0]), min(max(hs) + margin_m, domain[1])), check["tie_points"]

@@ -55,7 +55,8 @@ from ..io.images import MAX_PIXELS
 from ..io.paths import require_file
 from .cameras import as_matrix, parse_number
 from .rpc import RPCModel, read_rpc
-from .rpc_heights import footprint_bounds, heights_from_dem, heights_from_lidar, heights_to_ellipsoid  # noqa: F401
+from .rpc_heights import (footprint_bounds, heights_from_dem, heights_from_lidar,  # noqa: F401
+                          heights_from_tie_points, heights_to_ellipsoid)
 from .rpc_rectify import (RPCRectification, apply_h, estimate_row_offset, rectify_rpc_pair, resample,
                           virtual_matches, with_row_offset)
 
@@ -351,6 +352,15 @@ def _resample_window(ds, H, size, path):
     return out.astype(data.dtype, copy=False)
 
 
+def _rectified(left_image, right_image, H_left, H_right, size):
+    """Both images resampled by ``H_left`` and ``H_right`` into frames of ``size`` (w, h), and their valid areas."""
+    with _open(left_image) as a, _open(right_image) as b:
+        sides = ((a, H_left, left_image), (b, H_right, right_image))
+        images = [_resample_window(ds, H, size, path) for ds, H, path in sides]
+        valid = tuple(_valid_area(ds, H, size) for ds, H, _ in sides)
+    return images[0], images[1], valid
+
+
 def _grey(img):
     return img.astype(np.float32) if img.ndim == 2 else img.astype(np.float32).mean(axis=2)
 
@@ -484,9 +494,9 @@ def rectify_rpc_files(left_image, left_rpc, right_image, right_rpc, outdir, roi=
     check_output_folder(outdir, OUTPUTS, overwrite, inputs=[left_image, left_rpc, right_image, right_rpc, dem])
     if lidar is not None and not isinstance(lidar, (str, os.PathLike)) and not len(lidar):
         lidar = None
-    if sum(v is not None for v in (dem, heights, lidar)) != 1:
-        raise RiverbedError("give the terrain's height range: --dem DEM, --heights LO,HI or --lidar CLOUD (one of "
-                            "them)")
+    if sum(v is not None for v in (dem, heights, lidar)) > 1:
+        raise RiverbedError("give the terrain's height range by one of --dem DEM, --heights LO,HI or --lidar CLOUD "
+                            "(or none: from tie points)")
     if lidar is not None and vertical is not None:
         raise RiverbedError("--vertical does not apply to --lidar (the cloud's CRS gives its heights' datum)")
     (rpc_l, rpc_r), sizes, offsets = read_rpc_inputs(left_image, left_rpc, right_image, right_rpc)
@@ -501,9 +511,12 @@ def rectify_rpc_files(left_image, left_rpc, right_image, right_rpc, outdir, roi=
         names = [Path(lidar).name] if isinstance(lidar, (str, os.PathLike)) else [Path(p).name for p in lidar]
         heights_from = (f"LiDAR {', '.join(names)} ({found['points']} points under the ROI, "
                         f"{found['range'][0]:.1f}..{found['range'][1]:.1f} m) +- 20 m")
-    else:
+    elif heights is not None:
         hrange = heights_to_ellipsoid(heights, rpc_l, roi, vertical)
         heights_from = "--heights" + (f" ({vertical})" if vertical else " (ellipsoidal)")
+    else:
+        hrange, n = heights_from_tie_points(rpc_l, rpc_r, roi, lambda *a: _rectified(left_image, right_image, *a))
+        heights_from = f"tie points ({n} over the RPCs' height domain) +- 20 m"
     # images that do not overlap: the ROI's ground, seen over the height range, must fall in the right image
     share, x2, y2 = right_share(rpc_l, rpc_r, roi, hrange, (W2, H2))
     if share == 0:
