@@ -142,7 +142,6 @@ ERRORS = [
     ({"pairs": []}, "pairs: expected a non-empty list of {pair: PAIR_FILE, cloud: CLOUDS}"),
     ({"pairs": [GOOD, {"pair": "x/pair.yaml", "cloud": "lidar/west.laz"}]},
      "pairs[1].pair: file not found: x/pair.yaml"),
-    ({"pairs": [{"pair": "a/pair.yaml"}]}, "pairs[0].cloud: missing"),
     ({"pairs": [{**GOOD, "cloud": "lidar/*.las"}]}, "pairs[0].cloud: 'lidar/*.las' matches no file"),
     ({"pairs": [{**GOOD, "cloud": ["lidar/west.laz", "lidar/north.laz"]}]},
      "pairs[0].cloud: file not found: lidar/north.laz"),
@@ -578,3 +577,37 @@ def test_block_pairs_search_their_range_maps(tmp_path):
             ref = match_pair(left, right, sparse, d_min, d_max, range_map=(lo, hi))
         np.testing.assert_array_equal(read_disparity(folder / "disparity.tif"), ref.disparity)
         assert ref.info["tubes"]["mean_width"] < 12  # 9 px where the GT is known, against the LiDAR's tubes
+
+
+def test_a_pair_without_a_cloud_is_matched_from_its_images(tmp_path):
+    """An entry without ``cloud``: raw frames are rectified (pair.yaml holds the tie points' range) and matched
+    unguided over that range, bit for bit as ``riverbed match --pair`` matches the rectified pair; a re-run skips
+    it. A pair file without a range and no min_disp/max_disp is one line naming it."""
+    sample = Path(__file__).resolve().parent.parent / "sample_data" / "block"
+    for f in ("raw/frame0.png", "raw/frame0.yaml", "raw/frame1.png", "raw/frame1.yaml", "pair.yaml", "left.png",
+              "right.png"):
+        (tmp_path / f).parent.mkdir(exist_ok=True)
+        shutil.copy(sample / f, tmp_path / f)
+    raw = {"left": "raw/frame0.png", "left_orientation": "raw/frame0.yaml", "right": "raw/frame1.png",
+           "right_orientation": "raw/frame1.yaml"}
+    (tmp_path / "block.yaml").write_text(yaml.safe_dump({"pairs": [{"name": "strip", "raw": raw}]}))
+    res = run(["block", str(tmp_path / "block.yaml"), "-o", str(tmp_path / "out"), "--workers", "0", "--json"])
+    assert res.exit_code == 0, res.stderr
+    folder = tmp_path / "out" / "pairs" / "strip"
+    done = json.loads((folder / "done.json").read_text())
+    assert done["stats"]["clouds"] == 0 and [done["stats"]["d_min"], done["stats"]["d_max"]] == [477, 527]
+    assert not (folder / "sparse.tif").exists() and "sparse.tif" not in done["outputs"]
+    rect = folder / "rectified"
+    r = run([str(a) for a in ("match", rect / "left.png", rect / "right.png", "--pair", rect / "pair.yaml", "-o",
+                              tmp_path / "d.tif")])
+    assert r.exit_code == 0, r.stderr
+    assert np.array_equal(read_disparity(folder / "disparity.tif"), read_disparity(tmp_path / "d.tif"),
+                          equal_nan=True)
+    res = run(["block", str(tmp_path / "block.yaml"), "-o", str(tmp_path / "out"), "--workers", "0", "--json"])
+    assert [p["status"] for p in summary(res)["pairs"]] == ["skipped"]
+    # the sample's own pair file states no range
+    (tmp_path / "bare.yaml").write_text(yaml.safe_dump({"pairs": [{"name": "bare", "pair": "pair.yaml"}]}))
+    res = run(["block", str(tmp_path / "bare.yaml"), "-o", str(tmp_path / "out2"), "--workers", "0"])
+    assert res.exit_code == 1
+    assert (f"pair bare failed in project: {tmp_path / 'pair.yaml'}: no cloud and no disparity range: give the pair "
+            "a cloud, min_disp and max_disp, or a pair file with its range (riverbed rectify writes one)") in res.stderr

@@ -54,8 +54,9 @@ def _roi_size(text):
 @click.argument("right_rpc", type=input_path())
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="The block manifest to write (YAML; paths in it relative to its folder).")
-@click.option("--cloud", "clouds", multiple=True, required=True, type=input_path(),
-              help="LiDAR of the scene (LAS/LAZ; repeatable): every pair's cloud.")
+@click.option("--cloud", "clouds", multiple=True, type=input_path(),
+              help="LiDAR of the scene (LAS/LAZ; repeatable): every pair's cloud. None: the images alone, over "
+                   "each ROI's height range (--dem, --heights, or its tie points).")
 @click.option("--size", default="2000", show_default=True, callback=parsed_value(_roi_size, "--size"), metavar="N|WxH",
               help="ROI size in pixels of the left image (e.g. 2000, or 2000x1500). The affine rectification's "
                    "residual grows as the size squared: 0.075 px at 2000 px on Pleiades, 0.1 px near 2300, 0.5 px "
@@ -65,7 +66,8 @@ def _roi_size(text):
 @click.option("--region", default=None, metavar="COL,ROW,W,H", callback=parsed_value(parse_roi, "--region"),
               help="Split only this region of the left image (px; default the whole image).")
 @click.option("--dem", type=input_path(), default=None,
-              help="Each ROI's height range from this DEM (as rectify --rpc --dem); default: from the clouds.")
+              help="Each ROI's height range from this DEM (as rectify --rpc --dem); default: from the clouds, or "
+                   "without them from tie points.")
 @click.option("--heights", default=None, metavar="LO,HI", callback=parsed_value(parse_heights, "--heights"),
               help="Each ROI's height range as given (m, ellipsoidal unless --vertical).")
 @click.option("--vertical", default=None, metavar="DATUM",

@@ -155,8 +155,8 @@ def heights_to_ellipsoid(heights, rpc_left, roi, vertical):
 
 #: the margin (px) rectify_rpc_pair puts below the lowest virtual match's disparity
 FRAME_MARGIN_PX = 5.0
-#: the frames of the tie-point search are widened by at most this many ROI widths
-MAX_WIDENING = 4
+#: the frames of the tie-point search are widened by at most this many pixels
+MAX_WIDENING_PX = 20_000
 
 
 def heights_from_tie_points(rpc_left, rpc_right, roi, rectified, margin_m=20.0):
@@ -174,7 +174,7 @@ def heights_from_tie_points(rpc_left, rpc_right, roi, rectified, margin_m=20.0):
     domain = (rpc_left.height_off - rpc_left.height_scale, rpc_left.height_off + rpc_left.height_scale)
     rect = rectify_rpc_pair(rpc_left, rpc_right, roi, domain, margin_px=FRAME_MARGIN_PX)
     w, h = rect.size
-    span = int(min(math.ceil(rect.disparity[1]), MAX_WIDENING * w))
+    span = int(min(math.ceil(rect.disparity[1]), MAX_WIDENING_PX))
     shift = np.array([[1.0, 0.0, span], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
     left, right, valid = rectified(rect.H_left, shift @ rect.H_right, (w + span, h))
     check = rectification_check(left, right, valid_areas=valid)

@@ -27,9 +27,12 @@ The manifest (YAML, read with ``yaml.safe_load`` only; paths relative to the man
         cloud: lidar.laz                                           # project task; optional roi (default the
                                                                    # whole left image), dem or heights ([lo, hi];
                                                                    # neither: the range of the pair's clouds under
-                                                                   # the ROI), vertical, pointing (true/false)
+                                                                   # the ROI, or without a cloud its tie points),
+                                                                   # vertical, pointing (true/false)
       - pair: a/pair.yaml      # a pair file naming the rectified left and right images (or an RPC pair file)
-        cloud: lidar/*.laz     # a path, a glob or a list of them (several clouds: per pixel the nearer point)
+        cloud: lidar/*.laz     # a path, a glob or a list of them (several clouds: per pixel the nearer point);
+                               #   none: the images alone, unguided over min_disp..max_disp or the pair file's
+                               #   disparity range (riverbed rectify's tie points, an RPC pair's heights)
         name: a                # optional; default the pair file's path without suffix, '/' -> '_' (a_pair)
         range_map: a/ranges.tif  # optional: per-pixel disparity ranges (riverbed match --range-map; pair: entries)
         window: 7              # per-pair override of any setting except the block-wide ones
@@ -38,7 +41,7 @@ Outputs (``OUTDIR``)::
 
     block.json                 marker (the manifest's path) and the record of the last merge
     dsm.tif                    merged DSM of all finished pairs (cloud-optimised GeoTIFF)
-    pairs/NAME/sparse.tif      projected LiDAR disparities
+    pairs/NAME/sparse.tif      projected LiDAR disparities (pairs with a cloud)
     pairs/NAME/disparity.tif   dense disparity (d = x_left - x_right, NaN invalid)
     pairs/NAME/points.laz      triangulated points, RGB from the left image, CRS
     pairs/NAME/dsm.tif         the pair's DSM, on the block's grid when ``resolution`` is given

@@ -26,7 +26,8 @@ RAW_OPTIONS = ("alpha", "size")
 #: An ``rpc:`` entry: two satellite images and their RPC models (``riverbed rectify --rpc``'s inputs) ...
 RPC_KEYS = ("left", "left_rpc", "right", "right_rpc")
 #: ... and its optional settings (as ``--roi``, ``--dem``, ``--heights``, ``--vertical``,
-#: ``--no-pointing-correction``); without ``dem`` and ``heights`` the height range comes from the pair's clouds.
+#: ``--no-pointing-correction``); without ``dem`` and ``heights`` the height range comes from the pair's clouds
+#: (without clouds: the images' tie points).
 RPC_OPTIONS = ("roi", "dem", "heights", "vertical", "pointing")
 #: Settings that shape the merged DSM: one value for the whole block, given under ``defaults`` only.
 BLOCK_KEYS = ("resolution", "crs", "agg")
@@ -264,8 +265,6 @@ def load_manifest(path):
         if unknown:
             raise RiverbedError(f"{where}: unknown key '{unknown[0]}' (pair keys: {', '.join(PAIR_KEYS)}, and "
                                 "the settings of defaults)", path)
-        if "cloud" not in entry:
-            raise RiverbedError(f"{where}.cloud: missing", path)
         if sum(k in entry for k in ("pair", "raw", "rpc")) != 1:
             raise RiverbedError(f"{where}: give one of pair (a rectified pair file), raw (frames and orientations) "
                                 "or rpc (satellite images and their RPCs)", path)
@@ -281,7 +280,7 @@ def load_manifest(path):
             pair_path = Path(os.path.normpath(base / value))
             if not pair_path.is_file():
                 raise RiverbedError(f"{where}.pair: file not found: {value}", path)
-        clouds = _clouds(entry["cloud"], where, path, base)
+        clouds = _clouds(entry["cloud"], where, path, base) if "cloud" in entry else []  # none: the images alone
         range_map = None
         if "range_map" in entry:
             value = entry["range_map"]

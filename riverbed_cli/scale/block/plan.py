@@ -25,6 +25,8 @@ from .manifest import RAW_KEYS, RPC_KEYS, Manifest, load_manifest
 log = logging.getLogger(__name__)
 
 OUTPUTS = ("sparse.tif", "disparity.tif", "points.laz", "dsm.tif")
+#: the output of a pair with LiDAR only (a pair without a cloud is matched from its images alone)
+LIDAR_OUTPUT = "sparse.tif"
 DONE = "done.json"
 MARKER = "block.json"
 WORK = ".work"
@@ -103,8 +105,9 @@ def rpc_stamp(rpc, clouds, settings):
 
 def rectify_rpc(job):
     """Rectify an ``rpc:`` job's ROI into ``pairs/NAME/rectified/`` (``riverbed rectify --rpc``), unless done for
-    the same inputs (``rectified/inputs.json``); its pair file. The height range: ``dem``, ``heights`` or the
-    pair's clouds (:func:`~riverbed_cli.geometry.rpc_pair.heights_from_lidar`)."""
+    the same inputs (``rectified/inputs.json``); its pair file. The height range: ``dem``, ``heights``, the
+    pair's clouds (:func:`~riverbed_cli.geometry.rpc_pair.heights_from_lidar`) or, without clouds, the images' tie
+    points (:func:`~riverbed_cli.geometry.rpc_heights.heights_from_tie_points`)."""
     r, s = job.rpc, job.settings
     folder = Path(job.folder) / RECTIFIED
     stamp = folder / "inputs.json"
@@ -112,7 +115,7 @@ def rectify_rpc(job):
     if (folder / "pair.yaml").is_file() and stamp.is_file() and json.loads(stamp.read_text()) == inputs:
         return folder / "pair.yaml"
     folder.parent.mkdir(parents=True, exist_ok=True)
-    lidar = job.clouds if r["dem"] is None and r["heights"] is None else None
+    lidar = job.clouds or None if r["dem"] is None and r["heights"] is None else None  # no cloud: tie points
     rectify_rpc_files(r["left"], r["left_rpc"], r["right"], r["right_rpc"], folder, roi=r["roi"], dem=r["dem"],
                       heights=r["heights"], vertical=r["vertical"], pointing=r["pointing"], overwrite=True,
                       max_pixels=s["max_pixels"], lidar=lidar, lidar_crs=s["lidar_crs"], classes=s["classes"],
@@ -197,11 +200,12 @@ def verify_done(folder, settings_hash):
         if record.get("settings_hash") != settings_hash:
             return None
         outputs = record["outputs"]
-        for name in OUTPUTS:
+        names = [n for n in OUTPUTS if n != LIDAR_OUTPUT or n in outputs]
+        for name in names:
             p = folder / name
             if not p.is_file() or p.stat().st_size != outputs[name]["size"]:
                 return None
-        for name in OUTPUTS:
+        for name in names:
             if sha256_file(folder / name) != outputs[name]["sha256"]:
                 return None
         return record

@@ -7,6 +7,7 @@ approximation holds over a few thousand pixels) and for one matching task: :func
 rectifies, matches and triangulates each ROI on dask.distributed and merges their points into one DSM.
 """
 
+import json
 import math
 from pathlib import Path
 
@@ -80,7 +81,8 @@ def write_split_manifest(output, left, left_rpc, right, right_rpc, clouds, size,
         The satellite images and their RPC models (as ``riverbed rectify --rpc``: any format ``read_rpc`` reads,
         the image itself for GeoTIFF RPC tags; crops of a product are shifted by their offsets).
     clouds : list of str or Path
-        LiDAR clouds of every pair (each ROI's project stage reads only clouds whose box reaches it).
+        LiDAR clouds of every pair (each ROI's project stage reads only clouds whose box reaches it); none: each
+        ROI is matched from the images alone, over its range (``dem``, ``heights`` or its tie points).
     size : int or (int, int)
         ROI width and height (px of the left image).
     overlap : int
@@ -88,7 +90,8 @@ def write_split_manifest(output, left, left_rpc, right, right_rpc, clouds, size,
     region : (col, row, width, height), optional
         The part of the left image to split (default: all of it).
     dem, heights, vertical, pointing :
-        Each ROI's height range (``dem`` a DEM file, ``heights`` ``(lo, hi)`` m; neither: the pair's clouds) and
+        Each ROI's height range (``dem`` a DEM file, ``heights`` ``(lo, hi)`` m; neither: the pair's clouds, or
+        without them its tie points) and
         rectification settings, written into every entry.
     crs : str, optional
         The block's CRS (``defaults.crs``); default the UTM zone of the region's centre, so that every ROI's DSM is
@@ -112,9 +115,7 @@ def write_split_manifest(output, left, left_rpc, right, right_rpc, clouds, size,
         raise RiverbedError(f"folder {output.absolute().parent} does not exist", output)
     if dem is not None and heights is not None:
         raise RiverbedError("give --dem or --heights (or neither: each ROI's height range from the clouds), not both")
-    clouds = [Path(c) for c in clouds]
-    if not clouds:
-        raise RiverbedError("give the pairs' LiDAR: --cloud CLOUD (repeatable)")
+    clouds = [Path(c) for c in clouds or ()]
     for c in clouds:
         if not c.is_file():
             raise RiverbedError("file not found", c)
@@ -131,7 +132,7 @@ def write_split_manifest(output, left, left_rpc, right, right_rpc, clouds, size,
             check = heights_over_roi(rpc_l, region, d, margin_m=20.0)
         except RiverbedError:
             raise RiverbedError("the DEM does not cover the region's footprint on the terrain", dem) from None
-    else:  # the clouds give each ROI's range when it is rectified; here the models' height domain
+    else:  # the clouds (or tie points) give each ROI's range when it is rectified; here the models' height domain
         check = (rpc_l.height_off - rpc_l.height_scale, rpc_l.height_off + rpc_l.height_scale)
     if crs is None:
         x, y, w, h = region
@@ -161,8 +162,10 @@ def write_split_manifest(output, left, left_rpc, right, right_rpc, clouds, size,
             left_out.append(item)
             continue
         kept.append(item)
-        pairs.append({"name": name, "rpc": {**rpc_entry, "roi": list(roi)},
-                      "cloud": cloud if len(cloud) > 1 else cloud[0]})
+        entry = {"name": name, "rpc": json.loads(json.dumps({**rpc_entry, "roi": list(roi)}))}  # no YAML anchors
+        if cloud:
+            entry["cloud"] = cloud if len(cloud) > 1 else cloud[0]
+        pairs.append(entry)
     if not pairs:
         raise RiverbedError(f"the right image sees none of the {len(rois)} ROIs (share of virtual matches inside it "
                             f"below {min_share})", right)

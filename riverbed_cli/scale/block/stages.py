@@ -3,6 +3,7 @@
 
 import contextlib
 import json
+import math
 import shutil
 import time
 from pathlib import Path
@@ -29,7 +30,8 @@ from ...matching.tubes import ranges_from_disparity, spacing_window
 from ...products.dsm import Accumulator, Grid, close_lattice, default_resolution, disparity_points
 from ...products.change_map import CHANGED_POINT, change_map
 from ..tiles import Tile, check_whole, match_tile, plan_tiles, scan_range_map, tube_widths
-from .plan import DONE, OUTPUTS, WORK, clean_temps, rectify_rpc, riverbed_version, sha256_file, write_json
+from .plan import (DONE, LIDAR_OUTPUT, OUTPUTS, WORK, clean_temps, rectify_rpc, riverbed_version, sha256_file,
+                   write_json)
 from .settings import match_params
 
 
@@ -138,7 +140,7 @@ def project_stage(job):
     rpc = getattr(pair, "kind", None) == "rpc"
     if rpc and reg is not None:
         raise RiverbedError("registration does not apply to an RPC pair (the cloud's CRS places it)", job.pair)
-    sparse, counts, used, empty = None, {}, [], []
+    sparse, counts, used, empty = None, {"points_read": 0, "kept": 0, "crs": None}, [], []
     for cloud in job.clouds:
         if not _cloud_may_land(cloud, pair, pair.registration if reg is None else reg, (H, W), s["lidar_crs"]):
             empty.append(cloud)
@@ -155,37 +157,27 @@ def project_stage(job):
             raise
         used.append(cloud)
         for k in ("points_read", "kept"):
-            counts[k] = counts.get(k, 0) + st[k]
-        counts.setdefault("crs", st.get("crs"))
+            counts[k] += st[k]
+        counts["crs"] = counts["crs"] or st.get("crs")
         sparse = sp if sparse is None else np.fmax(sparse, sp)  # the nearer point has the larger disparity
-    if sparse is None:
+    if sparse is None and job.clouds:
         raise RiverbedError(f"no cloud has points in the pair's images ({len(job.clouds)} checked)", job.pair)
-    # The LiDAR's offset against the images, once for the pair (as match_tiled does for its tiles): sparse.tif holds
-    # the corrected LiDAR, and the matching tasks take it as it is
-    p = match_params(s)
+    p = pair_params(s, lidar=sparse is not None)
     srcs = [_image_source(getattr(pair, side), (H, W), s["max_pixels"]) for side in ("left", "right")]
-    check_disparity_values(sparse, W)  # a point next to a camera is no disparity of the pair
-    pr, pc = np.nonzero(np.isfinite(sparse))
-    sparse, offset = correct_large(*srcs, sparse, (pr, pc, sparse[pr, pc]), p.lidar_offset, image_bits(*srcs))
-    d_min, d_max = resolve_disparity_range(s["min_disp"], s["max_disp"], sparse[np.isfinite(sparse)], width=W)
-    # and the LiDAR check, once for the pair too: sparse.tif holds the points kept, .work/changed.npy the changed area
-    check = None
-    if p.lidar_check == "auto":
-        given = sparse
-        sparse, check = check_whole(*srcs, sparse, d_min, d_max, p)
-        if check.changed is not None:  # the changed area for the tiles, its points for the pair's change map
-            (folder / WORK).mkdir(exist_ok=True)
-            _save_npy(check.changed, folder / WORK / "changed.npy")
-            rr, cc = np.nonzero(check.dropped == 2)
-            np.save(folder / WORK / "changed_points.npy", np.stack([rr, cc, given[rr, cc]], axis=1).astype(np.float64))
-    tags = {"riverbed_pair": job.pair, "riverbed_clouds": json.dumps(used), "riverbed_block_pair": job.name,
-            "riverbed_lidar_offset": json.dumps(offset.to_dict())}
-    write_disparity(folder / "sparse.tif", sparse, overwrite=True, tags=tags)
+    points, share, offset, check = None, 0.0, None, None
+    if sparse is None:  # no cloud: the images alone, over the pair's range
+        d_min, d_max = _range_without_lidar(s, pair, job.pair, W)
+        (folder / "sparse.tif").unlink(missing_ok=True)  # an earlier run's, with a cloud the manifest has no more
+    else:
+        d_min, d_max, offset, check, sparse = _lidar_stage(s, p, srcs, sparse, W, folder)
+        tags = {"riverbed_pair": job.pair, "riverbed_clouds": json.dumps(used), "riverbed_block_pair": job.name,
+                "riverbed_lidar_offset": json.dumps(offset.to_dict())}
+        write_disparity(folder / "sparse.tif", sparse, overwrite=True, tags=tags)
+        points = sparse_points_any(sparse)
+        share = lidar_share_of_points(points[0], points[1], (H, W))
 
     # The matching plan, as match_tiled makes it.
     guide = get_guide(p.guide)
-    pr, pc, pv = sparse_points_any(sparse)
-    share = lidar_share_of_points(pr, pc, (H, W))
 
     rmap, dsm_stats = None, {}
     if job.range_map:
@@ -197,7 +189,7 @@ def project_stage(job):
     if rmap is not None:
         widths = (rmap.widths(d_min, d_max), rmap.cell)
     else:
-        widths = tube_widths(p, (pr, pc, pv), (H, W), d_min, d_max, share)
+        widths = tube_widths(p, points, (H, W), d_min, d_max, share)
     plan = plan_tiles(H, W, sparse, d_min, d_max, s["tile"], s["overlap"], s["lidar_range"], widths=widths,
                       range_map=rmap)
     tiles, window, bits = [], p.guidance.window, None
@@ -217,11 +209,52 @@ def project_stage(job):
                 _save_npy(valid, work / f"{side}_valid.npy")
     stats = {"clouds": len(used), "clouds_without_points": len(empty), "lidar_points_read": counts["points_read"],
              "lidar_points_kept": counts["kept"], "lidar_share": share, "lidar_crs": counts["crs"],
-             "tile": int(plan.size) if tiles else None, "lidar_offset": offset.to_dict(),
+             "tile": int(plan.size) if tiles else None,
+             **({"lidar_offset": offset.to_dict()} if offset is not None else {}),
              **({"lidar_check": check.report.to_dict()} if check is not None else {}), **dsm_stats}
     return {"tiles": tiles, "window": window, "bits": bits, "d_min": d_min, "d_max": d_max, "stats": stats,
             "shape": [H, W], "range_map": rmap is not None, "rectify_seconds": t_rectify,
             "seconds": round(time.perf_counter() - t0, 4)}
+
+
+def pair_params(s, lidar=True):
+    """The pair's :class:`~riverbed_cli.matching.config.MatchConfig`; without LiDAR, unguided (as ``riverbed match``
+    without ``--sparse``)."""
+    p = match_params(s)
+    return p if lidar else p.replace(guide="none")
+
+
+def _range_without_lidar(s, pair, path, width):
+    # a pair without a cloud searches min_disp..max_disp, or its pair file's range (rectify's tie points, an RPC
+    # pair's heights)
+    d_min, d_max = s["min_disp"], s["max_disp"]
+    if d_min is None or d_max is None:
+        if pair.disparity is None:
+            raise RiverbedError("no cloud and no disparity range: give the pair a cloud, min_disp and max_disp, or a "
+                                "pair file with its range (riverbed rectify writes one)", path)
+        d_min = math.floor(pair.disparity[0]) if d_min is None else d_min
+        d_max = math.ceil(pair.disparity[1]) if d_max is None else d_max
+    return resolve_disparity_range(d_min, d_max, None, width=width)
+
+
+def _lidar_stage(s, p, srcs, sparse, W, folder):
+    # The LiDAR's offset against the images, once for the pair (as match_tiled does for its tiles): sparse.tif holds
+    # the corrected LiDAR, and the matching tasks take it as it is; then the LiDAR check, once for the pair too:
+    # sparse.tif holds the points kept, .work/changed.npy the changed area
+    check_disparity_values(sparse, W)  # a point next to a camera is no disparity of the pair
+    pr, pc = np.nonzero(np.isfinite(sparse))
+    sparse, offset = correct_large(*srcs, sparse, (pr, pc, sparse[pr, pc]), p.lidar_offset, image_bits(*srcs))
+    d_min, d_max = resolve_disparity_range(s["min_disp"], s["max_disp"], sparse[np.isfinite(sparse)], width=W)
+    check = None
+    if p.lidar_check == "auto":
+        given = sparse
+        sparse, check = check_whole(*srcs, sparse, d_min, d_max, p)
+        if check.changed is not None:  # the changed area for the tiles, its points for the pair's change map
+            (folder / WORK).mkdir(exist_ok=True)
+            _save_npy(check.changed, folder / WORK / "changed.npy")
+            rr, cc = np.nonzero(check.dropped == 2)
+            np.save(folder / WORK / "changed_points.npy", np.stack([rr, cc, given[rr, cc]], axis=1).astype(np.float64))
+    return d_min, d_max, offset, check, sparse
 
 
 def _pair_range_map(path, shape, d_min, d_max, s, work):
@@ -280,7 +313,8 @@ def tile_stage(job, proj, index):
     t0 = time.perf_counter()
     s = job.settings
     # sparse.tif holds the corrected and checked LiDAR, .work/changed.npy the check's changed area (project_stage)
-    p = match_params(s).replace(lidar_offset="none", lidar_check="off")
+    lidar = bool(proj["stats"]["clouds"])
+    p = pair_params(s, lidar).replace(lidar_offset="none", lidar_check="off")
     folder = Path(job.folder)
     H, W = proj["shape"]
     at = folder / WORK / "changed.npy"
@@ -293,13 +327,13 @@ def tile_stage(job, proj, index):
         if left.shape[:2] != (H, W):
             raise RiverbedError(f"image is {left.shape[1]}x{left.shape[0]} but the pair file says {W}x{H} (WxH)",
                                 pair.left)
-        sparse = read_disparity(folder / "sparse.tif")
+        sparse = read_disparity(folder / "sparse.tif") if lidar else None
         rmap = _load_range_map(folder, proj)
         valid = tuple(read_valid_area(path) for path in (pair.left, pair.right))
         ch = None if changed is None else np.asarray(changed)
-        if rmap is None:
-            res = match_pair(left, right, sparse, s["min_disp"], s["max_disp"], p, valid_areas=valid,
-                             changed_area=ch)
+        if rmap is None:  # with LiDAR, the range it gives (as project_stage found it); without, the pair's
+            d0, d1 = (s["min_disp"], s["max_disp"]) if lidar else (proj["d_min"], proj["d_max"])
+            res = match_pair(left, right, sparse, d0, d1, p, valid_areas=valid, changed_area=ch)
         else:  # the pair's range, widened to hold the map
             res = match_pair(left, right, sparse, proj["d_min"], proj["d_max"], p, range_map=rmap,
                              valid_areas=valid, changed_area=ch)
@@ -310,7 +344,7 @@ def tile_stage(job, proj, index):
     tile = Tile(*proj["tiles"][index])
     left = np.load(folder / WORK / "left.npy", mmap_mode="r")
     right = np.load(folder / WORK / "right.npy", mmap_mode="r")
-    sparse = WindowedRaster(folder / "sparse.tif", "disparity")
+    sparse = WindowedRaster(folder / "sparse.tif", "disparity") if lidar else None
     # the pair's LiDAR share and range: every tile takes the whole pair's tubes, as match_tiled does
     valid = tuple(np.load(f, mmap_mode="r") if f.exists() else None
                   for f in (folder / WORK / f"{side}_valid.npy" for side in ("left", "right")))
@@ -419,7 +453,7 @@ def finish_stage(job, proj, tiles):
                "bounds": list(grid.bounds), **proj["stats"], **info, "d_min": proj["d_min"],
                "d_max": proj["d_max"], **({"change_map": change_stats} if change_stats else {}), "seconds": seconds}
     outputs = {name: {"size": (folder / name).stat().st_size, "sha256": sha256_file(folder / name)}
-               for name in OUTPUTS}
+               for name in OUTPUTS if name != LIDAR_OUTPUT or proj["stats"]["clouds"]}
     record = {"name": job.name, "pair": job.pair, "clouds": job.clouds, "settings_hash": job.settings_hash,
               "settings": s, "inputs": job.inputs, "outputs": outputs, "stats": summary,
               "riverbed": riverbed_version(), "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
