@@ -41,6 +41,7 @@ from . import visibility as vis
 from .cameras import as_matrix, check_registration
 from .coverage import lidar_share
 from .outliers import SOR_K, SOR_SIGMA, layer_winners, sor_inliers_image
+from .rpc_dem import height_transformer
 from .rpc_geometry import project_cloud_rpc, triangulate_rpc
 
 log = logging.getLogger(__name__)
@@ -67,7 +68,8 @@ class ProjectionStats(RecordMapping):
     image (:func:`~riverbed_cli.geometry.coverage.lidar_share`); ``window``: the riverbed window that share gives,
     set by callers that match (None here); ``d_range``: [min, max] disparity (px); ``size``: [width, height];
     ``row_offset_px``: median and max row offset at the kept points, for pairs not exactly rectified; ``crs``;
-    ``seconds`` and ``stage_seconds``.
+    ``heights_converted`` (``from``, ``to``: the vertical datums) when the cloud's heights were converted to the
+    pair's; ``seconds`` and ``stage_seconds``.
     """
 
     points_read: int
@@ -83,10 +85,11 @@ class ProjectionStats(RecordMapping):
     size: list = None
     row_offset_px: dict = None
     crs: str = None
+    heights_converted: dict = None
     seconds: float = 0.0
     stage_seconds: dict = field(default_factory=dict)
 
-    _optional = ("row_offset_px",)
+    _optional = ("row_offset_px", "heights_converted")
 
 
 @njit(cache=True)
@@ -176,30 +179,59 @@ def _grow(a, cap):
 
 
 def _check_crs(pair, cloud_crs, cloud_path):
-    """Refuse a cloud whose CRS differs from the pair's (no reprojection here). A compound CRS (horizontal +
-    vertical, e.g. a DEM's projected CRS + EGM2008 heights) is compared by its horizontal part, and by its vertical
-    part only when the pair states one too: frame orientations carry no vertical datum, and their camera heights are
-    taken to be on the cloud's."""
+    """Refuse a cloud whose CRS differs from the pair's horizontally (no reprojection here); return the conversion
+    of its heights to the pair's vertical datum, or None. A compound CRS (horizontal + vertical, e.g. a DEM's
+    projected CRS + EGM2008 heights) is compared by its horizontal part, and by its vertical part (a 3-D CRS's:
+    ellipsoidal heights) only when the pair states one too: frame orientations carry no vertical datum, and their
+    camera heights are then taken to be on the cloud's. Two datums that differ are converted by PROJ
+    (:func:`~riverbed_cli.geometry.rpc_dem.height_transformer`: a missing geoid grid is a one-line error, never a
+    silent shift of the DSM by the geoid's undulation)."""
     if pair.crs is None or cloud_crs is None:
-        return
+        return None
     try:
         pair_crs = CRS.from_user_input(pair.crs)
     except CRSError:
         raise RiverbedError(f"crs: unknown CRS '{pair.crs}' in the pair file") from None
     if pair_crs.equals(cloud_crs, ignore_axis_order=True):
-        return
-    (pair_h, pair_v), (cloud_h, cloud_v) = crs_parts(pair_crs), crs_parts(cloud_crs)
+        return None
+    (pair_h, _), (cloud_h, _) = crs_parts(pair_crs), crs_parts(cloud_crs)
     if not pair_h.equals(cloud_h, ignore_axis_order=True):
         raise RiverbedError(
             f"the cloud's CRS ({crs_label(cloud_crs)}) differs from the pair's ({crs_label(pair_crs)}); "
             "reproject the cloud, or pass --crs if the file states a wrong one", cloud_path)
-    if pair_v is not None and cloud_v is not None and not pair_v.equals(cloud_v):
-        raise RiverbedError(
-            f"the cloud's heights ({cloud_v.name}) are on another vertical datum than the pair's ({pair_v.name}); "
-            "convert the cloud's heights first", cloud_path)
+    pair_v, cloud_v = vertical_datum(pair_crs), vertical_datum(cloud_crs)
     if cloud_v is not None and pair_v is None:
         log.info("%s: heights taken to be on the cloud's vertical datum (%s): the pair states none",
-                 cloud_path, cloud_v.name)
+                 cloud_path, cloud_v)
+    if pair_v is None or cloud_v is None or pair_v == cloud_v:
+        return None
+    heights = height_transformer(cloud_crs, pair_crs, cloud_path, what=f"{cloud_v} (the pair's: {pair_v})")
+    log.info("%s: heights converted from %s to the pair's %s (PROJ: %s)", cloud_path, cloud_v, pair_v,
+             heights.description)
+    return HeightConversion(heights, cloud_v, pair_v)
+
+
+@dataclass
+class HeightConversion:
+    """A cloud's heights converted to the pair's vertical datum (``source`` and ``target``: their names)."""
+
+    transformer: object
+    source: str
+    target: str
+
+    def __call__(self, xyz):
+        """``xyz`` (N, 3) in the cloud's CRS with its heights on the pair's datum (in place)."""
+        xyz[:, 2] = self.transformer.transform(xyz[:, 0], xyz[:, 1], xyz[:, 2])[2]
+        return xyz
+
+
+def vertical_datum(crs):
+    """The name of a CRS's height datum: a compound CRS's vertical part, ``ellipsoidal`` for a 3-D CRS, None for a
+    2-D one (heights on no stated datum)."""
+    _, vertical = crs_parts(crs)
+    if vertical is not None:
+        return vertical.name
+    return "ellipsoidal" if len(crs.axis_info) == 3 else None
 
 
 def crs_parts(crs):
@@ -337,7 +369,7 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
         raise RiverbedError(f"surface_margin must be at least 0 m, got {surface_margin}")
     info = lidar_info(cloud_path)
     cloud_crs = resolve_crs(info, crs)
-    _check_crs(pair, cloud_crs, cloud_path)
+    heights = _check_crs(pair, cloud_crs, cloud_path)
     H, W = shape if shape is not None else image_shape(pair)
 
     if registration is None:
@@ -362,6 +394,8 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
     n_read = n_class = 0
     for chunk in iter_lidar(cloud_path, chunk_size=chunk_size):
         xyz = np.ascontiguousarray(chunk["xyz"], np.float64)
+        if heights is not None:
+            heights(xyz)
         keep = class_mask(chunk["classification"], classes, drop_classes)
         n_read += xyz.shape[0]
         n_class += int(xyz.shape[0] - keep.sum())
@@ -445,6 +479,8 @@ def project_cloud(cloud_path, pair, registration=None, classes=None, drop_classe
                     "(median, max %.3f) at the kept points; %d points off by more than %.1f px dropped",
                     float(np.median(dy)), float(dy.max()), n_row, MAX_ROW_OFFSET)
     stats.crs = crs_name(cloud_crs) if cloud_crs is not None else pair.crs
+    if heights is not None:
+        stats.heights_converted = {"from": heights.source, "to": heights.target}
     t_end = time.perf_counter()
     stats.seconds = t_end - t0
     stats.stage_seconds = {"stream": t_stream - t0, "outliers": t_sor - t_stream,

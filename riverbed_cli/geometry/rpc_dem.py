@@ -25,16 +25,22 @@ EGM96 = "EPSG:5773"
 def geoid_to_ellipsoid_transformer(vertical, path=None):
     """A pyproj transformer (lon, lat, orthometric height) -> (lon, lat, WGS 84 ellipsoidal height).
 
-    ``vertical`` is a vertical CRS (e.g. ``"EPSG:5773"``, EGM96 height, SRTM's datum). PROJ's geoid grids are not
-    in pyproj's wheel and cannot be downloaded here: when the grid is not on PROJ's search path, Debian's
-    ``/usr/share/proj`` (package proj-data) is added; if the grid is still missing, a :class:`RiverbedError`
-    names it (never PROJ's silent "ballpark" transformation, which leaves the heights unchanged).
+    ``vertical`` is a vertical CRS (e.g. ``"EPSG:5773"``, EGM96 height, SRTM's datum); the grid rule of
+    :func:`height_transformer`.
     """
     try:
         src = CRS.from_user_input(f"EPSG:4326+{CRS.from_user_input(vertical).to_epsg()}")
     except (CRSError, TypeError):
         raise RiverbedError(f"unknown vertical datum '{vertical}'", path) from None
-    dst = CRS.from_epsg(4979)
+    return height_transformer(src, CRS.from_epsg(4979), path, what=CRS.from_user_input(vertical).name)
+
+
+def height_transformer(src, dst, path=None, what=None):
+    """A pyproj transformer from ``src`` to ``dst`` (3-D or compound CRSs, ``always_xy``) that converts heights
+    between their vertical datums with PROJ's geoid grid. PROJ's grids are not in pyproj's wheel and cannot be
+    downloaded here: when the grid is not on PROJ's search path, Debian's ``/usr/share/proj`` (package proj-data)
+    is added; if the grid is still missing, a :class:`RiverbedError` names it (never PROJ's silent "ballpark"
+    transformation, which leaves the heights unchanged). ``what``: how the heights are named in that error."""
     for attempt in range(2):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)    # "best transformation is not available": handled here
@@ -47,9 +53,8 @@ def geoid_to_ellipsoid_transformer(vertical, path=None):
             continue
     grids = [g.short_name for op in group.unavailable_operations for g in op.grids if not g.available]
     name = grids[0] if grids else "its geoid grid"
-    raise RiverbedError(f"heights are {CRS.from_user_input(vertical).name} and PROJ's grid {name} is not "
-                        "available offline (install Debian's proj-data, or point PROJ_DATA at a folder with it)",
-                        path)
+    raise RiverbedError(f"heights are {what or src.name} and PROJ's grid {name} is not available offline (install "
+                        "Debian's proj-data, or point PROJ_DATA at a folder with it)", path)
 
 
 @dataclass
