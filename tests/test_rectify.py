@@ -675,3 +675,33 @@ def test_match_pair_without_a_range_is_one_line(tmp_path):
         f"error: {bare}: no disparity range in the pair file (riverbed rectify writes one when it finds tie points);"
         " give --min-disp/--max-disp, --sparse or --range-map")
     assert not (tmp_path / "d.tif").exists()
+
+
+@pytest.mark.parametrize("given, expected, source", [
+    (["--lidar", SAMPLE / "lidar.laz"], [487, 519], "lidar.laz (11772 points seen by both images)"),
+    (["--dem", SAMPLE / "gt_dsm.tif"], [487, 518], "gt_dsm.tif (322600 points seen by both images)"),
+    (["--heights", "225,275"], [482, 535], "--heights 225,275"),
+], ids=["lidar", "dem", "heights"])
+def test_the_range_from_the_terrain(tmp_path, lidar, given, expected, source):
+    """--lidar / --dem: the disparities of the points both images see (the LiDAR's 491.6..513.9 px) +- 4 px;
+    --heights: the left rays cut at both heights (the sample's LiDAR lies within 225..275 m)."""
+    r = _run("rectify", F0, Y0, F1, Y1, "-o", tmp_path / "out", "--json", *given)
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    assert (s["disparity"], s["disparity_from"]) == (expected, source)
+    pair = load_pairfile(tmp_path / "out" / "pair.yaml")
+    assert list(pair.disparity) == expected
+    lo, hi = _d_range(pair, lidar, margin=0.0)
+    assert expected[0] <= lo and hi <= expected[1]
+    assert 225 < lidar[:, 2].min() and lidar[:, 2].max() < 275
+
+
+def test_the_terrain_from_two_sources_or_above_the_cameras_is_one_line(tmp_path):
+    r = _run("rectify", F0, Y0, F1, Y1, "-o", tmp_path / "out", "--heights", "190,260", "--lidar", SAMPLE / "lidar.laz")
+    assert (r.exit_code, r.output) == (1, "riverbed: error: give the terrain by one of --heights LO,HI, --dem DEM or "
+                                          "--lidar CLOUD (or none: the range from tie points)\n")
+    r = _run("rectify", F0, Y0, F1, Y1, "-o", tmp_path / "out", "--heights", "900,1000")
+    assert (r.exit_code, r.output) == (1, "riverbed: error: --heights: the cameras do not look down on the terrain "
+                                          "at 900 m (the plane is not in front of the left camera everywhere in its "
+                                          "view)\n")
+    assert not (tmp_path / "out").exists()

@@ -328,7 +328,7 @@ def test_rectify_lidar_bad_inputs(scene, tmp_path):
         ([*args, "--lidar", cloud, "--vertical", "EPSG:5773"],
          "--vertical does not apply to --lidar (the cloud's CRS gives its heights' datum)"),
         ([*args, "--lidar", tmp_path / "none.laz"], f"{tmp_path / 'none.laz'}: file not found"),
-        (["rectify", left, left, right, rpc, "-o", out, "--lidar", cloud], "--lidar needs --rpc"),
+        (["rectify", left, left, right, rpc, "-o", out, "--lidar", cloud, "--roi", "0,0,10,10"], "--roi needs --rpc"),
     ]
     for argv, message in cases:
         r = run(argv)

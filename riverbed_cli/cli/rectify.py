@@ -34,8 +34,7 @@ def _alpha(ctx, param, value):
 
 #: Options of one mode only: (parameter, option, mode it belongs to).
 PINHOLE_ONLY = (("alpha", "--alpha"), ("size", "--size"))
-RPC_ONLY = (("roi", "--roi"), ("dem", "--dem"), ("heights", "--heights"), ("vertical", "--vertical"),
-            ("pointing", "--no-pointing-correction"), ("lidar", "--lidar"), ("lidar_crs", "--lidar-crs"))
+RPC_ONLY = (("roi", "--roi"), ("vertical", "--vertical"), ("pointing", "--no-pointing-correction"))
 
 
 @click.command("rectify")
@@ -52,16 +51,17 @@ RPC_ONLY = (("roi", "--roi"), ("dem", "--dem"), ("heights", "--heights"), ("vert
 @click.option("--roi", default=None, metavar="COL,ROW,W,H", callback=parsed_value(parse_roi, "--roi"),
               help="[--rpc] Region of the left image to rectify (px; default the whole image).")
 @click.option("--dem", type=input_path(), default=None,
-              help="[--rpc] DEM over the ROI (geographic CRS, e.g. SRTM .hgt): the height range is its range "
-                   "under the ROI +- 20 m.")
+              help="DEM of the terrain: the pair's disparity range is that of its cells both images see +- 4 px "
+                   "(--rpc: a geographic DEM, e.g. SRTM .hgt; the height range is its range under the ROI +- 20 m).")
 @click.option("--heights", default=None, metavar="LO,HI", callback=parsed_value(parse_heights, "--heights"),
-              help="[--rpc] The terrain's height range instead of a DEM (m, ellipsoidal unless --vertical).")
+              help="The terrain's height range instead of a DEM (m; --rpc: ellipsoidal unless --vertical).")
 @click.option("--lidar", type=input_path(), multiple=True, metavar="CLOUD",
-              help="[--rpc] LiDAR (LAS/LAZ, repeatable) instead of a DEM: the height range is that of its points "
-                   "under the ROI +- 20 m (ASPRS noise classes 7 and 18 dropped).")
+              help="LiDAR (LAS/LAZ, repeatable) instead of a DEM: the range of its points both images see +- 4 px "
+                   "(--rpc: the height range of its points under the ROI +- 20 m, noise classes 7 and 18 dropped). "
+                   "None of --dem, --heights, --lidar: the range the tie points show.")
 @click.option("--lidar-crs", default=None, metavar="CRS",
-              help="[--rpc] CRS of the --lidar clouds when their files do not state it (3D, or compound with the "
-                   "heights' datum, e.g. EPSG:32631+5773).")
+              help="CRS of the --lidar clouds (or --dem) when their files do not state it (--rpc: 3D, or compound "
+                   "with the heights' datum, e.g. EPSG:32631+5773).")
 @click.option("--vertical", default=None, metavar="DATUM",
               help="[--rpc] Vertical datum of --dem when its file does not say, or of --heights: ellipsoid or a "
                    "vertical CRS (EPSG:5773 = EGM96).")
@@ -112,8 +112,12 @@ def rectify_cmd(ctx, left_img, left_orient, right_img, right_orient, outdir, rpc
                      "within %.4f px", outdir, summary["width"], summary["height"], *summary["disparity"],
                      *summary["heights"], summary["pointing_row_offset_px"], summary["virtual_row_residual_max_px"])
         return
+    if sum(bool(v) for v in (dem, heights, lidar)) > 1:
+        raise RiverbedError("give the terrain by one of --heights LO,HI, --dem DEM or --lidar CLOUD (or none: the "
+                            "range from tie points)")
     summary = rectify_files(left_img, left_orient, right_img, right_orient, outdir, overwrite=overwrite,
-                            alpha=alpha, size=size, max_pixels=max_pixels)
+                            alpha=alpha, size=size, max_pixels=max_pixels, heights=heights,
+                            clouds=[*([dem] if dem else []), *lidar], cloud_crs=lidar_crs)
     if as_json:
         print_json(summary)
     else:

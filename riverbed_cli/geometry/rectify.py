@@ -33,6 +33,7 @@ from ..io.images import MAX_PIXELS, read_image, write_png_file
 from .pairfile import write_pairfile
 from .tie_points import rectification_check, warn_on_parallax
 from .cameras import PairGeometry
+from .frame_range import range_from_clouds, range_from_heights
 from .orientation import (
     FrameOrientation,
     load_orientation,
@@ -299,7 +300,7 @@ def check_alpha(value):
 
 
 def rectify_files(left_image, left_orientation, right_image, right_orientation, outdir, overwrite=False,
-                  alpha=0.0, size=None, max_pixels=None):
+                  alpha=0.0, size=None, max_pixels=None, heights=None, clouds=None, cloud_crs=None):
     """Read two raw frames and their orientation files, rectify, write left.png, right.png, pair.yaml.
 
     ``outdir`` is created if missing (its parent must exist). All three outputs are written under temporary
@@ -307,7 +308,15 @@ def rectify_files(left_image, left_orientation, right_image, right_orientation, 
     ``overwrite``. Returns a summary dict (files and sizes, focal length, baseline, rotation, valid shares, and the
     tie points' check of the written pair, :func:`~riverbed_cli.geometry.tie_points.rectification_check`: its
     vertical parallax, with a warning above 1 px, and the disparities it shows).
+
+    The pair file's disparity range (``disparity``, what ``riverbed match --pair`` searches) comes from
+    ``heights`` (``(lo, hi)`` m), from ``clouds`` (LAS/LAZ or DEM files; ``cloud_crs`` their CRS when they state
+    none) or, with neither, from the tie points (:mod:`~riverbed_cli.geometry.frame_range`); the summary's
+    ``disparity`` and ``disparity_from`` say which.
     """
+    if heights is not None and clouds:
+        raise RiverbedError("give the terrain by one of --heights LO,HI, --dem DEM or --lidar CLOUD (or none: the "
+                            "range from tie points)")
     t0 = time.perf_counter()
     outdir = Path(outdir)
     check_output_folder(outdir, OUTPUTS, overwrite,
@@ -326,14 +335,21 @@ def rectify_files(left_image, left_orientation, right_image, right_orientation, 
     # the rectification checked on the rectified images: tie points' rows, and the disparities they show (the
     # pair file's range, which riverbed match --pair searches)
     check = rectification_check(result.left, result.right, valid_areas=result.valid_areas)
+    shape = result.left.shape[:2]
+    if heights is not None:
+        rng, source = range_from_heights(result.pair, heights, shape), f"--heights {heights[0]:g},{heights[1]:g}"
+    elif clouds:
+        *rng, n = range_from_clouds(result.pair, clouds, shape, cloud_crs)
+        source = f"{', '.join(Path(c).name for c in clouds)} ({n} points seen by both images)"
+    else:
+        rng, source = check.get("disparity"), f"{check['tie_points']} tie points"
     outdir.mkdir(exist_ok=True)
     paths = [outdir / name for name in OUTPUTS]
-    pair = result.pair.replace(left=paths[0].absolute(), right=paths[1].absolute(), disparity=check.get("disparity"))
+    pair = result.pair.replace(left=paths[0].absolute(), right=paths[1].absolute(), disparity=rng)
     info = result.info
     names = [Path(p).name for p in (left_image, left_orientation, right_image, right_orientation)]
-    found = (f"disparity range {check['disparity'][0]}..{check['disparity'][1]} px from {check['tie_points']} tie "
-             "points (riverbed match --pair searches it)" if "disparity" in check
-             else f"no disparity range: {check['tie_points']} tie points")
+    found = (f"disparity range {rng[0]}..{rng[1]} px from {source} (riverbed match --pair searches it)"
+             if rng is not None else f"no disparity range: {source}")
     comment = (f"Rectified by riverbed rectify from {names[0]} ({names[1]}) and {names[2]} ({names[3]}).\n"
                f"f = {info['focal_px']:.6f} px, baseline {info['baseline']:.6f}: d = x_left - x_right = "
                f"{info['fB']:.6f} / depth (px); images turned by {info['turn_deg'][0]} (left) and "
@@ -346,4 +362,5 @@ def rectify_files(left_image, left_orientation, right_image, right_orientation, 
     files = {name: p.stat().st_size for name, p in zip(OUTPUTS, paths)}
     warn_on_parallax(check, str(outdir))
     return {"outdir": str(outdir), "files": files, **info, "tie_points": check,
+            "disparity": None if rng is None else [int(v) for v in rng], "disparity_from": source,
             "seconds": round(time.perf_counter() - t0, 3)}
