@@ -33,10 +33,8 @@ Stage: ``(left, right, LiDAR disparities, a coarse unguided match of the pair) -
   contradict the same way, through at most :data:`UNKNOWN_HOPS` in a row they cannot judge, never through a point
   the reference confirms (within ``TAU``). A change is kept when the images contradict at least
   :data:`SEEN_SHARE` of the points it took. Every point it took is dropped.
-* **Gross outliers.** A point outside the changes, more than ``TAU`` px from its alternative, is dropped when
-  nothing supports it: no other LiDAR point within ``NEAR`` spacings lies within ``TAU`` px of it, and the images
-  do not prefer it (they contradict it, its patch is flat or leaves the right image, or its cost is not ``MARGIN``
-  below the alternative's). An isolated point on a thin object the images see stays.
+* **Gross outliers.** A point the images contradict, outside the changes, is dropped when no other LiDAR point
+  within ``NEAR`` spacings lies within ``TAU`` px of it: nothing around it supports it.
 * **Downstream** (:func:`~riverbed_cli.matching.pipeline.match_pair`). The points dropped guide nothing, bound no
   tube and are not interpolated by the fusion. The changed area (a disc of one spacing round each changed point,
   closed over two) searches the whole range instead of the tubes of the LiDAR around it, and there the fusion keeps
@@ -157,13 +155,11 @@ def _prefers(own, best, margin):
 
 
 def _verdicts(gl, gr, rows, cols, values, alt, factor):
-    # +1 / -1: the images contradict the point (LiDAR above / below them), 0: they agree or prefer nothing; and
-    # whether they prefer the point clearly over its alternative (points within TAU of it: not judged, False)
+    # +1 / -1: the images contradict the point (LiDAR above / below them), 0: they agree or prefer nothing
     far = np.isfinite(alt) & (np.abs(values - alt) > TAU)
     out = np.zeros(values.size, np.int8)
-    confirmed = np.zeros(values.size, np.bool_)
     if not far.any():
-        return out, confirmed
+        return out
     i = np.flatnonzero(far)
     own, best = _costs(gl, gr, rows[i], cols[i], values[i], alt[i], factor)
     # a disparity whose patch leaves the right image, where the alternative's correlates, is contradicted too
@@ -171,8 +167,7 @@ def _verdicts(gl, gr, rows, cols, values, alt, factor):
     leaves = (xr < RADIUS) | (xr >= gl.shape[1] - RADIUS - 1)
     contradicted = _prefers(own, best, MARGIN) | (leaves & (best + MARGIN <= 1.0))
     out[i[contradicted]] = np.sign(values[i[contradicted]] - alt[i[contradicted]]).astype(np.int8)
-    confirmed[i] = _prefers(best, own, MARGIN)
-    return out, confirmed
+    return out
 
 
 def _cell_regions(rows, cols, verdict, has_alt, shape, side):
@@ -359,7 +354,7 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
         alt[outside], around[outside] = np.nan, np.nan
     from_ref = np.isfinite(alt)
     alt = np.where(from_ref, alt, around)
-    raw, confirmed = _verdicts(gl, gr, rows, cols, values, alt, factor)
+    raw = _verdicts(gl, gr, rows, cols, values, alt, factor)
     # the images' alternative explained by the LiDAR around the point: an occluded background point, or one beside a
     # depth edge the coarse reference fattened, not a change
     explained = np.zeros(n, np.bool_)
@@ -409,9 +404,7 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
             changed = _changed_area(rows[in_region], cols[in_region], shape, spacing) if in_region.any() else None
         if changed is not None:
             n_regions = cv2.connectedComponents(changed.astype(np.uint8), connectivity=8)[0] - 1
-    # a point far from its alternative that nothing around supports: no neighbour, and the images do not prefer it
-    far = np.isfinite(alt) & (np.abs(values - alt) > TAU)
-    outlier = far & ~supported & ~confirmed & ~in_region
+    outlier = (raw != 0) & ~supported & ~in_region
 
     dropped = np.zeros(shape, np.uint8)
     dropped[rows[outlier], cols[outlier]] = 1
