@@ -1,18 +1,21 @@
-"""Does fusion pay in the DSM? DSMs from riverbed-guided and from unguided disparities against the ground-truth DSM.
+"""Does fusion pay in the DSM? DSMs from riverbed-guided disparities, from unguided disparities and from the LiDAR
+alone, against the ground-truth DSM.
 
-Usage: python benchmarks/bench_fusion.py DATA_DIR [--sample sample_data/block] [--docs docs]
+    python benchmarks/bench_fusion.py [DATA] --write benchmarks/results_fusion.json --docs docs/dsm.md [--png docs]
 
 * Middlebury dev scenes, camera frame as world: a nadir-like frame (x right, y up, height = -depth) with a made-up
   but plausible half-size calibration (f = 1870 px, B = 0.16 m, doffs = 100 px: depths ~1.5-2.5 m). LiDAR is
-  simulated by sampling 5 % of the GT (seed 0). The GT DSM is rasterised from the GT disparity on the same grid.
-* The sample aerial block (``--sample``): the LAZ is projected with ``riverbed project``, matched guided and
-  unguided, and each DSM is compared with the block's ground-truth DSM.
+  simulated by sampling 5 % of the image pixels from the GT (seed 0). The GT DSM is rasterised from the GT
+  disparity on the same grid.
+* The sample aerial block (``sample_data/block``): the LAZ is projected with ``riverbed project``, matched guided
+  and unguided (and interpolated alone, ``riverbed densify --method planes``), and each DSM is compared with the
+  block's ground-truth DSM through the commands.
 
-Prints a markdown table (RMSE, NMAD, share of cells off by more than 3 x GSD, completeness) and writes side-by-side
-PNGs (GT | unguided | riverbed) into --docs.
+``--write`` stores the rows (the committed result file), ``--docs`` rewrites the table of docs/dsm.md from it
+(``tests/test_dsm_doc.py`` checks that the committed doc is that rewrite, and the claims it states); ``--png`` writes
+the side-by-side PNGs (GT | unguided | riverbed) there.
 """
 
-import argparse
 import json
 import subprocess
 import sys
@@ -21,15 +24,24 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import rasterio
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from datasets import DEV_SCENES, middlebury  # noqa: E402
+from datasets import DEV_SCENES, middlebury, rows_main  # noqa: E402
 
 from riverbed_cli.geometry.cameras import PairGeometry  # noqa: E402
 from riverbed_cli.matching.pipeline import match_pair  # noqa: E402
 from riverbed_cli.products.dsm import Grid, build_dsm  # noqa: E402
+from riverbed_cli.products.densify import densify  # noqa: E402
 from riverbed_cli.products.dsm_compare import compare_dsm  # noqa: E402
 from riverbed_cli.products.simulate import simulate_lidar  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+BEGIN, END = "<!-- bench_fusion: begin -->", "<!-- bench_fusion: end -->"
+#: the methods of each scene, in the table's order
+METHODS = ("unguided", "LiDAR only", "riverbed")
+#: the share of the image pixels sampled from the GT as LiDAR (Middlebury)
+SHARE = 0.05
 
 
 def middlebury_nadir_pair(width, height, f=1870.0, baseline=0.16, doffs=100.0):
@@ -61,30 +73,38 @@ def side_by_side(path, dsms, labels):
     cv2.imwrite(str(path), np.hstack([x for t in tiles for x in (t, gap)][:-1]))
 
 
-def compare_three(gt_dsm, dsms, gsd):
-    return {name: compare_dsm(d, gt_dsm, (), resolution=gsd) for name, d in dsms.items()}
+def _row(scene, method, m, gsd):
+    # the figures the table shows, rounded (the committed file holds what the doc prints, and a test re-measures)
+    return {"scene": scene, "method": method, "rmse": round(m["rmse"], 4), "nmad": round(m["nmad"], 4),
+            "over_3res": round(m["over_3res"], 2), "completeness": round(m["completeness"], 1), "gsd": gsd}
 
 
-def middlebury_rows(data_dir, docs, share):
+def middlebury_scene(data_dir, name, share=SHARE):
+    """One Middlebury dev scene's rows (unguided, LiDAR only, riverbed) and its DSMs (GT first)."""
+    sc = middlebury(data_dir, name)
+    H, W = sc.gt.shape
+    pair = middlebury_nadir_pair(W, H)
+    sparse = simulate_lidar(sc.gt, share, seed=0)
+    d_max = int(np.ceil(np.nanmax(sc.gt))) + 4
+    disps = {"unguided": match_pair(sc.left, sc.right, sparse, 0, d_max, guide="none").disparity,
+             "LiDAR only": densify(sparse, "planes"),
+             "riverbed": match_pair(sc.left, sc.right, sparse, 0, d_max, guide="riverbed").disparity}
+    gt_res = build_dsm([(sc.gt, pair, None)])
+    grid: Grid = gt_res.grid
+    out = {k: build_dsm([(d, pair, None)], resolution=grid.resolution, bounds=grid.bounds).dsm
+           for k, d in disps.items()}
+    rows = [_row(f"Middlebury {name}", k, compare_dsm(out[k], gt_res.dsm, (), resolution=grid.resolution),
+                 float(f"{grid.resolution:.4g}")) for k in METHODS]
+    return rows, [gt_res.dsm, out["unguided"], out["riverbed"]]
+
+
+def middlebury_rows(data_dir, docs):
     rows = []
     for name in DEV_SCENES:
-        sc = middlebury(data_dir, name)
-        H, W = sc.gt.shape
-        pair = middlebury_nadir_pair(W, H)
-        sparse = simulate_lidar(sc.gt, share, seed=0)
-        d_max = int(np.ceil(np.nanmax(sc.gt))) + 4
-        disps = {"unguided": match_pair(sc.left, sc.right, sparse, 0, d_max, guide="none").disparity,
-                 "riverbed": match_pair(sc.left, sc.right, sparse, 0, d_max, guide="riverbed").disparity}
-        gt_res = build_dsm([(sc.gt, pair, None)])
-        grid: Grid = gt_res.grid
-        out = {k: build_dsm([(d, pair, None)], resolution=grid.resolution, bounds=grid.bounds).dsm
-               for k, d in disps.items()}
-        m = compare_three(gt_res.dsm, out, grid.resolution)
-        for k in ("unguided", "riverbed"):
-            rows.append({"scene": f"Middlebury {name}", "method": k, **m[k], "gsd": grid.resolution})
+        scene_rows, dsms = middlebury_scene(data_dir, name)
+        rows += scene_rows
         if docs and name == "Reindeer":
-            side_by_side(Path(docs) / "fusion_reindeer_dsm.png", [gt_res.dsm, out["unguided"], out["riverbed"]],
-                         ["ground truth", "unguided SGM", "riverbed 5 %"])
+            side_by_side(Path(docs) / "fusion_reindeer_dsm.png", dsms, ["ground truth", "unguided SGM", "riverbed 5 %"])
     return rows
 
 
@@ -104,22 +124,21 @@ def sample_rows(sample_dir, docs):
 
         pair = sample / "pair.yaml"
         rb("project", sample / "lidar.laz", pair, "-o", t / "sparse.tif")
-        for name, extra in (("unguided", ["--guide", "none"]), ("riverbed", [])):
-            rb("match", sample / "left.png", sample / "right.png", "--sparse", t / "sparse.tif", *extra,
-               "-o", t / f"{name}.tif")
-            import rasterio
-
-            with rasterio.open(sample / "gt_dsm.tif") as ref:
-                res = ref.res[0]
-                b = ref.bounds
-            rb("dsm", t / f"{name}.tif", pair, "-o", t / f"{name}_dsm.tif", "--resolution", res, "--bounds",
-               b.left, b.bottom, b.right, b.top)
-            m = json.loads(rb("evaluate", "--dsm", t / f"{name}_dsm.tif", sample / "gt_dsm.tif", "--json",
-                              "--thresholds", ""))
-            rows.append({"scene": "sample block", "method": name, **m, "gsd": res})
+        with rasterio.open(sample / "gt_dsm.tif") as ref:
+            res = ref.res[0]
+            b = ref.bounds
+        for name in METHODS:
+            disp = t / f"{name.replace(' ', '_')}.tif"
+            if name == "LiDAR only":
+                rb("densify", t / "sparse.tif", "-o", disp, "--method", "planes")
+            else:
+                rb("match", sample / "left.png", sample / "right.png", "--sparse", t / "sparse.tif",
+                   *(["--guide", "none"] if name == "unguided" else []), "-o", disp)
+            dsm = t / f"{name.replace(' ', '_')}_dsm.tif"
+            rb("dsm", disp, pair, "-o", dsm, "--resolution", res, "--bounds", b.left, b.bottom, b.right, b.top)
+            m = json.loads(rb("evaluate", "--dsm", dsm, sample / "gt_dsm.tif", "--json"))
+            rows.append(_row("sample block", name, m, res))
         if docs:
-            import rasterio
-
             def read(p):
                 with rasterio.open(p) as ds:
                     return ds.read(1, masked=True).astype(np.float64).filled(np.nan)
@@ -130,21 +149,22 @@ def sample_rows(sample_dir, docs):
     return rows
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("data_dir")
-    ap.add_argument("--sample", default=None, help="sample block folder (pair.yaml, lidar.laz, gt_dsm.tif)")
-    ap.add_argument("--docs", default=None, help="write the side-by-side PNGs here")
-    ap.add_argument("--share", type=float, default=0.05)
-    args = ap.parse_args()
-    rows = middlebury_rows(args.data_dir, args.docs, args.share)
-    if args.sample:
-        rows += sample_rows(args.sample, args.docs)
-    print("| scene | disparities | RMSE | NMAD | cells off > 3 GSD % | completeness % | GSD |")
-    print("|---|---|---:|---:|---:|---:|---:|")
+def run(data, png=None):
+    return middlebury_rows(data, png) + sample_rows(REPO / "sample_data" / "block", png)
+
+
+def tables(rows):
+    """The table of docs/dsm.md from the rows."""
+    out = ["| scene | disparities | RMSE (m) | NMAD (m) | cells off > 3 GSD % | completeness % | GSD (m) |",
+           "|---|---|---:|---:|---:|---:|---:|"]
     for r in rows:
-        print(f"| {r['scene']} | {r['method']} | {r['rmse']:.4f} | {r['nmad']:.4f} | {r['over_3res']:.2f} | "
-              f"{r['completeness']:.1f} | {r['gsd']:.4g} |")
+        out.append(f"| {r['scene']} | {r['method']} | {r['rmse']:.4f} | {r['nmad']:.4f} | {r['over_3res']:.2f} | "
+                   f"{r['completeness']:.1f} | {r['gsd']:.4g} |")
+    return "\n".join(out)
+
+
+def main():
+    rows_main(__doc__, run, tables, BEGIN, END, options=(("--png", "write the side-by-side PNGs into this folder"),))
 
 
 if __name__ == "__main__":

@@ -95,10 +95,11 @@ def rewrite_block(path, begin, end, body):
     Path(path).write_text(f"{head}{begin}\n{body}\n{end}{tail}")
 
 
-def rows_main(doc, run, tables, begin, end):
+def rows_main(doc, run, tables, begin, end, options=()):
     """The command line of a benchmark whose rows make a doc page's tables: ``[DATA] [--write JSON] [--docs MD]
     [--rows JSON]``; ``run(data)`` measures the rows, ``tables(rows)`` makes the Markdown put between the markers
-    ``begin`` and ``end`` of ``--docs``; prints the tables."""
+    ``begin`` and ``end`` of ``--docs``; prints the tables. ``options``: more ``(--name, help)`` options, passed to
+    ``run`` by name."""
     import argparse
     import json
     import os
@@ -108,8 +109,11 @@ def rows_main(doc, run, tables, begin, end):
     ap.add_argument("--write", help="store the rows in this JSON file")
     ap.add_argument("--docs", help="rewrite the tables of this Markdown file from the rows")
     ap.add_argument("--rows", help="take the rows from this JSON file instead of running")
+    for name, text in options:
+        ap.add_argument(name, help=text)
     a = ap.parse_args()
-    rows = json.loads(Path(a.rows).read_text()) if a.rows else run(a.data)
+    extra = {name.lstrip("-").replace("-", "_"): getattr(a, name.lstrip("-").replace("-", "_")) for name, _ in options}
+    rows = json.loads(Path(a.rows).read_text()) if a.rows else run(a.data, **extra)
     if a.write:
         Path(a.write).write_text(json.dumps(rows, indent=1) + "\n")
     if a.docs:
