@@ -1,16 +1,25 @@
 """Rasterisation speed: riverbed's DSM accumulator against plain numpy per-cell aggregation, in one run.
 
-Usage: python benchmarks/bench_dsm.py [--points 10000000] [--resolution 0.5]
+    python benchmarks/bench_dsm.py --write benchmarks/results_dsm_speed.json --docs docs/dsm.md
 
-Points are random over a 1 km x 1 km UTM-like tile (heights ~ 300 m); each method builds the same grid.
+10 million points random over a 1 km x 1 km UTM-like tile (heights ~ 300 m) onto 0.5 m cells; each method builds
+the same grid (checked). ``--write`` stores the rows (the committed result file), ``--docs`` rewrites the table of
+docs/dsm.md from it (``tests/test_dsm_doc.py`` checks the doc and the claims it states on the committed rows).
 """
 
-import argparse
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
-from riverbed_cli.products.dsm import Grid, rasterize
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from datasets import rows_main  # noqa: E402
+
+from riverbed_cli.products.dsm import Grid, rasterize  # noqa: E402
+
+BEGIN, END = "<!-- bench_dsm: begin -->", "<!-- bench_dsm: end -->"
+POINTS, RESOLUTION = 10_000_000, 0.5
 
 
 def numpy_max_at(x, y, z, g):
@@ -59,17 +68,14 @@ def timed(fn, *a):
     return r, time.perf_counter() - t
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--points", type=int, default=10_000_000)
-    ap.add_argument("--resolution", type=float, default=0.5)
-    args = ap.parse_args()
+def run(data=None, points=None):
+    """The rows: per aggregation, riverbed's seconds and each numpy baseline's, measured side by side."""
     rng = np.random.default_rng(0)
-    n = args.points
+    n = int(points or POINTS)
     x = 500000 + rng.uniform(0, 1000, n)
     y = 5000000 + rng.uniform(0, 1000, n)
     z = rng.normal(300, 5, n)
-    g = Grid.from_bounds(500000, 5000000, 501000, 5001000, args.resolution)
+    g = Grid.from_bounds(500000, 5000000, 501000, 5001000, RESOLUTION)
     for agg in ("max", "mean", "median", "idw"):  # JIT warm-up
         rasterize(x[:1000], y[:1000], z[:1000], g, agg)
     rows = []
@@ -78,16 +84,30 @@ def main():
                  "idw": []}
     for agg, bases in baselines.items():
         ours, t_ours = timed(rasterize, x, y, z, g, agg)
-        rows.append((agg, "riverbed", t_ours, None))
+        rows.append({"aggregation": agg, "method": "riverbed", "seconds": round(t_ours, 3), "points": n,
+                     "cells": [g.width, g.height]})
         for name, fn in bases:
             ref, t = timed(fn, x, y, z, g)
             assert np.allclose(ours, ref, equal_nan=True, atol=1e-3), f"{agg}: {name} disagrees"
-            rows.append((agg, f"numpy {name}", t, t / t_ours))
-    print(f"### DSM rasterisation: {n / 1e6:g} million points onto {g.width} x {g.height} cells\n")
-    print("| aggregation | method | seconds | million points / s | riverbed speed-up |")
-    print("|---|---|---:|---:|---:|")
-    for agg, name, t, ratio in rows:
-        print(f"| {agg} | {name} | {t:.2f} | {n / t / 1e6:.1f} | {'' if ratio is None else f'{ratio:.1f}x'} |")
+            rows.append({"aggregation": agg, "method": f"numpy {name}", "seconds": round(t, 3), "points": n,
+                         "cells": [g.width, g.height]})
+    return rows
+
+
+def tables(rows):
+    """The speed table of docs/dsm.md from the rows (the speed-up: a baseline's seconds over riverbed's, same run)."""
+    n, (w, h) = rows[0]["points"], rows[0]["cells"]
+    ours = {r["aggregation"]: r["seconds"] for r in rows if r["method"] == "riverbed"}
+    out = [f"{n / 1e6:g} million points onto {w} x {h} cells, one run:", "",
+           "| aggregation | method | seconds | million points / s | riverbed speed-up |", "|---|---|---:|---:|---:|"]
+    for r in rows:
+        up = "" if r["method"] == "riverbed" else f"{r['seconds'] / ours[r['aggregation']]:.1f}x"
+        out.append(f"| {r['aggregation']} | {r['method']} | {r['seconds']:.2f} | {n / r['seconds'] / 1e6:.1f} | {up} |")
+    return "\n".join(out)
+
+
+def main():
+    rows_main(__doc__, run, tables, BEGIN, END, options=(("--points", f"points (default {POINTS:,})"),))
 
 
 if __name__ == "__main__":

@@ -46,3 +46,21 @@ def test_the_claims_hold(scene):
 def test_a_scene_measured_again_is_the_committed_one(shared_data):
     rows, _ = bench_fusion.middlebury_scene(shared_data, "Cones")
     assert rows == [BY[("Middlebury Cones", m)] for m in bench_fusion.METHODS]
+
+
+import bench_dsm  # noqa: E402
+
+SPEED = json.loads((REPO / "benchmarks" / "results_dsm_speed.json").read_text())
+
+
+def test_the_speed_table_is_the_committed_results():
+    block = DOC.split(bench_dsm.BEGIN)[1].split(bench_dsm.END)[0]
+    assert block.strip() == bench_dsm.tables(SPEED).strip()
+
+
+def test_riverbed_rasterises_faster_than_every_numpy_way():
+    # "riverbed is faster than every numpy way on every aggregation" (seconds of one run, side by side)
+    ours = {r["aggregation"]: r["seconds"] for r in SPEED if r["method"] == "riverbed"}
+    assert set(ours) == {"max", "mean", "median", "idw"}
+    others = [r for r in SPEED if r["method"] != "riverbed"]
+    assert len(others) == 4 and all(r["seconds"] > ours[r["aggregation"]] for r in others)
