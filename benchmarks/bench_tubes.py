@@ -8,7 +8,7 @@ Usage: python benchmarks/bench_tubes.py [DATA_DIR] [--skip-speed] [--skip-covera
    of pixels left on the full range. LiDAR is a seeded sample of the GT at a share of the *image* pixels
    (``simulate_lidar``), as in docs/benchmarks.md.
 2. Accuracy, full range against tubes (8 and 4 paths), riverbed-guided SGM fused (the default) and alone
-   (``--fusion none``), beside the LiDAR-only baselines (nearest, linear, image-guided) of the same points.
+   (``--fusion none``), beside the LiDAR-only baselines of the same points (``bench_tube_accuracy.py``).
 3. LiDAR holes: pixels with no LiDAR within reach on the nominal range (the default) against the range of a coarse
    match (``--tube-holes coarse``): coverage, width and errors in holes cut into the LiDAR.
 4. LiDAR beyond the nominal range: the speed pair and Cones with a range that cuts off their nearest parts, the
@@ -105,36 +105,13 @@ def coverage(data_dir, shares):
 
 
 def accuracy(data_dir, shares):
+    # the accuracy section: benchmarks/bench_tube_accuracy.py (its rows make docs/tubes.md's and docs/fusion.md's
+    # tables), printed here for the shares asked
+    from bench_tube_accuracy import scene_rows, tubes_table
+
     print("\n### Accuracy: riverbed-guided SGM, full range against tubes, beside the LiDAR alone (bad3 % / avg px)\n")
-    print("LiDAR: a share of the image pixels sampled from the GT (seed 0); errors over the GT pixels not sampled. "
-          "The LiDAR-only baselines interpolate the same points without the right image (`riverbed densify`; "
-          "planes: the fusion's LiDAR side on dense LiDAR); fused: the default confidence fusion (its LiDAR side "
-          "`--fusion-lidar auto`: local planes for LiDAR denser than one point per 12 x 12 px, here 5 % and 1.23 %, "
-          "else the Delaunay fill; linear LiDAR: `--fusion-lidar linear`, the Delaunay fill at every share, as "
-          "before 2026-12-03); alone: `--fusion none` (the paper's method).\n")
-    print("| scene | LiDAR | LiDAR nearest | LiDAR linear | LiDAR planes | LiDAR guided | full range, fused | "
-          "tubes, fused | tubes, fused, linear LiDAR | full range, alone | tubes, alone | tubes, 4 paths, fused | "
-          "tube mean width / nominal |")
-    print("|---|---:|---|---|---|---|---|---|---|---|---|---|---|")
-    for name, left, right, gt in scenes(data_dir):
-        d_max = int(math.ceil(np.nanmax(gt))) + 4
-        for share in shares:
-            sparse = simulate_lidar(gt, share, seed=0)
-            cells, t = [], None
-            for method in ("nearest", "linear", "planes", "guided"):
-                m = evaluate_disparity(densify(sparse, method, image=left), gt, exclude=sparse)
-                cells.append(f"{m['bad3']:.2f} / {m['avg']:.3f}")
-            for rng, fusion, paths, lidar in (("full", "auto", 8, "auto"), ("tube", "auto", 8, "auto"),
-                                              ("tube", "auto", 8, "linear"), ("full", "none", 8, "auto"),
-                                              ("tube", "none", 8, "auto"), ("tube", "auto", 4, "auto")):
-                res = match_pair(left, right, sparse, 0, d_max, range=rng, fusion=fusion, paths=paths,
-                                 fusion_lidar=lidar)
-                m = evaluate_disparity(res.disparity, gt, exclude=sparse)
-                cells.append(f"{m['bad3']:.2f} / {m['avg']:.3f}")
-                if rng == "tube":
-                    t = res.info["tubes"]
-            print(f"| {name} | {share * 100:.2f} % | {' | '.join(cells)} | "
-                  f"{t['mean_width']:.1f} / {t['nominal']} |", flush=True)
+    rows = [r for name, left, right, gt in scenes(data_dir) for r in scene_rows(name, left, right, gt, shares)]
+    print(tubes_table(rows), flush=True)
 
 
 def holes(data_dir, share=0.05, seed=1):

@@ -95,19 +95,21 @@ def rewrite_block(path, begin, end, body):
     Path(path).write_text(f"{head}{begin}\n{body}\n{end}{tail}")
 
 
-def rows_main(doc, run, tables, begin, end, options=()):
-    """The command line of a benchmark whose rows make a doc page's tables: ``[DATA] [--write JSON] [--docs MD]
+def rows_main(doc, run, tables, begin=None, end=None, options=()):
+    """The command line of a benchmark whose rows make a doc page's tables: ``[DATA] [--write JSON] [--docs MD ...]
     [--rows JSON]``; ``run(data)`` measures the rows, ``tables(rows)`` makes the Markdown put between the markers
-    ``begin`` and ``end`` of ``--docs``; prints the tables. ``options``: more ``(--name, help)`` options, passed to
-    ``run`` by name."""
+    ``begin`` and ``end`` of each ``--docs`` file; prints the tables. ``tables`` may also be a list of ``(tables,
+    begin, end)``: each file gets the blocks whose markers it holds. ``options``: more ``(--name, help)`` options,
+    passed to ``run`` by name."""
     import argparse
     import json
     import os
 
+    blocks = [(tables, begin, end)] if begin is not None else list(tables)
     ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     ap.add_argument("data", nargs="?", default=os.environ.get("RIVERBED_DATA", "../shared/data"))
     ap.add_argument("--write", help="store the rows in this JSON file")
-    ap.add_argument("--docs", help="rewrite the tables of this Markdown file from the rows")
+    ap.add_argument("--docs", action="append", default=[], help="rewrite the tables of this Markdown file")
     ap.add_argument("--rows", help="take the rows from this JSON file instead of running")
     for name, text in options:
         ap.add_argument(name, help=text)
@@ -116,6 +118,10 @@ def rows_main(doc, run, tables, begin, end, options=()):
     rows = json.loads(Path(a.rows).read_text()) if a.rows else run(a.data, **extra)
     if a.write:
         Path(a.write).write_text(json.dumps(rows, indent=1) + "\n")
-    if a.docs:
-        rewrite_block(a.docs, begin, end, tables(rows))
-    print(tables(rows))
+    for path in a.docs:
+        text = Path(path).read_text()
+        for fn, b, e in blocks:
+            if b in text:
+                rewrite_block(path, b, e, fn(rows))
+    for fn, _, _ in blocks:
+        print(fn(rows))
