@@ -294,7 +294,7 @@ def test_adcensus_is_a_real_matcher(cones_results):
 def test_adcensus_riverbed_cuts_bad3(cones_results):
     # measured on Cones at 5 % LiDAR (bad1 / bad2 / bad3 %, avg px): AD-Census 10.19 / 7.40 / 6.02 / 0.84;
     # + Gauss 6.43 / 4.95 / 4.15 / 0.65; + diffusion 2.35 / 1.98 / 1.59 / 0.30; + riverbed 2.34 / 1.88 / 1.58 / 0.27
-    # (Cones is the closest race with diffusion among the dev scenes, docs/riverbed_plus.md)
+    # (Cones is the closest race with diffusion among the dev scenes, docs/benchmarks.md)
     none, rb, gauss, diff = (cones_results[g] for g in ("none", "riverbed", "gauss", "diffusion"))
     assert rb["bad3"] <= 0.3 * none["bad3"]
     assert rb["avg"] <= 0.35

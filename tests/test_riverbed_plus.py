@@ -143,7 +143,7 @@ def cones_results(cones):
 
 def test_riverbed_plus_beats_riverbed_at_0_16_percent(cones_results):
     # measured on Cones at 0.16 % (seed 0): riverbed bad3 5.52 %, avg 0.698 px -> riverbed+ 4.70 %, 0.636 px
-    # (Cones gains least of the dev scenes; Reindeer goes from 1.98 to 0.96 px, docs/riverbed_plus.md)
+    # (Cones gains least of the dev scenes; every scene in docs/benchmarks.md)
     rb, plus = cones_results[0.0016, "riverbed"], cones_results[0.0016, "riverbed+"]
     assert plus["avg"] <= rb["avg"] - 0.04
     assert plus["bad3"] <= rb["bad3"] - 0.5

@@ -98,7 +98,7 @@ class DiffusionConfig:
 
 @dataclass(frozen=True)
 class PlusConfig:
-    """riverbed+ settings (:mod:`..riverbed_plus`; measured in docs/riverbed_plus.md)."""
+    """riverbed+ settings (:mod:`..riverbed_plus`; docs/riverbed_plus.md)."""
 
     hops: object = "auto"  # support-region hops, or "auto" (round(spacing / 6), clipped to 1..8)
     margin: float = 2.0  # band half-margin around the connected LiDAR range (disparity px)
