@@ -1,7 +1,6 @@
 """Speed and memory of ``riverbed project`` on 10 million points, against reading the file with laspy alone.
 
 Usage: python benchmarks/bench_project.py [--points N] [--laz] [--width 6000] [--height 4000] [--keep DIR]
-       python benchmarks/bench_project.py --visibility [--kitti DATA_DIR]
 
 Generates, in a temporary folder, an aerial-like scene: a hilly terrain with flat-roofed buildings in a
 UTM-like frame (origin 500000, 5000000), sampled at random and stored in 5 m strips (as a flight line would
@@ -15,13 +14,7 @@ subprocess (peak RSS as VmHWM and RSS after the imports, from /proc/self/status)
 
 Prints a markdown table (seconds, points per second, RSS, and ``project``'s own stage times).
 
-``--visibility`` instead compares the hidden point removal methods on the round-trip scene of
-tests/test_cli_project.py (Middlebury Cones ground truth as LiDAR at 5, 10 and 30 % of the pixels, hidden
-points behind the surface at 20 % of the others, outliers above it): share of hidden points removed, of
-visible points kept, of points hidden in the right view removed; then on the bundled sample aerial block
-(sample_data/block: synthetic LiDAR and ground-truth disparity), the kept points whose disparity is wrong.
-With ``--kitti DATA_DIR`` also on the real KITTI frame: points kept and removed, and the median photometric
-error |I_L(x) - I_R(x - d)| of each set (hidden points match badly).
+The hidden point removal methods are compared by ``bench_hidden_points.py``.
 """
 
 import argparse
@@ -149,68 +142,6 @@ def speed(args):
     return 0
 
 
-def visibility_table(kitti_dir=None):
-    sys.path.insert(0, str(ROOT / "tests"))
-    from test_cli_project import build_scene, score  # the round-trip scene of the tests
-
-    from riverbed_cli.geometry.projection import project_cloud
-    from riverbed_cli.io.disparity import read_disparity
-    from riverbed_cli.geometry.pairfile import load_pairfile
-
-    gt = read_disparity(ROOT / "tests/data/cones/disp2.png", scale=4)
-    confs = [("none (nearest point per pixel only)", {"visibility": "none"})]
-    confs += [("z-buffer, footprint auto (default: tolerance 1 px, slope 0.5)", {})]
-    confs += [("z-buffer, footprint auto, tolerance 2 px, slope 1", {"tolerance": 2.0, "slope": 1.0})]
-    confs += [(f"z-buffer, footprint {r}", {"footprint": r}) for r in (2, 3, 4)]
-    confs += [(f"HPR, gamma {g}", {"visibility": "hpr", "hpr_gamma": g}) for g in (3.0, 3.5, 4.0)]
-    print("| LiDAR share | method | hidden removed | visible kept | hidden in the right view removed | "
-          "max error (px) | seconds |\n|---:|---|---:|---:|---:|---:|---:|")
-    for share in (0.05, 0.1, 0.3):
-        with tempfile.TemporaryDirectory(prefix="vis_") as tmp:
-            sc = build_scene(Path(tmp), gt, share=share)
-            for name, kw in confs:
-                sparse, st = project_cloud(Path(tmp) / "scene.las", sc["pair"], **kw)
-                m = score(sparse, gt, sc)
-                print(f"| {100 * share:.0f} % | {name} | {100 * m['hidden_removed']:.2f} % | "
-                      f"{100 * m['visible_kept']:.1f} % | {100 * m['right_occluded_removed']:.1f} % | "
-                      f"{m['max_error']:.4f} | {st['stage_seconds']['visibility']:.2f} |")
-    block = ROOT / "sample_data" / "block"
-    pair = load_pairfile(block / "pair.yaml")
-    gt = read_disparity(block / "gt_disparity.tif")
-    print("\n| sample aerial block: method | kept | removed | kept with error > 1 px | > 0.5 px |\n"
-          "|---|---:|---:|---:|---:|")
-    for name, kw in confs:
-        sparse, st = project_cloud(block / "lidar.laz", pair, **kw)
-        ok = np.isfinite(sparse) & np.isfinite(gt)
-        err = np.abs(sparse[ok] - gt[ok])
-        removed = st["occluded"]["left"] + st["occluded"]["right"]
-        print(f"| {name} | {st['kept']} | {removed} | {(err > 1).sum()} ({100 * (err > 1).mean():.2f} %) | "
-              f"{(err > 0.5).sum()} |")
-    if kitti_dir is None:
-        return 0
-    import cv2
-
-    from riverbed_cli.geometry.cameras import kitti_pair
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from kitti_lidar_demo import KITTI, photometric
-
-    base = Path(kitti_dir) / KITTI
-    pair = kitti_pair(base / "calib.txt")
-    L, R = cv2.imread(str(base / "left.png")), cv2.imread(str(base / "right.png"))
-    shape = L.shape[:2]
-    ref, _ = project_cloud(base / "lidar.bin", pair, visibility="none", shape=shape)
-    print("\n| KITTI: method | kept | removed | median abs dI kept | median abs dI removed |\n"
-          "|---|---:|---:|---:|---:|")
-    print(f"| none | {np.isfinite(ref).sum()} | 0 | {photometric(L, R, ref):.2f} | - |")
-    for name, kw in confs[1:]:
-        sparse, st = project_cloud(base / "lidar.bin", pair, shape=shape, **kw)
-        removed = np.where(np.isfinite(ref) & ~np.isfinite(sparse), ref, np.nan)
-        print(f"| {name} | {st['kept']} | {np.isfinite(removed).sum()} | {photometric(L, R, sparse):.2f} | "
-              f"{photometric(L, R, removed):.2f} |")
-    return 0
-
-
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--points", type=int, default=10_000_000)
@@ -218,10 +149,8 @@ def main():
     ap.add_argument("--width", type=int, default=6000)
     ap.add_argument("--height", type=int, default=4000)
     ap.add_argument("--keep", default=None, help="Folder to keep the generated files in (default: none).")
-    ap.add_argument("--visibility", action="store_true", help="Compare hidden point removal methods instead.")
-    ap.add_argument("--kitti", default=None, help="With --visibility: the shared data folder (KITTI).")
     args = ap.parse_args()
-    return visibility_table(args.kitti) if args.visibility else speed(args)
+    return speed(args)
 
 
 if __name__ == "__main__":
