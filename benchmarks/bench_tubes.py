@@ -87,21 +87,12 @@ def scenes(data_dir):
 
 
 def coverage(data_dir, shares):
+    # the coverage section: benchmarks/bench_tube_coverage.py (its rows make docs/tubes.md's tables), printed here
+    from bench_tube_coverage import scene_rows, tables
+
     print("### Tube coverage of the true disparity (GT pixels not sampled), mean width, pixels on the full range\n")
-    print("LiDAR: a share of the image pixels sampled from the GT (seed 0).\n")
-    print("| scene | LiDAR | rule | coverage % | mean width px | nominal px | full range % |")
-    print("|---|---:|---|---:|---:|---:|---:|")
-    for name, _, _, gt in scenes(data_dir):
-        d_max = int(math.ceil(np.nanmax(gt))) + 4
-        for share in shares:
-            sparse = simulate_lidar(gt, share, seed=0)
-            ev = np.isfinite(gt) & ~np.isfinite(sparse)
-            for label, kw in RULES.items():
-                lo, hi = lidar_tubes(sparse, 0, d_max, **kw)
-                inside = (gt[ev] >= lo[ev]) & (gt[ev] <= hi[ev])
-                w = hi - lo + 1
-                print(f"| {name} | {share * 100:.2f} % | {label} | {100 * inside.mean():.2f} | {w.mean():.1f} | "
-                      f"{d_max + 1} | {100 * (w >= d_max + 1).mean():.1f} |", flush=True)
+    rows = [r for name, _, _, gt in scenes(data_dir) for r in scene_rows(name, gt, shares)]
+    print(tables(rows) if tuple(shares) == (0.05, 0.0123, 0.0016) else "\n".join(map(str, rows)), flush=True)
 
 
 def accuracy(data_dir, shares):
