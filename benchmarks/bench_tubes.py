@@ -44,7 +44,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_match import opencv_grey_files, opencv_times_apart  # noqa: E402
 from bench_placement import probe  # noqa: E402
-from datasets import DEV_SCENES, middlebury, speed_pair, speed_scene  # noqa: E402
+from datasets import DEV_SCENES, middlebury, speed_pair  # noqa: E402
 
 from riverbed_cli.io.disparity import read_disparity, write_disparity  # noqa: E402
 from riverbed_cli.io.images import read_image  # noqa: E402
@@ -52,7 +52,6 @@ from riverbed_cli.matching.config import MatchConfig  # noqa: E402
 from riverbed_cli.matching.pipeline import fill_tube_holes, match_pair  # noqa: E402
 from riverbed_cli.matching.tubes import lidar_tubes  # noqa: E402
 from riverbed_cli.products.densify import densify  # noqa: E402
-from riverbed_cli.products.evaluate import evaluate_disparity  # noqa: E402
 from riverbed_cli.products.simulate import simulate_lidar  # noqa: E402
 from riverbed_cli.scale.tiles import match_tiled  # noqa: E402
 
@@ -176,32 +175,11 @@ VARIANTS = [
 
 
 def beyond(data_dir):
+    # the beyond section: benchmarks/bench_tube_beyond.py (its rows make docs/tubes.md's table), printed here
+    from bench_tube_beyond import run, tables
+
     print("\n### LiDAR beyond the nominal range: cut at the range against the whole scene's\n")
-    print("Accuracy on the GT pixels inside the range, not sampled as LiDAR; riverbed-guided SGM, 8 paths.\n")
-    print("| pair | LiDAR | range | fusion | mean width | full range % | bad1 % | bad3 % | avg px |")
-    print("|---|---|---|---|---:|---:|---:|---:|---:|")
-    cones = middlebury(data_dir, "Cones")
-    whole = simulate_lidar(cones.gt, 0.05, seed=0)
-    left, right, scene = speed_scene(data_dir)
-    pairs = [("740x500 Reindeer, 0..79", left, right, scene, speed_pair(data_dir)[2],
-              speed_pair(data_dir, beyond=True)[2], 79),
-             ("Cones, 0..39 (GT to 55)", cones.left, cones.right, cones.gt, np.where(whole <= 39, whole, np.nan),
-              whole, 39)]
-    for label, left, right, gt, cut, every, d_max in pairs:
-        truth = np.where(gt <= d_max, gt, np.nan)
-        for method in ("nearest", "linear", "guided"):  # LiDAR alone: the points inside the range, interpolated
-            e = evaluate_disparity(densify(cut, method, image=left), truth, exclude=np.isfinite(every))
-            print(f"| {label} | LiDAR alone, {method} ({int(np.isfinite(cut).sum())} points inside) | | | | | "
-                  f"{e['bad1']:.2f} | {e['bad3']:.2f} | {e['avg']:.3f} |")
-        for name, sparse in (("cut at the range", cut), ("whole scene", every)):
-            for rng in ("tube", "full"):
-                for fusion in ("auto", "none"):
-                    res = match_pair(left, right, sparse, 0, d_max, range=rng, fusion=fusion)
-                    e = evaluate_disparity(res.disparity, truth, exclude=np.isfinite(every))
-                    t = res.info.get("tubes") or {"mean_width": d_max + 1, "full_share": 1.0}
-                    print(f"| {label} | {name} ({int(np.isfinite(sparse).sum())} points) | {rng} | {fusion} | "
-                          f"{t['mean_width']:.1f} | {100 * t['full_share']:.1f} | {e['bad1']:.2f} | {e['bad3']:.2f} | "
-                          f"{e['avg']:.3f} |", flush=True)
+    print(tables(run(data_dir)), flush=True)
 
 
 def run_cli(args, env):
