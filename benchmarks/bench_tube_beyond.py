@@ -97,8 +97,9 @@ def tables(rows):
     if speed:
         tube, full = (next(r["beyond"] for r in speed if r["range"] == k) for k in ("tube", "full"))
         out += ["", "Where the truth lies beyond the range (the speed pair's reindeer), tubes put "
-                f"{tube['at_end']:g} % of its pixels at the range's end (within half a pixel), mean error {tube['error']:g} px; the whole "
-                f"range gives {full['under_70']:g} % of them under 70 px, mean error {full['error']:g} px."]
+                f"{tube['at_end']:g} % of its pixels at the range's end (within half a pixel), mean error "
+                f"{tube['error']:g} px; the whole range gives {full['under_70']:g} % of them under 70 px, mean error "
+                f"{full['error']:g} px."]
     return "\n".join(out)
 
 
