@@ -26,7 +26,6 @@ Usage: python benchmarks/bench_tubes.py [DATA_DIR] [--skip-speed] [--skip-covera
 import argparse
 import json
 import logging
-import math
 import os
 import subprocess
 import sys
@@ -48,12 +47,8 @@ from datasets import DEV_SCENES, middlebury, speed_pair  # noqa: E402
 
 from riverbed_cli.io.disparity import read_disparity, write_disparity  # noqa: E402
 from riverbed_cli.io.images import read_image  # noqa: E402
-from riverbed_cli.matching.config import MatchConfig  # noqa: E402
-from riverbed_cli.matching.pipeline import fill_tube_holes, match_pair  # noqa: E402
-from riverbed_cli.matching.tubes import lidar_tubes  # noqa: E402
-from riverbed_cli.products.densify import densify  # noqa: E402
+from riverbed_cli.matching.pipeline import match_pair  # noqa: E402
 from riverbed_cli.products.simulate import simulate_lidar  # noqa: E402
-from riverbed_cli.scale.tiles import match_tiled  # noqa: E402
 
 AERIAL = "aerial_dublincity_fusionx3"
 RULES = {
@@ -105,42 +100,11 @@ def accuracy(data_dir, shares):
 
 
 def holes(data_dir, share=0.05, seed=1):
+    # the holes section: benchmarks/bench_tube_holes.py (its rows make docs/tubes.md's table), printed here
+    from bench_tube_holes import run, tables
+
     print("\n### LiDAR holes: the nominal range against the coarse match's range (`--tube-holes coarse`)\n")
-    print(f"LiDAR: {share * 100:g} % of the image pixels sampled from the GT (seed 0), then removed inside 4 discs of "
-          "radius 0.2 min(H, W) (seed 1): the pixels with no LiDAR within the tube rule's reach are the holes. "
-          "Errors over the GT pixels in the holes (bad3 % / avg px); coverage: their true disparity inside their "
-          "range.\n")
-    print("| scene | holes % of the image | GT px in holes | coverage full / coarse % | width in holes full / coarse "
-          "| LiDAR nearest | LiDAR linear | LiDAR guided | matcher, full | matcher, coarse | fused, full | "
-          "fused, coarse | fused, tiles of 256, full | fused, tiles of 256, coarse |")
-    print("|---|---:|---:|---|---|---|---|---|---|---|---|---|---|---|")
-    rng = np.random.default_rng(seed)
-    for name, left, right, gt in scenes(data_dir):
-        H, W = gt.shape
-        d_max = int(math.ceil(np.nanmax(gt))) + 4
-        mask = np.zeros((H, W), np.uint8)
-        for _ in range(4):
-            cv2.circle(mask, (int(rng.integers(W)), int(rng.integers(H))), int(0.2 * min(H, W)), 1, -1)
-        sparse = simulate_lidar(gt, share, seed=0)
-        sparse[mask.astype(bool)] = np.nan
-        lo, hi, hole = lidar_tubes(sparse, 0, d_max, return_holes=True)
-        clo, chi = fill_tube_holes(left, right, lo, hi, hole, 0, d_max, MatchConfig().replace(tube={"holes": "coarse"}))
-        ev = hole & np.isfinite(gt)
-        cov = 100 * ((gt[ev] >= clo[ev]) & (gt[ev] <= chi[ev])).mean()
-        cells = []
-        for method in ("nearest", "linear", "guided"):  # the LiDAR alone, interpolated across the holes
-            e = np.abs(densify(sparse, method, image=left) - gt)[ev]
-            cells.append(f"{100 * np.mean(e > 3):.2f} / {np.nanmean(e):.3f}")
-        for fusion in ("none", "auto"):
-            for h in ("full", "coarse"):
-                e = np.abs(match_pair(left, right, sparse, 0, d_max, fusion=fusion, tube={"holes": h}).disparity -
-                           gt)[ev]
-                cells.append(f"{100 * np.mean(e > 3):.2f} / {np.nanmean(e):.3f}")
-        for h in ("full", "coarse"):  # tiled: each tile's LiDAR range, and its own coarse match in the holes
-            e = np.abs(match_tiled(left, right, sparse, 0, d_max, tile=256, tube={"holes": h}).disparity - gt)[ev]
-            cells.append(f"{100 * np.mean(e > 3):.2f} / {np.nanmean(e):.3f}")
-        print(f"| {name} | {100 * hole.mean():.1f} | {ev.sum()} | 100.00 / {cov:.2f} | {d_max + 1} / "
-              f"{(chi - clo + 1)[hole].mean():.1f} | {' | '.join(cells)} |", flush=True)
+    print(tables(run(data_dir, share, seed)), flush=True)
 
 
 # The default (tubes, 8 paths, fused) and what each part costs: the full range, the matcher alone (no fusion), and

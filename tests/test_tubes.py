@@ -486,7 +486,10 @@ def test_hole_bounds_hand_made_cases():
     assert (lo[10, 2], hi[10, 2]) == (17, 23)  # 2 x 10 -+ 3
     assert (lo[0, 0], hi[0, 0]) == (17, 27)  # the window holds 10 and 12: 2 x 12 + 3
     assert (lo[10, 40], hi[10, 40]) == (0, 63)  # no coarse disparity in the window: the nominal range
-    assert (lo[20, 11], hi[20, 11]) == (17, 23)  # the last full-resolution row takes the last coarse row
+    assert (lo[20, 9], hi[20, 9]) == (17, 23)  # the last full-resolution row takes the last coarse row
+    # a pixel whose own coarse pixel has no disparity (its match outside the right image) keeps the nominal range,
+    # even with disparities in its window
+    assert (lo[10, 11], hi[10, 11]) == (0, 63)
     lo, hi = hole_bounds(coarse, (20, 40), 0, 20, factor=2, window=1, margin=3.0)
     assert hi[10, 2] == 20 and lo[10, 2] == 17  # clipped to the nominal range
 

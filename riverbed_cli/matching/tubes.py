@@ -297,9 +297,15 @@ def hole_bounds(coarse, shape, d_min, d_max, factor=HOLE_FACTOR, window=HOLE_WIN
     Returns
     -------
     lo, hi : (H, W) int32
-        Inclusive range ends; the nominal range where the window holds no valid coarse disparity.
+        Inclusive range ends; the nominal range where the pixel's own coarse pixel has no disparity (its match lies
+        outside the right image: the neighbours' disparities would send it to a wrong match inside it) or the
+        window holds none.
     """
-    cmin, cmax, known = _window_bounds(np.asarray(coarse, np.float32), shape, factor, window)
+    coarse = np.asarray(coarse, np.float32)
+    cmin, cmax, known = _window_bounds(coarse, shape, factor, window)
+    ys = np.minimum(np.arange(shape[0]) // factor, coarse.shape[0] - 1)
+    xs = np.minimum(np.arange(shape[1]) // factor, coarse.shape[1] - 1)
+    known &= np.isfinite(coarse)[np.ix_(ys, xs)]
     lo = np.where(known, np.floor(np.where(known, cmin, 0) * factor - margin), d_min)
     hi = np.where(known, np.ceil(np.where(known, cmax, 0) * factor + margin), d_max)
     lo = np.clip(lo, d_min, d_max).astype(np.int32)
