@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from gates import assert_catches, assert_within
+from gates import assert_catches, assert_within, off_gate
 from riverbed_cli.cli.main import cli
 from riverbed_cli.io.disparity import read_disparity, write_disparity
 from riverbed_cli.geometry.pairfile import load_pairfile
@@ -100,6 +100,11 @@ def test_guided_matching_beats_unguided_on_held_out_lidar(kitti, tmp_path):
         # the unguided match leaves the left edge, where a match may lie outside the right image, invalid
         assert got[name]["n"] == 7507 and got[name]["density"] == pytest.approx(95.244 if name == "unguided" else 100.0, abs=0.001)
     assert_within(got, HELD_OUT)
+    # and the gates catch a real regression, not only arithmetic: a 5 px window instead of the auto one (measured
+    # bad3 1.33 against 0.81 %) falls outside them
+    run(["match", *common, "--sparse", tmp_path / "half.tif", "--window", "5", "-o", tmp_path / "w5.tif"])
+    worse = evaluate_disparity(read_disparity(tmp_path / "w5.tif"), truth)
+    assert off_gate({"guided": worse}, {"guided": HELD_OUT["guided"]})
 
 
 def test_kitti_data_is_not_in_the_repository():
