@@ -22,7 +22,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_tubes import scenes  # noqa: E402
-from datasets import rows_main  # noqa: E402
+from datasets import cell, rows_main  # noqa: E402
 
 from riverbed_cli.matching.pipeline import match_pair  # noqa: E402
 from riverbed_cli.products.evaluate import evaluate_disparity  # noqa: E402
@@ -67,16 +67,12 @@ def run(data, repeat=None):
     return rows
 
 
-def _cell(v):
-    return f"{v[0]:.2f} / {v[1]:.3f}"
-
-
 def tables(rows):
     out = ["| scene | LiDAR | full | tubes | fused full | fused tubes | mean width / nominal | support costs / px | "
            "full s | tubes s |", "|---|---:|---|---|---|---|---|---:|---:|---:|"]
     for r in rows:
-        out.append(f"| {r['scene']} | {r['share'] * 100:.2f} % | {_cell(r['full'])} | {_cell(r['tube'])} | "
-                   f"{_cell(r['full_fused'])} | {_cell(r['tube_fused'])} | {r['mean_width']:.1f} / {r['nominal']} | "
+        out.append(f"| {r['scene']} | {r['share'] * 100:.2f} % | {cell(r['full'])} | {cell(r['tube'])} | "
+                   f"{cell(r['full_fused'])} | {cell(r['tube_fused'])} | {r['mean_width']:.1f} / {r['nominal']} | "
                    f"{r['support']:.1f} | {r['seconds'][0]:.3f} | {r['seconds'][1]:.3f} |")
     better = sum(r[f"tube{k}"][i] <= r[f"full{k}"][i] for r in rows for k in ("", "_fused") for i in (0, 1))
     gain = max(rows, key=lambda r: r["full"][1] - r["tube"][1])

@@ -23,7 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_tubes import scenes  # noqa: E402
-from datasets import rows_main  # noqa: E402
+from datasets import cell, rows_main  # noqa: E402
 
 from riverbed_cli.matching.pipeline import match_pair  # noqa: E402
 from riverbed_cli.products.densify import densify  # noqa: E402
@@ -70,17 +70,13 @@ def run(data):
     return [r for name, left, right, gt in scenes(data) for r in scene_rows(name, left, right, gt)]
 
 
-def _cell(v):
-    return f"{v[0]:.2f} / {v[1]:.3f}"
-
-
 def tubes_table(rows):
     """docs/tubes.md's table: every column."""
     out = ["| scene | LiDAR | LiDAR nearest | LiDAR linear | LiDAR planes | LiDAR guided | full range, fused | "
            "tubes, fused | tubes, fused, linear LiDAR | full range, alone | tubes, alone | tubes, 4 paths, fused | "
            "tube mean width / nominal |", "|---|---:|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        cells = [_cell(r[f"lidar_{m}"]) for m in LIDAR] + [_cell(r[k[0]]) for k in MATCHES]
+        cells = [cell(r[f"lidar_{m}"]) for m in LIDAR] + [cell(r[k[0]]) for k in MATCHES]
         out.append(f"| {r['scene']} | {r['share'] * 100:.2f} % | {' | '.join(cells)} | "
                    f"{r['mean_width']:.1f} / {r['nominal']} |")
     return "\n".join(out)
@@ -95,7 +91,7 @@ def fusion_table(rows):
             continue
         cells = [r["tube_fused"], r["tube_fused_linear"], r["tube_alone"], r["lidar_planes"], r["lidar_linear"],
                  r["lidar_guided"]]
-        out.append(f"| {r['scene']} | {r['share'] * 100:.2f} % | {' | '.join(_cell(c) for c in cells)} |")
+        out.append(f"| {r['scene']} | {r['share'] * 100:.2f} % | {' | '.join(cell(c) for c in cells)} |")
     return "\n".join(out)
 
 

@@ -23,7 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_tubes import scenes  # noqa: E402
-from datasets import rows_main  # noqa: E402
+from datasets import cell, rows_main  # noqa: E402
 
 from riverbed_cli.matching.config import MatchConfig  # noqa: E402
 from riverbed_cli.matching.pipeline import fill_tube_holes, match_pair  # noqa: E402
@@ -75,17 +75,13 @@ def run(data, share=0.05, seed=1):
     return rows
 
 
-def _cell(v):
-    return f"{v[0]:.2f} / {v[1]:.3f}"
-
-
 def tables(rows):
     out = ["| scene | holes % of image | GT px in holes | coverage full / coarse % | width in holes full / coarse | "
            "LiDAR nearest | LiDAR linear | LiDAR guided | matcher, full | matcher, coarse | fused, full | "
            "fused, coarse | fused, tiles of 256, full | fused, tiles of 256, coarse |",
            "|---|---:|---:|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        cells = [_cell(r[f"lidar_{m}"]) for m in ("nearest", "linear", "guided")] + [_cell(r[k[0]]) for k in MATCHES]
+        cells = [cell(r[f"lidar_{m}"]) for m in ("nearest", "linear", "guided")] + [cell(r[k[0]]) for k in MATCHES]
         out.append(f"| {r['scene']} | {r['holes']:.1f} | {r['gt_pixels']} | 100.00 / {r['coverage_coarse']:.2f} | "
                    f"{r['nominal']} / {r['width_coarse']:.1f} | {' | '.join(cells)} |")
     lidar = ("lidar_nearest", "lidar_linear", "lidar_guided")

@@ -86,6 +86,11 @@ def speed_pair(data_dir, seed=0, share=0.05, beyond=False):
     return left, right, sparse
 
 
+def cell(scores):
+    """A table cell of ``[bad3 %, mean px]``: ``"1.50 / 0.269"``."""
+    return f"{scores[0]:.2f} / {scores[1]:.3f}"
+
+
 def rewrite_block(path, begin, end, body):
     """Replace the text between the markers ``begin`` and ``end`` of the file ``path`` by ``body`` (the generated
     tables of a doc page)."""

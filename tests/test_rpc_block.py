@@ -133,6 +133,7 @@ def test_split_manifest_lists_the_rois(scene):
     assert first["cloud"] == "lidar.laz" and first["rpc"]["left"] == "in/left.tif"
     assert first["rpc"]["left_rpc"] == "in/left.tif" and first["rpc"]["right_rpc"] == "in/right_rpc.json"
     assert first["rpc"]["heights"] == [470.0, 530.0]
+    assert "&id" not in (base / "split.yaml").read_text()  # every ROI's settings written out, no shared anchors
     assert s["left_out"] == [] and all(r["right_share"] > 0.5 for r in s["rois"])
     # the file is not replaced without --overwrite
     r = run(["block", "split-rpc", left, left, right, rpc, "--cloud", cloud, "--size", "140", "-o",

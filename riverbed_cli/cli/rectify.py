@@ -112,12 +112,9 @@ def rectify_cmd(ctx, left_img, left_orient, right_img, right_orient, outdir, rpc
                      "within %.4f px", outdir, summary["width"], summary["height"], *summary["disparity"],
                      *summary["heights"], summary["pointing_row_offset_px"], summary["virtual_row_residual_max_px"])
         return
-    if sum(bool(v) for v in (dem, heights, lidar)) > 1:
-        raise RiverbedError("give the terrain by one of --heights LO,HI, --dem DEM or --lidar CLOUD (or none: the "
-                            "range from tie points)")
     summary = rectify_files(left_img, left_orient, right_img, right_orient, outdir, overwrite=overwrite,
                             alpha=alpha, size=size, max_pixels=max_pixels, heights=heights,
-                            clouds=[*([dem] if dem else []), *lidar], cloud_crs=lidar_crs)
+                            dem=dem, lidar=lidar, lidar_crs=lidar_crs)
     if as_json:
         print_json(summary)
     else:

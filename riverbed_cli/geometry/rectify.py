@@ -300,7 +300,7 @@ def check_alpha(value):
 
 
 def rectify_files(left_image, left_orientation, right_image, right_orientation, outdir, overwrite=False,
-                  alpha=0.0, size=None, max_pixels=None, heights=None, clouds=None, cloud_crs=None):
+                  alpha=0.0, size=None, max_pixels=None, heights=None, dem=None, lidar=(), lidar_crs=None):
     """Read two raw frames and their orientation files, rectify, write left.png, right.png, pair.yaml.
 
     ``outdir`` is created if missing (its parent must exist). All three outputs are written under temporary
@@ -310,11 +310,12 @@ def rectify_files(left_image, left_orientation, right_image, right_orientation, 
     vertical parallax, with a warning above 1 px, and the disparities it shows).
 
     The pair file's disparity range (``disparity``, what ``riverbed match --pair`` searches) comes from
-    ``heights`` (``(lo, hi)`` m), from ``clouds`` (LAS/LAZ or DEM files; ``cloud_crs`` their CRS when they state
-    none) or, with neither, from the tie points (:mod:`~riverbed_cli.geometry.frame_range`); the summary's
-    ``disparity`` and ``disparity_from`` say which.
+    ``heights`` (``(lo, hi)`` m), from a ``dem`` or ``lidar`` clouds (LAS/LAZ; ``lidar_crs`` their CRS when the
+    files state none) or, with none of them, from the tie points (:mod:`~riverbed_cli.geometry.frame_range`); the
+    summary's ``disparity`` and ``disparity_from`` say which.
     """
-    if heights is not None and clouds:
+    clouds = [*([dem] if dem else []), *(lidar or ())]
+    if sum(bool(v) for v in (dem, heights is not None, lidar)) > 1:
         raise RiverbedError("give the terrain by one of --heights LO,HI, --dem DEM or --lidar CLOUD (or none: the "
                             "range from tie points)")
     t0 = time.perf_counter()
@@ -339,7 +340,7 @@ def rectify_files(left_image, left_orientation, right_image, right_orientation, 
     if heights is not None:
         rng, source = range_from_heights(result.pair, heights, shape), f"--heights {heights[0]:g},{heights[1]:g}"
     elif clouds:
-        *rng, n = range_from_clouds(result.pair, clouds, shape, cloud_crs)
+        *rng, n = range_from_clouds(result.pair, clouds, shape, lidar_crs)
         source = f"{', '.join(Path(c).name for c in clouds)} ({n} points seen by both images)"
     else:
         rng, source = check.get("disparity"), f"{check['tie_points']} tie points"

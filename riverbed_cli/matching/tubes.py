@@ -239,7 +239,7 @@ def ranges_from_disparity(disp, shape=None, window=2, margin=3.0):
         raise RiverbedError(f"a {w}x{h} disparity map is not the {W}x{H} image downsampled by an integer factor")
     if window < 0 or margin < 0:
         raise RiverbedError(f"range window and margin must be >= 0, got {window} and {margin}")
-    cmin, cmax, known = _window_bounds(disp, (H, W), factor, window)
+    cmin, cmax, known, _ = _window_bounds(disp, (H, W), factor, window)
     lo = np.where(known, np.where(known, cmin, 0) * factor - margin, np.nan)
     hi = np.where(known, np.where(known, cmax, 0) * factor + margin, np.nan)
     return lo.astype(np.float32), hi.astype(np.float32)
@@ -247,14 +247,14 @@ def ranges_from_disparity(disp, shape=None, window=2, margin=3.0):
 
 def _window_bounds(disp, shape, factor, window):
     # the min and max of the finite values of disp within window px, at each pixel of shape (disp downsampled by
-    # factor); known: where the window holds one
+    # factor); known: where the window holds one; own: where the pixel's own value of disp is finite
     H, W = shape
     ok = np.isfinite(disp)
     cmin, cmax = _window_extrema(np.where(ok, disp, np.inf), np.where(ok, disp, -np.inf), int(window))
-    ys = np.minimum(np.arange(H) // factor, disp.shape[0] - 1)
-    xs = np.minimum(np.arange(W) // factor, disp.shape[1] - 1)
-    cmin, cmax = cmin[np.ix_(ys, xs)], cmax[np.ix_(ys, xs)]
-    return cmin, cmax, np.isfinite(cmin)
+    at = np.ix_(np.minimum(np.arange(H) // factor, disp.shape[0] - 1),
+                np.minimum(np.arange(W) // factor, disp.shape[1] - 1))
+    cmin, cmax = cmin[at], cmax[at]
+    return cmin, cmax, np.isfinite(cmin), ok[at]
 
 
 @njit(cache=True)
@@ -301,11 +301,8 @@ def hole_bounds(coarse, shape, d_min, d_max, factor=HOLE_FACTOR, window=HOLE_WIN
         outside the right image: the neighbours' disparities would send it to a wrong match inside it) or the
         window holds none.
     """
-    coarse = np.asarray(coarse, np.float32)
-    cmin, cmax, known = _window_bounds(coarse, shape, factor, window)
-    ys = np.minimum(np.arange(shape[0]) // factor, coarse.shape[0] - 1)
-    xs = np.minimum(np.arange(shape[1]) // factor, coarse.shape[1] - 1)
-    known &= np.isfinite(coarse)[np.ix_(ys, xs)]
+    cmin, cmax, known, own = _window_bounds(np.asarray(coarse, np.float32), shape, factor, window)
+    known &= own
     lo = np.where(known, np.floor(np.where(known, cmin, 0) * factor - margin), d_min)
     hi = np.where(known, np.ceil(np.where(known, cmax, 0) * factor + margin), d_max)
     lo = np.clip(lo, d_min, d_max).astype(np.int32)

@@ -7,7 +7,6 @@ approximation holds over a few thousand pixels) and for one matching task: :func
 rectifies, matches and triangulates each ROI on dask.distributed and merges their points into one DSM.
 """
 
-import json
 import math
 from pathlib import Path
 
@@ -19,6 +18,14 @@ from ...geometry.rpc_heights import footprint_bounds, heights_to_ellipsoid
 from ...geometry.rpc_pair import MIN_ROI_PX, check_roi, read_rpc_inputs, relative_path, right_share
 from ...geometry.rpc_rectify import heights_over_roi
 from ...io.atomic import atomic_output
+
+class _NoAliases(yaml.SafeDumper):
+    """A safe YAML dumper that writes every entry out in full: the ROIs share their settings' lists (heights,
+    clouds), and anchors would tie every ROI to the first one's."""
+
+    def ignore_aliases(self, data):
+        return True
+
 
 #: ROIs the right image sees less of than this share (virtual matches over the height range) are left out.
 MIN_RIGHT_SHARE = 0.05
@@ -162,7 +169,7 @@ def write_split_manifest(output, left, left_rpc, right, right_rpc, clouds, size,
             left_out.append(item)
             continue
         kept.append(item)
-        entry = {"name": name, "rpc": json.loads(json.dumps({**rpc_entry, "roi": list(roi)}))}  # no YAML anchors
+        entry = {"name": name, "rpc": {**rpc_entry, "roi": list(roi)}}
         if cloud:
             entry["cloud"] = cloud if len(cloud) > 1 else cloud[0]
         pairs.append(entry)
@@ -181,8 +188,8 @@ def write_split_manifest(output, left, left_rpc, right, right_rpc, clouds, size,
                   f"{', '.join(i['name'] for i in left_out)})" if left_out else "") + ".\n"
                "Run it: riverbed block THIS.yaml -o OUTDIR [--workers N]")
     text = "".join(f"# {line}\n" for line in comment.splitlines())
-    text += yaml.safe_dump({"defaults": defaults, "pairs": pairs}, default_flow_style=None, sort_keys=False,
-                           width=120)
+    text += yaml.dump({"defaults": defaults, "pairs": pairs}, Dumper=_NoAliases, default_flow_style=None,
+                      sort_keys=False, width=120)
     with atomic_output(output, overwrite) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return {"manifest": str(output), "image": [W, H], "region": list(region), "rois": kept, "left_out": left_out,
