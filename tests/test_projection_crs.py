@@ -75,7 +75,7 @@ def _egm96_pair(tmp_path):
 
 def _ellipsoidal_cloud(tmp_path):
     """The sample LiDAR's heights taken as EGM96 and written as WGS 84 ellipsoidal heights (+N, the geoid's
-    undulation there: about 47 m) in a 3-D UTM 32N CRS."""
+    undulation there: 41.5 m) in a 3-D UTM 32N CRS."""
     import laspy
     from pyproj import CRS, Transformer
 
@@ -90,10 +90,10 @@ def _ellipsoidal_cloud(tmp_path):
 
 def test_heights_on_another_datum_are_converted(tmp_path, egm96):
     """A pair on EGM96 heights, a cloud with ellipsoidal heights: PROJ converts them, and the cloud projects as the
-    same cloud given on EGM96 heights does (tests/test_projection_crs.py; the DSM would otherwise sit ~47 m off)."""
+    same cloud given on EGM96 heights does (the DSM would otherwise sit 41.5 m off)."""
     pair = _egm96_pair(tmp_path)
     cloud, undulation = _ellipsoidal_cloud(tmp_path)
-    assert 40 < undulation < 55
+    assert undulation == pytest.approx(41.5, abs=0.1)
     code, out = project(tmp_path, cloud, pair, out="ell.tif")
     assert code == 0, out
     assert json.loads(out)["heights_converted"] == {"from": "ellipsoidal", "to": "EGM96 height"}
@@ -104,6 +104,12 @@ def test_heights_on_another_datum_are_converted(tmp_path, egm96):
     both = np.isfinite(a) & np.isfinite(b)
     assert both.sum() > 0.999 * max(np.isfinite(a).sum(), np.isfinite(b).sum())
     assert np.abs(a[both] - b[both]).max() < 1e-3
+    # unconverted (a pair that states no datum takes the heights as they are), the points land 35 px off
+    code, out = project(tmp_path, cloud, out="plain.tif")
+    assert code == 0, out
+    c = read_disparity(tmp_path / "plain.tif")
+    both = np.isfinite(c) & np.isfinite(b)
+    assert np.median(np.abs(c[both] - b[both])) == pytest.approx(35.0, abs=0.5)
 
 
 def test_a_missing_geoid_grid_is_one_line(tmp_path, no_egm96_grid):
