@@ -26,7 +26,8 @@ from opencv_timer import create_sgbm  # benchmarks/: the same StereoSGBM setting
 
 CHILD = r"""
 import json, resource, sys, time
-import riverbed_cli.cli  # the process settings of the riverbed command (NumPy huge pages, malloc thresholds)
+from riverbed_cli.runtime import Env
+Env().__enter__()  # the riverbed program's process settings (NumPy huge pages, malloc thresholds)
 import numpy as np
 from riverbed_cli.io.windowed import TiffSink, open_windowed
 from riverbed_cli.scale.tiles import match_tiled

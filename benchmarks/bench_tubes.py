@@ -33,9 +33,11 @@ import tempfile
 import time
 from pathlib import Path
 
-# warm runs in this process with the riverbed command's memory settings (riverbed_cli/cli/__init__.py): no NumPy huge
-# pages, freed arrays kept by glibc (without them each warm run faulted its arrays in anew)
-import riverbed_cli.cli  # noqa: E402,F401
+# warm runs in this process with the riverbed program's process settings (riverbed_cli/runtime): no NumPy huge pages,
+# freed arrays kept by glibc (without them each warm run faulted its arrays in anew), OpenMP workers sleeping
+from riverbed_cli.runtime import Env  # noqa: E402
+
+Env().__enter__()
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
@@ -109,7 +111,7 @@ def holes(data_dir, share=0.05, seed=1):
 
 # The default (tubes, 8 paths, fused) and what each part costs: the full range, the matcher alone (no fusion), and
 # 4 paths (OpenCV's SGBM_3WAY sweeps fewer directions than HH's 8). A fourth item sets environment variables of the
-# fresh process: RIVERBED_PREFAULT=0 is the command without its heap prefault (scale/heap.py).
+# fresh process: RIVERBED_PREFAULT=0 is the command without its heap prefault (runtime/heap.py).
 NO_PREFAULT = {"RIVERBED_PREFAULT": "0"}
 #: OpenCV StereoSGBM modes timed beside riverbed: the issue's two references and the mode StereoSGBM_create gives
 #: when none is asked for (MODE_SGBM: 5 directions in one pass, single-threaded)
@@ -187,7 +189,7 @@ def speed(data_dir, repeat):
             probes = []
             for _ in range(repeat):
                 probes.append(probe())  # where the VM put its two vCPUs this round (bench_placement.py)
-                # OpenCV apart: in this process riverbed's memory settings (riverbed_cli.cli) made HH 1.5-1.8x faster
+                # OpenCV apart: in this process riverbed's memory settings (riverbed_cli.runtime.Env) made HH 1.5-1.8x faster
                 for mode, times in opencv_times_apart(grey, 0, d_max, OPENCV_MODES).items():
                     opencv[mode] += times
                 for name, extra, kw, *more in VARIANTS:

@@ -1,7 +1,7 @@
 """Times OpenCV StereoSGBM in a process of its own, as a user's program runs it.
 
 The benchmarks that compare riverbed with OpenCV run riverbed with the ``riverbed`` command's process settings
-(``import riverbed_cli.cli``: glibc keeps freed memory instead of returning it, NumPy's huge pages off). Those settings
+(``riverbed_cli.runtime.Env``: glibc keeps freed memory instead of returning it, NumPy's huge pages off). Those settings
 also speed up OpenCV when it runs in the same process: each ``compute()`` then reuses the freed buffers of the last
 one instead of faulting in fresh pages. Measured on the 740 x 500 speed pair and the 1024 x 1024 aerial pair (fresh
 processes, medians of 5 warm calls): MODE_HH 0.068-0.092 / 0.49-0.54 s with them against 0.12-0.16 / 0.74-0.85 s

@@ -4,25 +4,11 @@ Conventions: the left image is the reference; disparity ``d = x_left - x_right``
 indexed ``[row, col]``; cost volumes are ``H x W x D`` with disparity innermost.
 
 The names below load on first use (scientific-python's ``lazy_loader``), so ``import riverbed_cli`` and
-``riverbed --help`` load no Numba kernel.
+``riverbed --help`` load no Numba kernel. Importing riverbed changes no environment variable and no process setting;
+the settings the ``riverbed`` program runs with are :class:`riverbed_cli.runtime.Env`'s, an opt-in for programs.
 """
 
-import os
-
 import lazy_loader
-
-# Numba's OpenMP workers sleep between parallel regions instead of spinning (unless the user chose otherwise): the
-# fusion's LiDAR side runs in a thread beside the matcher (matching/pipeline.py), and spinning workers took its core
-# (the default fused match 16 % slower than sleeping ones, docs/tubes.md). Read when the OpenMP library loads, at
-# the first parallel kernel, so it is set here, before any.
-# riverbed's own default is marked, so that a riverbed process started by another (a benchmark, a test, a dask
-# worker), which inherits it, tells it from a user's choice
-_OMP_MARK = "RIVERBED_OMP_DEFAULT"
-#: the user chose how OpenMP workers wait (then riverbed leaves it alone: scale/workers.py)
-OMP_WAIT_FROM_USER = "GOMP_SPINCOUNT" in os.environ or (
-    "OMP_WAIT_POLICY" in os.environ and os.environ["OMP_WAIT_POLICY"] != os.environ.get(_OMP_MARK))
-if "OMP_WAIT_POLICY" not in os.environ:
-    os.environ["OMP_WAIT_POLICY"] = os.environ[_OMP_MARK] = "PASSIVE"
 
 __getattr__, __dir__, __all__ = lazy_loader.attach(
     __name__,

@@ -6,8 +6,17 @@ import pytest
 
 from riverbed_cli.io.disparity import read_disparity
 from riverbed_cli.io.images import read_image
+from riverbed_cli.runtime import Env
 
 DATA = Path(__file__).parent / "data"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def riverbed_env():
+    """The tests run with the process settings of the ``riverbed`` program (riverbed_cli.runtime), as a program that
+    imports riverbed opts in to them; the test processes they start inherit its environment variables."""
+    with Env() as env:
+        yield env
 
 
 @pytest.fixture(scope="session")

@@ -10,7 +10,7 @@ from pathlib import Path
 
 #: Layers from the bottom up; a module may import from its own layer and the ones below. Modules at the top of the
 #: package (errors, settings, records) are the base every layer may use.
-LAYERS = ("base", "io", "geometry", "matching", "products", "sample", "scale", "cli")
+LAYERS = ("base", "runtime", "io", "geometry", "matching", "products", "sample", "scale", "cli")
 BASE = {"errors", "settings", "records", "__init__", "__main__"}
 
 

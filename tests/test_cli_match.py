@@ -142,7 +142,9 @@ def test_16_bit_and_grey_inputs_match_like_8_bit(work):
 
 
 _HUGEPAGE_PROBE = (
-    "import riverbed_cli.cli, numpy\n"
+    "from riverbed_cli.runtime import Env\n"
+    "Env().__enter__()\n"
+    "import numpy\n"
     "try:\n    from numpy._core.multiarray import _set_madvise_hugepage\n"
     "except ImportError:\n    from numpy.core.multiarray import _set_madvise_hugepage\n"
     "print(_set_madvise_hugepage(True))"
@@ -151,8 +153,8 @@ _HUGEPAGE_PROBE = (
 
 @pytest.mark.parametrize("user, expected", [(None, "False"), ("1", "True")])
 def test_command_line_turns_numpy_huge_pages_off_unless_the_user_set_them(user, expected):
-    # first-touching the cost volumes in huge pages is slower on THP-madvise hosts (riverbed_cli/cli/__init__.py);
-    # the user's own NUMPY_MADVISE_HUGEPAGE wins
+    # first-touching the cost volumes in huge pages is slower on THP-madvise hosts (riverbed_cli/runtime/heap.py, set
+    # by its Env before NumPy is imported); the user's own NUMPY_MADVISE_HUGEPAGE wins
     env = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
     if user is not None:
         env["NUMPY_MADVISE_HUGEPAGE"] = user
@@ -161,7 +163,9 @@ def test_command_line_turns_numpy_huge_pages_off_unless_the_user_set_them(user, 
 
 
 _MALLOC_PROBE = (
-    "import numpy as np, os, riverbed_cli.cli\n"
+    "from riverbed_cli.runtime import Env\n"
+    "Env().__enter__()\n"
+    "import numpy as np, os\n"
     "def rss():\n    return int(open('/proc/self/statm').read().split()[1]) * os.sysconf('SC_PAGE_SIZE') >> 20\n"
     "a = np.ones(64 << 17)\nbefore = rss()\ndel a\nprint(before - rss() < 16)"  # 64 MiB freed: still resident?
 )
@@ -171,7 +175,7 @@ _MALLOC_PROBE = (
 @pytest.mark.parametrize("user, kept", [({}, "True"), ({"GLIBC_TUNABLES": ""}, "False"),
                                         ({"MALLOC_TRIM_THRESHOLD_": "65536"}, "False")])
 def test_command_line_keeps_freed_memory_unless_the_user_set_malloc(user, kept):
-    # riverbed_cli/cli/__init__.py: glibc keeps a freed 64 MiB array for the next stage (fewer page faults) instead
+    # riverbed_cli/runtime/heap.py: glibc keeps a freed 64 MiB array for the next stage (fewer page faults) instead
     # of returning it to the kernel; a user's own malloc settings win
     env = {k: v for k, v in os.environ.items() if k not in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_",
                                                              "GLIBC_TUNABLES")}
@@ -182,10 +186,11 @@ def test_command_line_keeps_freed_memory_unless_the_user_set_malloc(user, kept):
 
 _FRESH_MATCH = (
     "import hashlib, sys\n"
-    "from riverbed_cli.cli.main import cli\n"
-    "from riverbed_cli.io.disparity import read_disparity\n"
+    "from riverbed_cli.__main__ import main\n"
     "a = sys.argv[1:]\n"
-    "cli(['match', a[0], a[1], '--sparse', a[2], '-o', a[3], '--overwrite'], standalone_mode=False)\n"
+    "try:\n    main(['match', a[0], a[1], '--sparse', a[2], '-o', a[3], '--overwrite'])\n"
+    "except SystemExit as e:\n    assert not e.code, e.code\n"
+    "from riverbed_cli.io.disparity import read_disparity\n"
     "print('numba.np.arraymath' in sys.modules, 'scipy.linalg' in sys.modules,"
     " hashlib.sha256(read_disparity(a[3]).tobytes()).hexdigest())"
 )
@@ -193,7 +198,7 @@ _FRESH_MATCH = (
 
 @pytest.mark.parametrize("refresh", [None, "1"])
 def test_command_line_loads_cached_kernels_without_numbas_compiler_start_up(work, refresh):
-    # riverbed_cli/cli/cached_kernels.py: a fresh `riverbed match` loads its cached kernels without Numba's target
+    # riverbed_cli/runtime/numba_cache.py: a fresh `riverbed match` loads its cached kernels without Numba's target
     # context refresh (which imports numba.np.arraymath and, through it, scipy.linalg) and matches the same bits;
     # RIVERBED_NUMBA_REFRESH=1 keeps Numba's own behaviour
     env = {k: v for k, v in os.environ.items() if k != "RIVERBED_NUMBA_REFRESH"}

@@ -1,4 +1,4 @@
-"""The garbage collector of the ``riverbed`` program (riverbed_cli/scale/collector.py): off while a command starts up,
+"""The garbage collector of the ``riverbed`` program (riverbed_cli/runtime/collector.py): off while a command starts up,
 on again with start-up's objects frozen, everything frozen for the exit; untouched outside the program."""
 
 import gc
@@ -12,7 +12,7 @@ import pytest
 
 from riverbed_cli.products.simulate import simulate_lidar
 from riverbed_cli.io.disparity import write_disparity
-from riverbed_cli.scale import collector
+from riverbed_cli.runtime import collector
 
 DATA = Path(__file__).parent / "data" / "cones"
 LEFT, RIGHT = str(DATA / "im2.png"), str(DATA / "im6.png")
@@ -20,7 +20,7 @@ LEFT, RIGHT = str(DATA / "im2.png"), str(DATA / "im6.png")
 # run the program's entry point; at exit (after main's own exit steps) report the collector's state
 _PROBE = """
 import atexit, gc, sys
-from riverbed_cli.cli.main import main
+from riverbed_cli.__main__ import main
 atexit.register(lambda: print(f"frozen {gc.get_freeze_count()} enabled {gc.isenabled()}", file=sys.stderr))
 main(sys.argv[1:])
 """

@@ -4,7 +4,7 @@ import io
 
 import pytest
 
-from riverbed_cli.cli import cached_kernels
+from riverbed_cli.runtime import numba_cache as cached_kernels
 
 
 class _Terminal(io.StringIO):

@@ -1,4 +1,4 @@
-"""The heap a fresh process's match will use, faulted in beside the start-up (riverbed_cli/scale/heap.py)."""
+"""The heap a fresh process's match will use, faulted in beside the start-up (riverbed_cli/runtime/heap.py)."""
 
 import json
 import os
@@ -8,15 +8,15 @@ from pathlib import Path
 
 import pytest
 
-from riverbed_cli.scale.heap import HEAP_PER_CELL, HEAP_PER_PIXEL, match_heap_bytes
+from riverbed_cli.runtime.heap import HEAP_PER_CELL, HEAP_PER_PIXEL, match_heap_bytes
 
 # A fresh process as the commands run: their memory settings, then a block of the heap prefaulted (or not), then the
 # page faults of a 48 MiB array first touched afterwards, as a match's volumes are.
 PROBE = """
 import ctypes, json, resource
 ctypes.CDLL(None).prctl(41, 1, 0, 0, 0)  # PR_SET_THP_DISABLE: 4 KiB pages whatever the system's THP setting
-import riverbed_cli.cli  # the commands' memory settings
-from riverbed_cli.scale.heap import prefault_heap
+from riverbed_cli.runtime import Env, prefault_heap
+Env().__enter__()  # the commands' memory settings
 import numpy as np
 with prefault_heap(96 << 20):
     pass
@@ -59,7 +59,7 @@ def test_riverbed_match_prefaults_what_its_match_will_take(tmp_path, cones, monk
     from riverbed_cli.cli.main import cli
     from riverbed_cli.io.disparity import write_disparity
     from riverbed_cli.products.simulate import simulate_lidar
-    from riverbed_cli.scale import match_files
+    from riverbed_cli import runtime
 
     left, right, gt = cones
     sizes = []
@@ -69,7 +69,7 @@ def test_riverbed_match_prefaults_what_its_match_will_take(tmp_path, cones, monk
         sizes.append(nbytes)
         yield
 
-    monkeypatch.setattr(match_files, "prefault_heap", record)
+    monkeypatch.setattr(runtime, "prefault_heap", record)
     data = Path(__file__).parent / "data" / "cones"
     write_disparity(tmp_path / "sparse.tif", simulate_lidar(gt, 0.05, seed=0))
     H, W = gt.shape

@@ -1,4 +1,4 @@
-"""How Numba's OpenMP workers wait between parallel regions, chosen per run (riverbed_cli/scale/workers.py)."""
+"""How Numba's OpenMP workers wait between parallel regions, chosen per run (riverbed_cli/runtime/openmp.py)."""
 
 import json
 import os
@@ -14,9 +14,11 @@ PROBE = """
 import json, os, sys
 from click.testing import CliRunner
 from riverbed_cli.cli.main import cli
-r = CliRunner().invoke(cli, sys.argv[1:])
-print(json.dumps({"exit": r.exit_code, "spins": os.environ.get("GOMP_SPINCOUNT"),
-                  "policy": os.environ.get("OMP_WAIT_POLICY"), "output": r.output[-300:]}))
+from riverbed_cli.runtime import Env
+with Env():  # the program's settings (riverbed_cli.__main__)
+    r = CliRunner().invoke(cli, sys.argv[1:])
+    spins, policy = os.environ.get("GOMP_SPINCOUNT"), os.environ.get("OMP_WAIT_POLICY")
+print(json.dumps({"exit": r.exit_code, "spins": spins, "policy": policy, "output": r.output[-300:]}))
 """
 
 
@@ -55,8 +57,9 @@ def test_workers_spin_only_where_nothing_runs_beside_the_matcher(tmp_path):
 def test_too_late_once_a_parallel_kernel_has_run():
     code = """
 import os
-from riverbed_cli.scale.workers import spin_between_regions
+from riverbed_cli.runtime import Env, spin_between_regions
 from riverbed_cli.matching.census import census_transform
+Env().__enter__()
 import numpy as np
 census_transform(np.zeros((20, 20), np.float32))  # a parallel kernel: libgomp has loaded and read its settings
 print(spin_between_regions(), os.environ.get("GOMP_SPINCOUNT"))

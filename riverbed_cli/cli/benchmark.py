@@ -5,7 +5,6 @@ from pathlib import Path
 
 import click
 
-from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
 from ..io.atomic import atomic_output, check_output, check_output_folder, output_group
 from ..matching.config import FUSION_CHOICES, GUIDE_NAMES as GUIDES, MATCHER_NAMES as MATCHERS, RANGES
@@ -75,7 +74,6 @@ def benchmark_cmd(dataset, layout, outdir, matchers, guides, ranges, fusions, sh
     """Run the paper's protocol on DATASET: seeded LiDAR sampled from the ground truth at each share, every
     matcher x guide, evaluated on the GT pixels not sampled. Cases are cached in OUTPUT/cache, so an interrupted run
     resumes; --check makes it a regression gate for CI."""
-    skip_refresh_on_cache_loads()  # Numba's cached kernels load without its compiler's start-up
     out = Path(outdir)
     exp = bm.read_expectations(expected) if expected else None
     scene_list = bm.load_dataset(dataset, layout, gt_scale, [s for s in scenes.split(",") if s])

@@ -6,7 +6,6 @@ import logging
 
 import click
 
-from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
 from ..geometry.rectify import parse_size
 from ..geometry.rpc_pair import parse_heights, parse_roi
@@ -93,7 +92,6 @@ def split_rpc_cmd(left_img, left_rpc, right_img, right_rpc, output, clouds, size
     Then riverbed block MANIFEST -o OUTDIR rectifies, matches and triangulates every ROI on dask and merges their
     points into one DSM (defaults.crs: one UTM zone for all). docs/rpc.md.
     """
-    skip_refresh_on_cache_loads()  # Numba's cached kernels load without its compiler's start-up
     summary = write_split_manifest(output, left_img, left_rpc, right_img, right_rpc, clouds, size, overlap,
                                    region=region, dem=dem, heights=heights, vertical=vertical, pointing=pointing,
                                    crs=crs, resolution=resolution, min_share=min_share, overwrite=overwrite)
@@ -146,7 +144,6 @@ def block_run_cmd(manifest, outdir, workers, threads_per_worker, scheduler, retr
     median lr_check min_disp max_disp max_pixels; tile overlap lidar_range; outliers visibility side footprint
     classes drop_classes registration lidar_crs.
     """
-    skip_refresh_on_cache_loads()  # Numba's cached kernels load without its compiler's start-up
     if scheduler is not None and workers is not None:
         raise RiverbedError("give --workers (a local cluster) or --scheduler (a running one), not both")
     plan = plan_block(manifest, outdir, overwrite)

@@ -5,7 +5,6 @@ import time
 
 import click
 
-from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
 from ..io.atomic import check_output
 from ..io.disparity import disparity_format, write_disparity
@@ -33,7 +32,6 @@ def densify_cmd(sparse, output, method, image, sparse_scale, as_json, overwrite)
 
     The baseline a fusion must beat. Disparity d = x_left - x_right (px); OUTPUT format by extension.
     """
-    skip_refresh_on_cache_loads()  # Numba's cached kernels load without its compiler's start-up
     disparity_format(output)
     check_output(output, overwrite, inputs=[sparse, image])
     if method == "guided" and not image:

@@ -5,7 +5,6 @@ import time
 import click
 import numpy as np
 
-from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
 from ..io.atomic import check_outputs, output_group
 from ..io.disparity import read_disparity
@@ -99,7 +98,6 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
     the two RPC rays are intersected, the points converted to --crs (a projected CRS; default: the UTM zone of the
     scene), heights above the WGS 84 ellipsoid.
     """
-    skip_refresh_on_cache_loads()  # Numba's cached kernels load without its compiler's start-up
     t0 = time.perf_counter()
     if len(disp_pair) % 2:
         raise RiverbedError("give DISP PAIR couples: a disparity map and its pair file each")

@@ -4,7 +4,6 @@ import math
 
 import click
 
-from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
 from ..io.atomic import check_output
 from ..io.disparity import read_disparity
@@ -65,7 +64,6 @@ def evaluate_cmd(disp, gt, dsm_mode, thresholds, exclude, max_disp, gt_scale, di
     grids differ): mean, median, rmse, nmad and std of dz = DSM - REF, the % of cells with |dz| above each threshold
     and above 3 cell sizes, completeness (% of REF cells the DSM covers) and n; --error-map writes the dz map.
     """
-    skip_refresh_on_cache_loads()  # Numba's cached kernels load without its compiler's start-up
     if error_png is not None:
         # Refuse before the work, not after it.
         if not error_png.lower().endswith(".png"):

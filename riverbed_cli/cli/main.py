@@ -2,6 +2,7 @@
 only when they run (or their ``--help`` is asked for): ``riverbed --help`` loads no subcommand, as rasterio's
 ``rio`` loads its commands from entry points."""
 
+import functools
 import importlib
 import sys
 
@@ -9,7 +10,7 @@ import click
 
 from ..errors import RiverbedError, one_line
 from ..io.atomic import release_claims
-from ..scale import collector
+from .. import runtime
 from .options import setup_logging
 
 
@@ -72,6 +73,19 @@ COMMANDS = {
 }
 
 
+def _before_kernels(callback):
+    """``callback`` (a command's) preceded by :func:`riverbed_cli.runtime.before_kernels`: when the command runs,
+    not when its ``--help`` is asked for (which loads no Numba)."""
+
+    @functools.wraps(callback)
+    def run(*args, **kwargs):
+        runtime.before_kernels()
+        return callback(*args, **kwargs)
+
+    run.riverbed_runtime = True
+    return run
+
+
 #: commands that import their library only when they run, and end the program's start-up themselves
 #: (``riverbed match``: once its kernels are loaded, ``scale/match_files.py``); the others' start-up ends when their
 #: module has been imported (:mod:`~riverbed_cli.scale.collector`)
@@ -90,7 +104,9 @@ class RiverbedGroup(click.Group):
         module, attr, _ = COMMANDS[name]
         command = getattr(importlib.import_module(f"{__package__}.{module}"), attr)
         if name not in LATE_START_UP:
-            collector.start_up_done()  # its modules are loaded: the collector on again (in the program only)
+            runtime.start_up_done()  # its modules are loaded: the collector on again (in the program only)
+        if not getattr(command.callback, "riverbed_runtime", False):
+            command.callback = _before_kernels(command.callback)
         return command
 
     def format_commands(self, ctx, formatter):
@@ -141,12 +157,10 @@ def cli(verbose, quiet):
 
 
 def main(args=None):
-    """The ``riverbed`` program (the console script, ``python -m riverbed_cli``): :func:`cli` in a process of its own,
-    with the garbage collector set for a short-lived process (:mod:`~riverbed_cli.scale.collector`). Exits."""
+    """The ``riverbed`` program's command line (called by :func:`riverbed_cli.__main__.main`, inside the runtime's
+    ``Env(program=True)``, which turns the garbage collector off until the command's modules are loaded). Exits."""
     try:
-        with collector.program():
-            collector.pause_for_start_up()  # until the command's modules (and riverbed match's kernels) are loaded
-            cli.main(args=args, prog_name="riverbed")
+        cli.main(args=args, prog_name="riverbed")
     except KeyboardInterrupt:  # Ctrl-C outside a command's run (while its modules load)
         Interrupted().show()
         sys.exit(Interrupted.exit_code)

@@ -11,7 +11,6 @@ import os
 
 import click
 
-from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
 from ..matching.config import MATCH_SETTINGS, MatchConfig
 from .options import input_path, json_opt, output_opt, overwrite_opt, print_json, progress_bar, setting_options
@@ -80,7 +79,6 @@ def match_cmd(left, right, output, pair_file, sparse, sparse_scale, range_map, c
     (Middlebury, inf invalid) or .png (KITTI 16-bit, d*256, 0 invalid). Options marked [name] apply to that
     matcher or guide only.
     """
-    skip_refresh_on_cache_loads()  # Numba's cached kernels load without its compiler's start-up
     from ..scale.match_files import match_files  # the matching stack loads here, not for --help
 
     if settings["guide"] is None:

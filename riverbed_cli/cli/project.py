@@ -6,7 +6,6 @@ import logging
 import click
 import numpy as np
 
-from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
 from ..geometry import visibility as vis
 from ..geometry.projection import (NOISE_CLASSES, OUTLIERS, SIDES, VISIBILITY, disparity_offset_in_metres,
@@ -98,7 +97,6 @@ def project_cmd(cloud, pair, output, registration, classes, drop_classes, outlie
     d = x_left - x_right (px) on the left image; per pixel the nearest point. OUTPUT format by extension: .tif
     (float32, NaN invalid, counts in the tags), .pfm, or .png (KITTI 16-bit: 1/256 px steps).
     """
-    skip_refresh_on_cache_loads()  # Numba's cached kernels load without its compiler's start-up
     disparity_format(output)
     check_output(output, overwrite, inputs=[cloud, pair, registration])
     geometry = load_pairfile(pair, accept_rpc=True, command="riverbed project")

@@ -6,7 +6,6 @@ import logging
 import click
 from click.core import ParameterSource
 
-from .cached_kernels import skip_refresh_on_cache_loads
 from ..errors import RiverbedError
 from ..geometry.rectify import check_alpha, parse_size, rectify_files
 from ..geometry.rpc_pair import parse_heights, parse_roi, rectify_rpc_files
@@ -93,7 +92,6 @@ def rectify_cmd(ctx, left_img, left_orient, right_img, right_orient, outdir, rpc
     into OUTDIR/left.tif, OUTDIR/right.tif and OUTDIR/pair.yaml (both RPCs, the rectification, ROI, heights,
     disparity range). The height range comes from --dem, --heights or --lidar, or without them from tie points.
     """
-    skip_refresh_on_cache_loads()  # Numba's cached kernels load without its compiler's start-up
     if max_pixels is not None and max_pixels < 1:
         raise RiverbedError("--max-pixels must be positive")
     given = {name for name in ctx.params if ctx.get_parameter_source(name) is not ParameterSource.DEFAULT}

@@ -5,7 +5,6 @@ import logging
 
 import click
 
-from .cached_kernels import skip_refresh_on_cache_loads
 from ..sample import SIZES, STAGES, generate_block
 from ..sample.satellite import SATELLITE_STAGES, generate_satellite
 from .options import json_opt, overwrite_opt, print_json, progress_bar
@@ -36,7 +35,6 @@ def sample_cmd(outdir, size, satellite, seed, overwrite, as_json):
     left.tif and right.tif (raw pushbroom images with RPC tags), gt_dsm.tif (EPSG:32632, ellipsoidal
     heights), lidar.laz, lidar_sparse.laz (EPSG:32632 3D), scene.json (cameras, RPC fit errors) and MANIFEST.md.
     """
-    skip_refresh_on_cache_loads()  # Numba's cached kernels load without its compiler's start-up
     if satellite:
         command = f"riverbed sample {outdir} --satellite --size {size} --seed {seed}"
         stages, generate = SATELLITE_STAGES, generate_satellite

@@ -31,7 +31,7 @@ def checked_points(sparse):
 @njit(cache=True)
 def first_at_least(sorted_values, v):
     # np.searchsorted(sorted_values, v) (side left) by bisection: Numba's searchsorted lives in numba.np.arraymath,
-    # whose import (scipy.linalg with it) a cached kernel calling it costs at start-up (cli/cached_kernels.py).
+    # whose import (scipy.linalg with it) a cached kernel calling it costs at start-up (runtime/numba_cache.py).
     # Numba's cache keys a kernel on its own source file: after editing this, delete the cached kernels of
     # matching/guidance.py and matching/diffusion.py (their __pycache__/*.nb[ic]), which compile it in.
     lo = 0

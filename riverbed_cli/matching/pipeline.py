@@ -7,7 +7,6 @@ Matchers live in ``matching/matchers/``, guides in ``matching/guides/``, their s
 
 import logging
 import math
-import threading
 import time
 from dataclasses import asdict
 
@@ -16,6 +15,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
+from ..runtime.beside import After, Beside
 from . import fusion, guides, matchers  # noqa: F401  (importing them fills the registries)
 from ..geometry.coverage import lidar_share_of_row_ends
 from .config import MatchConfig
@@ -34,44 +34,6 @@ log = logging.getLogger(__name__)
 #: 30 bytes a pixel) would add to the matcher's peak memory; a 40 MP pair's 4 MP tiles peaked at 1526 MiB beside,
 #: 1297 MiB after
 BESIDE_MAX_PIXELS = 2_000_000
-
-
-class _Beside(threading.Thread):
-    """``fn(*args)`` in a thread, started at once; :meth:`result` waits for it and returns its value or raises its
-    exception."""
-
-    def __init__(self, fn, *args):
-        super().__init__(daemon=True)
-        self._call = (fn, args)
-        self._value, self._error = None, None
-        self.start()
-
-    def run(self):
-        fn, args = self._call
-        try:
-            self._value = fn(*args)
-        except BaseException as e:  # handed to the caller of result()
-            self._error = e
-
-    def result(self):
-        self.join()
-        if self._error is not None:
-            raise self._error
-        return self._value
-
-
-class _After:
-    """``fn(*args)`` run when :meth:`result` is called (the :class:`_Beside` interface, no thread)."""
-
-    def __init__(self, fn, *args):
-        self._call = (fn, args)
-
-    def result(self):
-        fn, args = self._call
-        return fn(*args)
-
-    def join(self):
-        pass
 
 
 #: disparities (LiDAR, range maps) beyond this many image widths are no disparity of the pair but a corrupt value
@@ -490,7 +452,7 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, ra
     if fuser.name != "none":
         if beside == "auto":
             beside = shape[0] * shape[1] <= BESIDE_MAX_PIXELS
-        lidar_side = (_Beside if beside else _After)(fuser.prepare, sparse, config, points)
+        lidar_side = (Beside if beside else After)(fuser.prepare, sparse, config, points)
     try:
         out, mode, stats, tubes = _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, matcher,
                                                 share, range_map, stages, fuser.needs_status, points, share_all,

@@ -1,9 +1,9 @@
-"""``python -m riverbed_cli.sample OUTDIR [options]``: the same as ``riverbed sample OUTDIR [options]``.
-
-The only module of the package that imports the command line (it is the top of the stack, never imported)."""
+"""``python -m riverbed_cli.sample OUTDIR [options]``: the same as ``riverbed sample OUTDIR [options]`` (the program,
+:mod:`riverbed_cli.__main__`)."""
 
 import sys
 
-from riverbed_cli.cli.main import cli
+from riverbed_cli.__main__ import main
 
-cli.main(args=["sample", *sys.argv[1:]], prog_name="riverbed")
+if __name__ == "__main__":
+    main(["sample", *sys.argv[1:]])

@@ -10,6 +10,7 @@ import os
 
 import numpy as np
 
+from .. import runtime
 from ..errors import RiverbedError
 from ..io.atomic import atomic_output, check_outputs, releases_claims
 from ..io.disparity import disparity_format, read_disparity, write_disparity
@@ -20,12 +21,10 @@ from ..matching.lidar_check import lidar_mask as lidar_mask_of
 from ..matching.pipeline import (ABSURD_WIDTHS, check_disparity_values, check_lidar_count, clamp_to_width,
                                  disparity_range_from_sparse, match_pair, resolve_fusion, warm_up)
 from ..matching.registry import get_guide
+from ..runtime.heap import match_heap_bytes
 from ..products.visualize import disparity_picture, write_picture, write_png
 from ..matching.guidance import lidar_share_of_points
-from .collector import start_up_done
-from .heap import match_heap_bytes, prefault_heap
 from .tiles import match_tiled, plan_tiles, scan_range_map, tube_widths
-from .workers import spin_between_regions
 
 log = logging.getLogger(__name__)
 
@@ -140,8 +139,8 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     if confidence and fusion == "none":  # before any work
         raise RiverbedError("no confidence with --fusion none (it comes from --fusion confidence, the default with "
                             "--sparse)", confidence)
-    if fusion == "none":  # no LiDAR side beside the matcher: its idle workers may spin (scale/workers.py)
-        spin_between_regions()
+    if fusion == "none":  # no LiDAR side beside the matcher: its idle workers may spin (runtime/openmp.py)
+        runtime.spin_between_regions()
     tile = check_tile_option(tile, overlap)
     # the inputs before the range: a broken image is reported as such, not as a range to give
     left_src, right_src, sparse_src = open_inputs(left, right, sparse, sparse_scale, max_pixels)
@@ -196,12 +195,12 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
             plan = plan_tiles(H, W, sparse_src, rng[0], rng[1], tile, overlap, lidar_range, widths=widths,
                               range_map=scan)
     # load the kernels this run uses now (start-up, not matching time), while a thread faults in the heap the match
-    # will take (scale/heap.py)
+    # will take (runtime/heap.py)
     # the fusion's LiDAR side by the density of the whole map (tiles of the same density decide alike)
     kind = lidar_kind(config.fuse.lidar, len(points[0]), (H, W)) if points is not None else None
-    with prefault_heap(_heap_estimate(H, W, rng, widths, plan, overlap)):
+    with runtime.prefault_heap(_heap_estimate(H, W, rng, widths, plan, overlap)):
         warm_up(config=config, fusion_lidar=kind)
-    start_up_done()  # the command's collector back on, start-up's objects frozen (scale/collector.py)
+    runtime.start_up_done()  # the program's collector back on, start-up's objects frozen (runtime/collector.py)
     if plan is not None and plan.tiled:
         if lidar_mask:
             raise RiverbedError(f"--lidar-mask is written for a whole match: this {W}x{H} pair is matched in tiles; "

@@ -2,13 +2,19 @@
 
 A fresh process's first match faults in every page of its arrays: on the dev VM about 2 us per 4 KiB page, 45-80 MiB
 (15-40 ms) for the 740 x 500 speed pair, a sixth of its matching time. The commands keep freed memory in the process
-(:func:`keep_freed_memory`); then a block taken from the heap, touched and freed stays there, already faulted in, for
-the match's arrays. :func:`prefault_heap` does the touching in a thread while the command loads its kernels, which
-leaves the second core idle (docs/tubes.md, start-up).
+(:func:`keep_freed_memory`, called by :class:`~riverbed_cli.runtime.Env`); then a block taken from the heap, touched
+and freed stays there, already faulted in, for the match's arrays. :func:`prefault_heap` does the touching in a thread
+while the command loads its kernels, which leaves the second core idle (docs/architecture.md, "The process").
 
 Nothing here runs unless :func:`keep_freed_memory` succeeded (glibc, and the user did not set malloc's thresholds):
 without it a freed block goes back to the kernel. ``RIVERBED_PREFAULT=0`` in the environment turns the prefault off
 (the benchmarks' A/B).
+
+NumPy's transparent huge pages: the :class:`~riverbed_cli.runtime.Env` sets ``NUMPY_MADVISE_HUGEPAGE=0`` (read when
+NumPy is imported; the user's own setting wins). Where a huge page costs a compaction or the host backs it anew (THP
+defrag "madvise", virtual machines), first touching the cost volumes takes longer than with ordinary pages: on a
+THP-madvise VM a fresh ``riverbed match --fusion none`` of the 740 x 500 speed pair took 0.081-0.145 s (median 0.142 s)
+with them against 0.085-0.091 s (median 0.088 s) without.
 """
 
 import contextlib
@@ -39,7 +45,7 @@ def keep_freed_memory():
     glibc serves large blocks with mmap and gives them back on free (and trims its heap), so every stage's arrays
     are fresh pages the kernel must fault in and zero. Raising both thresholds to 1 GiB keeps them: a fresh
     ``riverbed match`` of the speed pair faults 21 % fewer pages, the tiled 40 MP pair took 17-22 s instead of
-    24-30 s at 1290 MiB peak RSS instead of 1187 (docs/tubes.md). Set for this process only (``mallopt``): dask
+    24-30 s at 1290 MiB peak RSS instead of 1187. Set for this process only (``mallopt``): dask
     workers keep dask's own setting (its nanny lowers the trim threshold to return memory). Nothing is changed when
     the user set ``MALLOC_MMAP_THRESHOLD_``, ``MALLOC_TRIM_THRESHOLD_`` or ``GLIBC_TUNABLES``, or off glibc.
     Returns True when set.

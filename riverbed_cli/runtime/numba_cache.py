@@ -9,8 +9,9 @@ Numba's runtime (NRT, the allocator of the arrays a kernel creates) must be up. 
 (numba/numba#9806), which riverbed has none of, and a compilation - a cache miss, a new signature - still refreshes
 the context itself (``CompilerBase``), so nothing that compiles is affected.
 
-:func:`skip_refresh_on_cache_loads` is called by the command line only: the library does not change a process-wide
-setting of another package for the programs that import it. ``RIVERBED_NUMBA_REFRESH=1`` in the environment keeps
+:func:`skip_refresh_on_cache_loads` is called inside :class:`~riverbed_cli.runtime.Env` only
+(:func:`~riverbed_cli.runtime.before_kernels`): the library does not change a process-wide setting of another package
+for the programs that import it unless they opt in. ``RIVERBED_NUMBA_REFRESH=1`` in the environment keeps
 Numba's own behaviour (a way out should a Numba release change what a cached kernel needs).
 """
 
