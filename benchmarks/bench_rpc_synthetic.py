@@ -30,6 +30,7 @@ import json
 import math
 import sys
 import tempfile
+import textwrap
 from pathlib import Path
 
 import laspy
@@ -102,7 +103,8 @@ def run(work, size="small", seed=0, densities=DENSITIES, methods=tuple(METHODS),
                                         "lidar_thin": desc["lidar"]["sparse_density_per_m2"] * THIN_SHARE},
                "rectify": {k: rect[k] for k in ("width", "height", "heights", "disparity", "disparity_per_metre",
                                                 "pointing_row_offset_px", "virtual_row_residual_max_px")},
-               "gt_disparity": gt_info, "gt_dsm_cells": g["valid_cells"], "rows": []}
+               "gt_disparity": gt_info, "gt_dsm_cells": g["valid_cells"], "roi": roi, "size": size, "seed": seed,
+               "rows": []}
     done = {}
 
     def evaluate(name, disp, sparse, density, seconds, lidar_share):
@@ -150,14 +152,99 @@ def run(work, size="small", seed=0, densities=DENSITIES, methods=tuple(METHODS),
 
 def table(summary):
     lines = ["| LiDAR | pt/m² | share of pixels (%) | method | DSM RMSE (m) | DSM NMAD (m) | > 3 GSD (%) | "
-             "completeness (%) | bad1 (%) | bad3 (%) | mean error (px) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "completeness (%) | with a disparity (%) | bad1 (%) | bad3 (%) | mean error (px) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     dens = summary["lidar_density_per_m2"]
     for r in summary["rows"]:
-        lines.append(f"| {r['density']} | {dens[r['density']]:.2f} | {100 * r['lidar_share']:.1f} | {r['method']} | "
+        lidar = (f"{r['density']} | {dens[r['density']]:.2f} | {100 * r['lidar_share']:.1f}" if r["method"] != "unguided"
+                 else f"— (without {r['density']}'s pixels) | — | —")
+        lines.append(f"| {lidar} | {r['method']} | "
                      f"{r['rmse']:.3f} | {r['nmad']:.3f} | {r['over_3res']:.2f} | {r['completeness']:.1f} | "
-                     f"{r['bad1']:.2f} | {r['bad3']:.2f} | {r['avg']:.3f} |")
+                     f"{r['predicted']:.1f} | {r['bad1']:.2f} | {r['bad3']:.2f} | {r['avg']:.3f} |")
     return "\n".join(lines)
+
+
+#: the markers of the generated blocks of docs/rpc_synthetic.md: the whole small sample, and the test's ROI
+BEGIN = {"whole": "<!-- bench_rpc_synthetic: whole begin -->", "roi": "<!-- bench_rpc_synthetic: roi begin -->"}
+END = {"whole": "<!-- bench_rpc_synthetic: whole end -->", "roi": "<!-- bench_rpc_synthetic: roi end -->"}
+LIDAR_ONLY = ("lidar nearest", "lidar linear", "lidar guided")
+
+
+def _rows(summary):
+    """``{(density, method): row}``."""
+    return {(r["density"], r["method"]): r for r in summary["rows"]}
+
+
+def chain_text(summary):
+    """The rectification, GT disparity and LiDAR figures of a run, as docs/rpc_synthetic.md states them."""
+    r, gd = summary["rectify"], summary["gt_disparity"]
+    shares = {}
+    for row in summary["rows"]:
+        shares[row["density"]] = row["lidar_share"]
+    lo, hi = r["heights"]
+    rms, mx = summary["sample"]["rpc_check_rms_px"], summary["sample"]["rpc_check_max_px"]
+    out = [f"RPC check (the fit's error on its check grid, left / right): rms **{rms[0]:.4f} / {rms[1]:.4f} px**, "
+           f"max {mx[0]:.3f} / {mx[1]:.3f} px. "
+           f"`riverbed rectify --rpc ... --heights {lo:g},{hi:g}`: {r['width']} x {r['height']} rectified, d in "
+           f"{r['disparity'][0]:.1f}–{r['disparity'][1]:.1f} px, **{r['disparity_per_metre']:.3f} px per metre** of "
+           f"height; the affine model's virtual rows {r['virtual_row_residual_max_px']:.3f} px max; the pointing "
+           f"correction measured **{r['pointing_row_offset_px']:+.3f} px** of rows (the RPCs have no pointing error: "
+           f"this is the estimate's own error). GT disparity on {100 * gd['valid_share']:.1f} % of the rectified "
+           f"pixels, rows {gd['row_error_rms_px']:.3f} px rms from the truth ({gd['row_error_max_px']:.3f} max). "
+           "LiDAR through `riverbed project` on "
+           + ", ".join(f"**{100 * v:.1f} %** of the image's pixels ({k})" for k, v in shares.items()) + "."]
+    return "\n".join(textwrap.fill(t, 116, break_on_hyphens=False) for t in out)
+
+
+def reading(summary):
+    """The claims docs/rpc_synthetic.md makes of the whole table, with their figures."""
+    rows = _rows(summary)
+    dens = [d for d in DENSITIES if (d, "fused default") in rows]
+    pct = {d: f"{100 * rows[d, 'fused default']['lidar_share']:.1f} %" for d in dens}
+    u = rows[dens[0], "unguided"]
+    f = [rows[d, "fused default"] for d in dens]
+    name = {"rmse": "RMSE", "nmad": "NMAD", "over_3res": "> 3 GSD", "bad1": "bad1", "bad3": "bad3",
+            "avg": "mean error"}
+    ahead = [m for m in name if all(rows[d, "fused default"][m] < rows[d, "unguided"][m] for d in dens)]
+    behind = [(d, m) for m in name if m not in ahead for d in dens
+              if rows[d, "fused default"][m] >= rows[d, "unguided"][m]]
+    lines = [f"- **Against unguided matching** the fused default is ahead at every density on "
+             + ", ".join(name[m] for m in ahead) + f": DSM NMAD {u['nmad']:.2f} m unguided, "
+             + " / ".join(f"{r['nmad']:.3f}" for r in f) + " m fused (" + " / ".join(pct[d] for d in dens)
+             + " of the pixels)"
+             + ("; behind it on " + ", ".join(f"{name[m]} at {pct[d]} ({rows[d, 'fused default'][m]:.3f} vs "
+                                              f"{rows[d, 'unguided'][m]:.3f})" for d, m in behind) if behind else "")
+             + ". Riverbed ahead of Gauss on bad1 at every density ("
+             + ", ".join(f"{rows[d, 'riverbed']['bad1']:.1f} vs {rows[d, 'gauss']['bad1']:.1f} %" for d in dens)
+             + ")."]
+    for d in dens:
+        fd = rows[d, "fused default"]
+        best = {m: min(LIDAR_ONLY, key=lambda k, m=m: rows[d, k][m]) for m in ("rmse", "nmad", "bad1", "avg")}
+        wins = [m for m in ("rmse", "nmad", "bad1", "avg") if fd[m] < rows[d, best[m]][m]]
+        loses = [m for m in ("rmse", "nmad", "bad1", "avg") if m not in wins]
+        lines.append(f"- **{d} ({pct[d]})**: the fused default against the best LiDAR-only interpolation of each "
+                     "figure " + ("wins " + ", ".join(f"{name[m]} ({fd[m]:.3f} vs {rows[d, best[m]][m]:.3f}, "
+                                                     f"{best[m]})" for m in wins) if wins else "wins none")
+                     + ("; loses " + ", ".join(f"{name[m]} ({fd[m]:.3f} vs {rows[d, best[m]][m]:.3f}, {best[m]})"
+                                                for m in loses) if loses else "") + ".")
+    return "\n".join(textwrap.fill(t, 116, subsequent_indent="  ", break_on_hyphens=False) for t in lines)
+
+
+def tables(summary):
+    """The generated block of docs/rpc_synthetic.md for a run: the whole sample's (its chain, table and reading) or
+    the test's ROI's (its chain and table)."""
+    parts = [chain_text(summary), "", table(summary)]
+    if summary.get("roi") is None:
+        parts += ["", reading(summary)]
+    return "\n".join(parts)
+
+
+def write_docs(path, summary):
+    """Rewrite the block of docs ``path`` that ``summary``'s configuration makes."""
+    from datasets import rewrite_block
+
+    kind = "whole" if summary.get("roi") is None else "roi"
+    rewrite_block(path, BEGIN[kind], END[kind], tables(summary))
 
 
 def main(argv=None):
@@ -169,14 +256,23 @@ def main(argv=None):
     ap.add_argument("--methods", default=",".join(METHODS), help="comma-separated, of " + ", ".join(METHODS))
     ap.add_argument("--roi", help="COL,ROW,W,H of the left image to rectify (default: all of it)")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--write", help="store the summary in this JSON file (benchmarks/results_rpc_synthetic*.json)")
+    ap.add_argument("--docs", help="rewrite this Markdown file's block for the run's configuration")
+    ap.add_argument("--rows", help="take the summary from this JSON file instead of running")
     a = ap.parse_args(argv)
     kw = {"size": a.size, "seed": a.seed, "densities": tuple(a.densities.split(",")),
           "methods": tuple(a.methods.split(",")), "roi": a.roi}
-    if a.work:
+    if a.rows:
+        summary = json.loads(Path(a.rows).read_text())
+    elif a.work:
         summary = run(a.work, **kw)
     else:
         with tempfile.TemporaryDirectory() as tmp:
             summary = run(tmp, **kw)
+    if a.write:
+        Path(a.write).write_text(json.dumps(summary, indent=1) + "\n")
+    if a.docs:
+        write_docs(a.docs, summary)
     if a.json:
         print(json.dumps(summary, indent=1))
     else:
@@ -187,7 +283,7 @@ def main(argv=None):
               f"pointing {r['pointing_row_offset_px']:.3f} px; GT disparity on {100 * gd['valid_share']:.1f} % "
               f"of the pixels (rows off by {gd['row_error_rms_px']:.3f} px rms); GT DSM cells "
               f"{summary['gt_dsm_cells']}")
-        print(table(summary))
+        print(tables(summary))
     return 0
 
 
