@@ -426,9 +426,10 @@ def synthetic_text(summary):
     text = [table("Synthetic sample (full), through the fitted RPCs and the true cameras", rows,
                   [("affine, RPCs", "affine_box_rpc"), ("grids, RPCs", "grid_box_rpc"),
                    ("affine, true", "affine_box_true"), ("grids, true", "grid_box_true")]), "",
-            textwrap.fill(f"Through the true cameras **both methods are wrong by the same {min(med):.2f}–{max(med):.2f} "
-                          f"px median, {min(mx):.2f}–{max(mx):.2f} px max**: the RPC fit's share, the attitude jitter "
-                          "no RPC follows (docs/rpc_synthetic.md).", 116, break_on_hyphens=False)]
+            textwrap.fill("Through the true cameras **both methods are wrong by the same "
+                          f"{min(med):.2f}–{max(med):.2f} px median, {min(mx):.2f}–{max(mx):.2f} px max**: the RPC "
+                          "fit's share, the attitude jitter no RPC follows (docs/rpc_synthetic.md).", 116,
+                          break_on_hyphens=False)]
     return "\n".join(text)
 
 
