@@ -156,8 +156,8 @@ def table(summary):
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     dens = summary["lidar_density_per_m2"]
     for r in summary["rows"]:
-        lidar = (f"{r['density']} | {dens[r['density']]:.2f} | {100 * r['lidar_share']:.1f}" if r["method"] != "unguided"
-                 else f"— (without {r['density']}'s pixels) | — | —")
+        lidar = (f"{r['density']} | {dens[r['density']]:.2f} | {100 * r['lidar_share']:.1f}"
+                 if r["method"] != "unguided" else f"— (without {r['density']}'s pixels) | — | —")
         lines.append(f"| {lidar} | {r['method']} | "
                      f"{r['rmse']:.3f} | {r['nmad']:.3f} | {r['over_3res']:.2f} | {r['completeness']:.1f} | "
                      f"{r['predicted']:.1f} | {r['bad1']:.2f} | {r['bad3']:.2f} | {r['avg']:.3f} |")
