@@ -20,6 +20,7 @@ import json
 import os
 import sys
 import tempfile
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -125,6 +126,23 @@ def table(s):
     return "\n".join(rows)
 
 
+#: the markers of docs/rpc.md's block of this benchmark
+BEGIN, END = "<!-- bench_rpc_block begin -->", "<!-- bench_rpc_block end -->"
+
+
+def doc_text(s):
+    """docs/rpc.md's block: the split, the table, and the merged and whole DSMs' cells."""
+    m, f = s["split_manifest"], s["figures"]
+    rois = ", ".join(f"{r['name']} ({r['roi'][2]} x {r['roi'][3]} at {r['roi'][0]},{r['roi'][1]}, right share "
+                     f"{r['right_share']:.2f})" for r in m["rois"])
+    lo, hi = m["heights"]
+    text = [f"The split: {len(m['rois'])} ROIs, {rois}; heights {lo:.0f}–{hi:.0f} m (SRTM, {s['vertical']}); the "
+            f"SRTM \"LiDAR\" of {s['lidar_points']} points. Every pair "
+            + ("done" if all(p["status"] == "done" for p in s["split"]["pairs"]) else "NOT done") + "; the merged "
+            f"DSM has {f['merged_cells']} cells, the whole crop's {f['whole_cells']}.", "", table(s)]
+    return "\n".join(textwrap.fill(t, 116, break_on_hyphens=False) if not t.startswith("|") else t for t in text)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("data", nargs="?", default=os.environ.get("RIVERBED_DATA", "../shared/data"))
@@ -132,10 +150,25 @@ def main():
     ap.add_argument("--single", default=None, metavar="COL,ROW,W,H",
                     help="ROI of the one-ROI block (default the whole left crop)")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--write", help="store the figures in this JSON file (benchmarks/results_rpc_block.json)")
+    ap.add_argument("--rows", help="take the figures from this JSON file instead of running")
+    ap.add_argument("--docs", help="rewrite this Markdown file's block (docs/rpc.md)")
     a = ap.parse_args()
-    work = Path(a.work) if a.work else Path(tempfile.mkdtemp(prefix="bench_rpc_block_"))
-    work.mkdir(parents=True, exist_ok=True)
-    s = run(a.data, work, a.single)
+    if a.rows:
+        s = json.loads(Path(a.rows).read_text())
+        work = None
+    else:
+        work = Path(a.work) if a.work else Path(tempfile.mkdtemp(prefix="bench_rpc_block_"))
+        work.mkdir(parents=True, exist_ok=True)
+        s = run(a.data, work, a.single)
+    if a.write:  # the work folder's paths as WORK
+        text = json.dumps(s, indent=1, default=str)
+        Path(a.write).write_text((text.replace(str(work), "WORK") if work is not None else text) + "\n")
+    if a.docs:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        from datasets import rewrite_block
+
+        rewrite_block(a.docs, BEGIN, END, doc_text(s))
     if a.json:
         print(json.dumps(s, indent=2, default=str))
     else:

@@ -161,14 +161,62 @@ def run(data):
     return out, rl, rr
 
 
+#: the markers of docs/rpc.md's block of this benchmark
+BEGIN, END = "<!-- bench_rpc_rectify begin -->", "<!-- bench_rpc_rectify end -->"
+
+
+def doc_text(out):
+    """docs/rpc.md's block: the run's figures as a table."""
+    b, s, lk, g = (out["sift_before_pointing_correction"], out["sift"], out["sift_lk"],
+                   out["shareloc_before_pointing_correction"])
+    lo, hi = out["heights"]
+    return "\n".join([
+        f"Heights {lo:.1f}–{hi:.1f} m (SRTM, vertical datum {out['dem_vertical']} -> ellipsoid), output "
+        f"{out['size'][0]} x {out['size'][1]}, d in {out['disparity'][0]:.0f}–{out['disparity'][1]:.1f} px, "
+        f"{out['disparity_per_metre']:.3f} px per metre of height.", "",
+        "| what | figure |", "|---|---|",
+        f"| affine model: row difference of virtual matches (41 x 41 x 9, denser than the fit) | max "
+        f"**{out['check_row_residual_max_px']:.4f} px** (the fit's {out['virtual_matches']}: max "
+        f"{out['virtual_row_residual_max_px']:.4f}, rms {out['virtual_row_residual_rms_px']:.4f}) |",
+        f"| SIFT tie points, before the pointing correction | {b['matches']} matches, median \\|dy\\| "
+        f"{b['dy_median_abs']:.2f} px (mean dy {b['dy_mean']:.2f}): the RPCs' relative pointing error |",
+        f"| pointing correction (ORB + LK, {out['orb_tie_points']} tie points) | {out['pointing_row_offset_px']:.2f} "
+        "px of rows |",
+        f"| independent SIFT tie points (ratio 0.75, \\|dy\\| < 3 px), raw positions | {s['matches']} matches, "
+        f"median \\|dy\\| {s['dy_median_abs']:.2f} px, p95 {s['dy_p95_abs']:.2f} px, mean {s['dy_mean']:.3f} |",
+        f"| same, refined by Lucas-Kanade (21 px) | {lk['matches']} matches, median \\|dy\\| "
+        f"**{lk['dy_median_abs']:.3f} px**, p95 **{lk['dy_p95_abs']:.3f} px** (targets 0.2 / 0.5) |",
+        "| shareloc's ground-truth grids (step 30 px): row difference our rectification gives to shareloc's "
+        f"left/right correspondences inside the crops ({g['nodes_inside']} nodes) | median "
+        f"{g['row_difference_of_shareloc_matches_median_abs']:.4f} px, max "
+        f"{g['row_difference_of_shareloc_matches_max_abs']:.3f} px |",
+        f"| shareloc's left grid vs ours after the best similarity | rms "
+        f"**{g['grid_difference_after_similarity_rms_px']:.5f} px**, max "
+        f"{g['grid_difference_after_similarity_max_px']:.4f} px (scale {g['similarity_scale']:.6f}, angle "
+        f"{g['similarity_angle_deg']:.4f}°) |"])
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("data", nargs="?", default=os.environ.get("RIVERBED_DATA", "../shared/data"))
     p.add_argument("--json", action="store_true")
     p.add_argument("--save", help="write the rectified pair as PNGs with this prefix")
+    p.add_argument("--write", help="store the figures in this JSON file (benchmarks/results_rpc_rectify.json)")
+    p.add_argument("--rows", help="take the figures from this JSON file instead of running")
+    p.add_argument("--docs", help="rewrite this Markdown file's block (docs/rpc.md)")
     a = p.parse_args(argv)
-    out, rl, rr = run(a.data)
-    if a.save:
+    if a.rows:
+        out = json.loads(Path(a.rows).read_text())
+    else:
+        out, rl, rr = run(a.data)
+    if a.write:
+        Path(a.write).write_text(json.dumps(out, indent=1) + "\n")
+    if a.docs:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        from datasets import rewrite_block
+
+        rewrite_block(a.docs, BEGIN, END, doc_text(out))
+    if a.save and not a.rows:
         cv2.imwrite(a.save + "_left.png", to8(rl))
         cv2.imwrite(a.save + "_right.png", to8(rr))
     print(json.dumps(out, indent=1) if a.json else "\n".join(f"{k}: {v}" for k, v in out.items()))

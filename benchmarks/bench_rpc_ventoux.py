@@ -32,6 +32,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import textwrap
 from pathlib import Path
 
 import cv2
@@ -239,15 +240,36 @@ def copy_picture(src, dst):
 
 def table(summary):
     lines = ["| LiDAR spacing (rectified px) | points (kept) | method | median dz (m) | NMAD (m) | "
-             "NMAD, plane removed (m) | RMSE (m) | completeness (%) | match (s) |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "NMAD, plane removed (m) | RMSE (m) | completeness (%) |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in summary["rows"]:
         pts = "—" if r["method"] == "unguided" else f"{r['lidar_points']} ({r['kept']})"
         sp = "—" if r["method"] == "unguided" else f"{r['spacing_px']} x {r['spacing_px']}"
-        sec = "—" if r["match_seconds"] is None else f"{r['match_seconds']:.1f}"
         lines.append(f"| {sp} | {pts} | {r['method']} | {r['median']:.2f} | {r['nmad']:.2f} | "
-                     f"{r['nmad_plane']:.2f} | {r['rmse']:.2f} | {r['completeness']:.1f} | {sec} |")
+                     f"{r['nmad_plane']:.2f} | {r['rmse']:.2f} | {r['completeness']:.1f} |")
     return "\n".join(lines)
+
+
+#: the markers of docs/rpc.md's block of this benchmark
+BEGIN, END = "<!-- bench_rpc_ventoux begin -->", "<!-- bench_rpc_ventoux end -->"
+
+
+def doc_text(summary):
+    """docs/rpc.md's block: the LiDAR and reference figures, the table, and what the unguided row says."""
+    rows = {(r["spacing_px"], r["method"]): r for r in summary["rows"]}
+    first = summary["rows"][0]["spacing_px"]
+    lidar = sorted({(r["spacing_px"], r["lidar_points"], r["kept"]) for r in summary["rows"]})
+    u, g = rows[first, "unguided"], rows[first, "guided"]
+    r, grid = summary["rectify"], summary["grid"]
+    text = [f"Rectified {r['width']} x {r['height']}, heights {r['heights'][0]:.1f}–{r['heights'][1]:.1f} m, d in "
+            f"{r['disparity'][0]:.0f}–{r['disparity'][1]:.1f} px ({summary['vertical']}). The \"LiDAR\": "
+            + ", ".join(f"{n} points at one per {s} x {s} px ({k} kept by `riverbed project`)" for s, n, k in lidar)
+            + f". The reference: {summary['reference_cells']} cells of the DSM grid ({grid['resolution']} m).",
+            "", table(summary), "",
+            f"The unguided row against the coarse reference: median {u['median']:+.2f} m, NMAD {u['nmad']:.1f} m, "
+            f"{u['nmad_plane']:.1f} m with the best plane removed; the guided row sits on the SRTM (median "
+            f"{g['median']:+.2f} m, NMAD {g['nmad']:.2f} m at {first} x {first} px)."]
+    return "\n".join(textwrap.fill(t, 116, break_on_hyphens=False) if not t.startswith("|") else t for t in text)
 
 
 def main(argv=None):
@@ -257,14 +279,27 @@ def main(argv=None):
     ap.add_argument("--spacing", default="4,8", help="LiDAR spacings in rectified pixels, comma-separated")
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--no-picture", action="store_true", help=f"do not write {PICTURE.relative_to(REPO)}")
+    ap.add_argument("--write", help="store the summary in this JSON file (benchmarks/results_rpc_ventoux.json)")
+    ap.add_argument("--rows", help="take the summary from this JSON file instead of running")
+    ap.add_argument("--docs", help="rewrite this Markdown file's block (docs/rpc.md)")
     a = ap.parse_args(argv)
     spacings = tuple(int(s) for s in a.spacing.split(","))
     picture = None if a.no_picture else PICTURE
-    if a.work:
+    if a.rows:
+        summary = json.loads(Path(a.rows).read_text())
+    elif a.work:
         summary = run(a.data, a.work, spacings, picture)
     else:
         with tempfile.TemporaryDirectory() as tmp:
             summary = run(a.data, tmp, spacings, picture)
+    if a.write:  # without the temporary hillshades' paths
+        rows = [{k: v for k, v in r.items() if k != "hillshade"} for r in summary["rows"]]
+        Path(a.write).write_text(json.dumps({**summary, "rows": rows}, indent=1) + "\n")
+    if a.docs:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        from datasets import rewrite_block
+
+        rewrite_block(a.docs, BEGIN, END, doc_text(summary))
     if a.json:
         print(json.dumps(summary, indent=1))
     else:
