@@ -1,4 +1,4 @@
-"""The real Pléiades Ventoux pair matched, through the commands as a user runs them (issue 14, "the real pair matched").
+"""The real Pléiades Ventoux pair matched, through the commands as a user runs them (docs/rpc.md).
 
     python benchmarks/bench_rpc_ventoux.py [DATA] [--work DIR] [--spacing 4,8] [--json] [--no-picture]
 

@@ -38,6 +38,10 @@ from test_block import CRS, write_cones_block
 OUTPUTS = ["disparity.tif", "done.json", "dsm.tif", "points.laz", "sparse.tif"]
 PAIRS = ["a", "b_pair", "c", "d_pair"]
 WAIT = 180  # s: the longest any wait below may take before the test fails (a block here takes a few seconds)
+#: s: the wait for a killed block's progress, whose dask workers start, load their kernels and work on a machine the
+#: rest of the suite may load too (a block alone takes about 10 s; twice, a full suite beside other work took more
+#: than 180 s). A hang fails after it with what the block printed and had written.
+PROGRESS_WAIT = 600
 TEMP = re.compile(r"^\..+\.[0-9a-f]{8}\.tmp(\.\w+)?$")  # io.atomic's temporary names, written out independently
 
 
@@ -125,16 +129,18 @@ def finished(out):
     return sorted(p.parent.name for p in (out / "pairs").glob("*/done.json")) if (out / "pairs").is_dir() else []
 
 
-def wait_until(condition, proc, what, deadline):
-    """Poll ``condition()`` every 10 ms while ``proc`` runs; fail if ``proc`` ends first or the deadline passes."""
+def wait_until(condition, proc, what, deadline, report=lambda: ""):
+    """Poll ``condition()`` every 10 ms while ``proc`` runs; fail if ``proc`` ends first or the deadline passes,
+    with ``report()`` (what the block printed and wrote) in the message."""
+    start = time.monotonic()
     while True:
         value = condition()
         if value:
             return value
         if proc.poll() is not None:
-            pytest.fail(f"the block ended (exit code {proc.returncode}) before {what}")
+            pytest.fail(f"the block ended (exit code {proc.returncode}) before {what}{report()}")
         if time.monotonic() > deadline:
-            pytest.fail(f"no {what} within {WAIT} s")
+            pytest.fail(f"no {what} within {time.monotonic() - start:.0f} s{report()}")
         time.sleep(0.01)
 
 
@@ -179,7 +185,7 @@ def test_killed_worker_process_block_completes_equal_to_sequential(block, proces
                                          cluster.scheduler_address, "--json"), stdout=so, stderr=se,
                                 start_new_session=True)
     try:
-        deadline = time.monotonic() + WAIT
+        deadline = time.monotonic() + PROGRESS_WAIT
 
         def busy_worker():  # once a pair has finished: the worker with the most tasks of the block running
             if not finished(out):
@@ -187,7 +193,8 @@ def test_killed_worker_process_block_completes_equal_to_sequential(block, proces
             busy = {a: len(keys) for a, keys in client.processing().items() if keys and a in pids_before}
             return max(busy, key=busy.get) if busy else None
 
-        victim = wait_until(busy_worker, proc, "a first pair finished while a worker was busy", deadline)
+        victim = wait_until(busy_worker, proc, "a first pair finished while a worker was busy", deadline,
+                            lambda: f"\nstderr (end): {(tmp_path / 'stderr').read_text()[-2000:]}")
         pid = pids_before[victim]
         os.kill(pid, signal.SIGKILL)
         done_at_kill = finished(out)
@@ -262,14 +269,19 @@ def test_killed_block_resumes_cleans_leftovers_and_skips_finished_pairs(block, t
         proc = subprocess.Popen(riverbed("block", base / "cluster.yaml", "-o", out, "--workers", "2", "--json"),
                                 stdout=so, stderr=se, start_new_session=True)
     try:
-        deadline = time.monotonic() + WAIT
+        deadline = time.monotonic() + PROGRESS_WAIT
 
         def half_done():  # a pair finished and another projected (sparse.tif) but not finished
             done = finished(out)
             started = [p.parent.name for p in (out / "pairs").glob("*/sparse.tif")] if done else []
             return done and set(started) - set(done)
 
-        wait_until(half_done, proc, "a pair finished and another half done", deadline)
+        def report():
+            files = sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file()) if out.exists() else []
+            err = (tmp_path / "stderr").read_text()[-2000:]
+            return f"\nfiles: {files}\nstderr (end): {err}"
+
+        wait_until(half_done, proc, "a pair finished and another half done", deadline, report)
         os.killpg(proc.pid, signal.SIGKILL)  # as a batch system ends a job: every process of the group
         proc.wait(timeout=WAIT)
     finally:
