@@ -171,8 +171,8 @@ def tables(res):
             f"the pixels ({cell(coarse['ranges'])}); `--margin 6` holds it at {wide['inside']:.0f} % and gives "
             f"{cell(wide['ranges'])}.",
             "- **A DSM finer than a few pixels per cell is better used as LiDAR** (`--sparse dsm_sparse.tif`: "
-            f"riverbed guidance, tubes and fusion): at {fine['cell_m']:.1f} m it gives {cell(fine['as_lidar'])}, against "
-            f"{cell(fine['alone'])} for the DSM alone and {cell(fine['ranges'])} in its ranges."]
+            f"riverbed guidance, tubes and fusion): at {fine['cell_m']:.1f} m it gives {cell(fine['as_lidar'])}, "
+            f"against {cell(fine['alone'])} for the DSM alone and {cell(fine['ranges'])} in its ranges."]
     v = res.get("ventoux")
     if v is not None:
         out += [f"- **A real satellite pair:** the Pléiades Ventoux pair rectified by `riverbed rectify --rpc`, its "
