@@ -1,6 +1,7 @@
 """docs/benchmarks.md's tables are what benchmarks/benchmark_tables.py makes of the committed benchmarks/expected_*.json
 (which tests/test_benchmark_real.py measures again), and the claims its text states hold on them."""
 
+import json
 import sys
 from collections import defaultdict
 
@@ -17,6 +18,15 @@ def test_the_doc_tables_are_the_committed_results():
         begin, end = f"<!-- benchmark_tables: {name} -->", f"<!-- benchmark_tables: {name} end -->"
         assert DOC.count(begin) == 1 and DOC.count(end) == 1, name
         assert DOC.split(begin)[1].split(end)[0].strip() == make().strip(), name
+
+
+def test_the_tubes_excerpt_is_the_committed_run():
+    tubes = (REPO / "docs" / "tubes.md").read_text()
+    begin, end = "<!-- benchmark_tables: tubes -->", "<!-- benchmark_tables: tubes end -->"
+    assert tubes.split(begin)[1].split(end)[0].strip() == bt.tubes_table().strip()
+    rows = json.loads((REPO / "benchmarks" / bt.TUBES[0]).read_text())
+    # the four dev scenes, three shares, the three baselines and four guided/unguided range modes, seed 0
+    assert len(rows) == 4 * 3 * (3 + 4) and {r["seed"] for r in rows} == {0}
 
 
 def test_the_commands_are_the_ones_the_tests_check():
