@@ -62,6 +62,15 @@ def test_help_loads_no_numba_kernel():
     assert _imported_by("import riverbed_cli") == []
 
 
+def test_registries_are_full_on_first_access():
+    # no module imported the plugins (nor matching.pipeline): reading the tables loads them
+    code = ("import sys, riverbed_cli\nfrom riverbed_cli.matching.registry import FUSIONS\n"
+            "print(sorted(riverbed_cli.MATCHERS), sorted(riverbed_cli.GUIDES), sorted(FUSIONS),"
+            " 'riverbed_cli.matching.pipeline' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == str(sorted(MATCHER_NAMES)) + " " + str(sorted(GUIDE_NAMES)) + " ['confidence', 'none'] False"
+
+
 def test_registries_agree_with_the_settings_table():
     assert set(MATCHERS) == set(MATCHER_NAMES)
     assert set(GUIDES) == set(GUIDE_NAMES)

@@ -525,7 +525,7 @@ def test_coarse_holes_bound_the_pixels_without_lidar_on_a_real_pair(cones):
     assert inside.mean() > 0.995  # the coarse ranges hold the truth
     assert (chi - clo + 1)[hole].mean() < 30  # against 60 on the nominal range
     full = match_pair(left, right, sparse, 0, 59, fusion="none")
-    coarse = match_pair(left, right, sparse, 0, 59, config, fusion="none")
+    coarse = match_pair(left, right, sparse, 0, 59, params=config, fusion="none")
     assert full.info["tubes"]["full_share"] > 0.05 and coarse.info["tubes"]["full_share"] == 0.0
     e_full, e_coarse = (np.abs(r.disparity - gt)[ev] for r in (full, coarse))
     assert (e_coarse > 3).mean() <= (e_full > 3).mean() + 0.005

@@ -429,9 +429,9 @@ def coarse_reference(left, right, d_min, d_max, config, match, factor=FACTOR):
     if min(h, w) < 16:
         return None
     small = [cv2.resize(np.ascontiguousarray(im), (w, h), interpolation=cv2.INTER_AREA) for im in (left, right)]
-    return match(small[0], small[1], None, int(math.floor(d_min / factor)), int(math.ceil(d_max / factor)), config,
-                 matcher="sgm", guide="none", range="full", fusion="none", lr_check=True, lidar_check="off",
-                 lidar_offset="none").disparity
+    return match(small[0], small[1], None, int(math.floor(d_min / factor)), int(math.ceil(d_max / factor)),
+                 params=config, matcher="sgm", guide="none", range="full", fusion="none", lr_check=True,
+                 lidar_check="off", lidar_offset="none").disparity
 
 
 def check_pair(left, right, sparse, d_min, d_max, config, match):

@@ -352,8 +352,8 @@ def coarse_hole_ranges(left, right, d_min, d_max, config):
     if min(h, w) < 16:
         return np.full((H, W), d_min, np.int32), np.full((H, W), d_max, np.int32)
     small = [cv2.resize(np.ascontiguousarray(im), (w, h), interpolation=cv2.INTER_AREA) for im in (left, right)]
-    res = match_pair(small[0], small[1], None, int(math.floor(d_min / f)), int(math.ceil(d_max / f)), config,
-                     **_COARSE)
+    res = match_pair(small[0], small[1], None, int(math.floor(d_min / f)), int(math.ceil(d_max / f)),
+                     params=config, **_COARSE)
     return hole_bounds(res.disparity, (H, W), d_min, d_max, f)
 
 
@@ -366,7 +366,7 @@ def fill_tube_holes(left, right, lo, hi, hole, d_min, d_max, config):
     return np.where(hole, clo, lo), np.where(hole, chi, hi)
 
 
-def match_pair(left, right, sparse=None, d_min=None, d_max=None, params=None, range_map=None, beside="auto",
+def match_pair(left, right, sparse=None, d_min=None, d_max=None, *, params=None, range_map=None, beside="auto",
                valid_areas=None, changed_area=None, **overrides):
     """Dense disparity of a rectified pair, optionally guided by sparse LiDAR disparities.
 
@@ -547,9 +547,9 @@ def warm_up(matcher="sgm", guide_names=("none", "gauss", "riverbed"), config=Non
         if config.lidar_check == "auto":  # the tiny pair is too small for the check's reference
             warm_check()
         match_pair(left, right, sparse if get_guide(config.guide).needs_sparse or config.range != "full" else None,
-                   0, 7, config)
+                   0, 7, params=config)
         if config.tube.holes == "coarse" and config.range != "full":  # the coarse match of the tube rule's holes
-            match_pair(left, right, None, 0, 7, config, **_COARSE)
+            match_pair(left, right, None, 0, 7, params=config, **_COARSE)
         return
     for guide in guide_names:
         match_pair(left, right, sparse, 0, 7, guide=guide, matcher=matcher)

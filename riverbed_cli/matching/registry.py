@@ -1,17 +1,71 @@
-"""Registries of matchers, guides and fusions: plain dicts, filled by the ``register_*`` decorators of
-``matching/matchers/``, ``matching/guides/`` and ``matching/fusion.py``.
+"""Registries of matchers, guides and fusions: dicts filled by the ``register_*`` decorators of
+``matching/matchers/``, ``matching/guides/`` and ``matching/fusion.py``, which load those modules on first access.
 
 A new guide is one module in ``matching/guides/`` with a :class:`~.guides.base.Guide` subclass decorated by
 :func:`register_guide`, its import in ``guides/__init__.py``, and its name and settings in :mod:`.config` (where
 the command line and the manifest read them without loading any kernel).
 """
 
+import importlib
+
 from ..errors import RiverbedError
 from .config import FUSION_NAMES, GUIDE_NAMES, MATCHER_NAMES
 
-MATCHERS = {}
-GUIDES = {}
-FUSIONS = {}
+
+class Registry(dict):
+    """A table of name -> plugin, filled by the ``register_*`` decorator as its plugin ``package`` is imported. Read
+    through it (``[]``, ``in``, iteration, ``len``, ``keys``/``values``/``items``/``get``), the package is imported
+    first: the table is full on first access, whoever imported what before."""
+
+    def __init__(self, package):
+        super().__init__()
+        self._package = package
+
+    def _load(self):
+        if self._package is not None:
+            package, self._package = self._package, None  # once (a plugin reading the table while it loads)
+            importlib.import_module(package)
+
+    def __getitem__(self, key):
+        self._load()
+        return super().__getitem__(key)
+
+    def __contains__(self, key):
+        self._load()
+        return super().__contains__(key)
+
+    def __iter__(self):
+        self._load()
+        return super().__iter__()
+
+    def __len__(self):
+        self._load()
+        return super().__len__()
+
+    def __repr__(self):
+        self._load()
+        return super().__repr__()
+
+    def keys(self):
+        self._load()
+        return super().keys()
+
+    def values(self):
+        self._load()
+        return super().values()
+
+    def items(self):
+        self._load()
+        return super().items()
+
+    def get(self, key, default=None):
+        self._load()
+        return super().get(key, default)
+
+
+MATCHERS = Registry(f"{__package__}.matchers")
+GUIDES = Registry(f"{__package__}.guides")
+FUSIONS = Registry(f"{__package__}.fusion")
 
 
 def _register(table, names, kind):

@@ -216,8 +216,8 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     try:
         whole_map = tuple(b[:, :] for b in rmap) if rmap is not None else None
         areas = tuple(None if v is None else np.asarray(v[:, :]) for v in valid)
-        result = match_pair(left_img, right_img, sparse_map, min_disp, max_disp, config, range_map=whole_map,
-                            valid_areas=areas)
+        result = match_pair(left_img, right_img, sparse_map, min_disp, max_disp, params=config,
+                            range_map=whole_map, valid_areas=areas)
     except RiverbedError as e:
         # Name the file the problem comes from when it is the sparse map or the range map.
         if sparse and "sparse" in str(e) and e.path is None:
@@ -260,16 +260,17 @@ def _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, si
         if output.lower().endswith((".tif", ".tiff")):
             # Stream tiles into the GeoTIFF: the whole disparity map is never in memory.
             with atomic_output(output, overwrite) as tmp, TiffSink(tmp, H, W) as sink:
-                result = match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, size, overlap,
-                                     lidar_range, progress=advance, out=sink, range_map=range_map,
-                                     confidence_out=conf_sink, range_scan=range_scan, valid_areas=valid)
+                result = match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, params=config, tile=size,
+                                     overlap=overlap, lidar_range=lidar_range, progress=advance, out=sink,
+                                     range_map=range_map, confidence_out=conf_sink, range_scan=range_scan,
+                                     valid_areas=valid)
                 sink.update_tags(riverbed_guide=config.guide, riverbed_window=result.info["window"],
                                  riverbed_tiles=result.info["tiles"])
             disp = None
         else:
-            result = match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, size, overlap,
-                                 lidar_range, progress=advance, range_map=range_map, confidence_out=conf_sink,
-                                 range_scan=range_scan, valid_areas=valid)
+            result = match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, params=config, tile=size,
+                                 overlap=overlap, lidar_range=lidar_range, progress=advance, range_map=range_map,
+                                 confidence_out=conf_sink, range_scan=range_scan, valid_areas=valid)
             disp = result.disparity
             write_disparity(output, disp, overwrite=overwrite, tags={"riverbed_guide": config.guide})
     if color_png:

@@ -401,7 +401,7 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
     lv, rv = valid_areas if valid_areas is not None else (None, None)
     crops = (None if lv is None else np.asarray(lv[ya:yb, a:b]),
              None if rv is None else np.asarray(rv[ya:yb, a - off:b - off]))
-    res = match_pair(lc, rc, sc, lo_c, hi_c, p, range_map=range_map, beside=False, valid_areas=crops,
+    res = match_pair(lc, rc, sc, lo_c, hi_c, params=p, range_map=range_map, beside=False, valid_areas=crops,
                      changed_area=ch)
     block = res.disparity[t.y0 - ya:t.y1 - ya, t.x0 - a:t.x1 - a] + np.float32(off)
     tubes = res.info.get("tubes")
@@ -420,7 +420,7 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
     return (*out, conf)
 
 
-def match_tiled(left, right, sparse=None, d_min=None, d_max=None, params=None, tile=TILE_DEFAULT,
+def match_tiled(left, right, sparse=None, d_min=None, d_max=None, *, params=None, tile=TILE_DEFAULT,
                 overlap=OVERLAP_DEFAULT, lidar_range=True, progress=None, out=None, range_map=None,
                 confidence_out=None, range_scan=None, valid_areas=None, **overrides):
     """:func:`match_pair` tile by tile; same arguments plus ``tile`` (px, ``"auto"`` or 0), ``overlap`` (px) and

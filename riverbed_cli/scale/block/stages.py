@@ -333,9 +333,9 @@ def tile_stage(job, proj, index):
         ch = None if changed is None else np.asarray(changed)
         if rmap is None:  # with LiDAR, the range it gives (as project_stage found it); without, the pair's
             d0, d1 = (s["min_disp"], s["max_disp"]) if lidar else (proj["d_min"], proj["d_max"])
-            res = match_pair(left, right, sparse, d0, d1, p, valid_areas=valid, changed_area=ch)
+            res = match_pair(left, right, sparse, d0, d1, params=p, valid_areas=valid, changed_area=ch)
         else:  # the pair's range, widened to hold the map
-            res = match_pair(left, right, sparse, proj["d_min"], proj["d_max"], p, range_map=rmap,
+            res = match_pair(left, right, sparse, proj["d_min"], proj["d_max"], params=p, range_map=rmap,
                              valid_areas=valid, changed_area=ch)
         n_d = res.info["d_max"] - res.info["d_min"] + 1
         return {"index": 0, "disparity": res.disparity, "evaluations": H * W * n_d, "stages": res.info["stages"],
