@@ -15,6 +15,7 @@ sources, as ``bench_startup.py`` does), so that a change is compared in the same
 """
 
 import argparse
+import json
 import os
 import subprocess
 import sys
@@ -28,7 +29,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_match import opencv_grey_files, opencv_times_apart  # noqa: E402
 from bench_startup import export, run  # noqa: E402
-from datasets import speed_pair  # noqa: E402
+from datasets import rewrite_block, speed_pair  # noqa: E402
 
 from riverbed_cli.io.disparity import write_disparity  # noqa: E402
 
@@ -50,21 +51,20 @@ def placement(first, last, near, far):
     return "far" if first > far and last > far else "changed"
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("data_dir", nargs="?", default=os.environ.get("RIVERBED_DATA", "../shared/data"))
-    ap.add_argument("--minutes", type=float, default=10.0)
-    ap.add_argument("--near", type=float, default=200.0, help="round trips below this (ns): caches shared")
-    ap.add_argument("--far", type=float, default=350.0, help="round trips above this (ns): cores far apart")
-    ap.add_argument("--before", help="also run this commit's --paths 4 --fusion none each round")
-    args = ap.parse_args()
-    left, right, sparse = speed_pair(args.data_dir)
+FOUR_NAME, FUSED_NAME = "4 paths, --fusion none", "default (8 paths, fused)"
+#: the markers of docs/tubes.md's block
+BEGIN, END = "<!-- bench_placement: begin -->", "<!-- bench_placement: end -->"
+
+
+def measure(data_dir, minutes, near, far, before=None):
+    """The rounds (module docstring): ``{"minutes", "near", "far", "before", "rounds": [{"placement", "probes",
+    "opencv": {mode: s}, "riverbed": {variant: s}}]}``."""
+    left, right, sparse = speed_pair(data_dir)
     rounds = []
     with tempfile.TemporaryDirectory() as tmp, tempfile.TemporaryDirectory() as old:
-        variants = {"4 paths, --fusion none": (FOUR, ROOT), "default (8 paths, fused)": ([], ROOT)}
-        older = f"commit {args.before}, 4 paths, --fusion none" if args.before else None
-        if older:
-            variants[older] = (FOUR, export(args.before, old))
+        variants = {FOUR_NAME: (FOUR, ROOT), FUSED_NAME: ([], ROOT)}
+        if before:
+            variants[f"commit {before}, 4 paths, --fusion none"] = (FOUR, export(before, old))
         for n, img in (("l.png", left), ("r.png", right)):
             cv2.imwrite(os.path.join(tmp, n), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
         grey = opencv_grey_files(left, right, tmp)
@@ -73,34 +73,75 @@ def main():
                 "--min-disp", "0", "--max-disp", "79", "--tile", "0", "-o", os.path.join(tmp, "d.tif")]
         for extra, path in variants.values():
             run(path, base + extra, {})  # each copy's Numba cache filled (or checked) once
-        end = time.monotonic() + 60 * args.minutes
+        end = time.monotonic() + 60 * minutes
         while time.monotonic() < end:
             first = probe()
             cv = {m: float(np.median(t)) for m, t in opencv_times_apart(grey, 0, 79, ("HH", "SGBM_3WAY"), 3).items()}
             rb = {name: run(path, base + extra, {})[1] for name, (extra, path) in variants.items()}
             last = probe()
-            rounds.append((placement(first, last, args.near, args.far), cv, rb))
+            rounds.append({"placement": placement(first, last, near, far), "probes": [first, last], "opencv": cv,
+                           "riverbed": rb})
             print(f"round {len(rounds)}: probes {first:.0f} / {last:.0f} ns, OpenCV 3WAY {cv['SGBM_3WAY']:.4f} s, "
                   + ", ".join(f"{k} {v:.4f} s" for k, v in rb.items()), file=sys.stderr, flush=True)
-    print(f"\n### riverbed and OpenCV by vCPU placement ({len(rounds)} rounds, {args.minutes:g} min)\n")
-    print("| placement (round trip) | rounds | OpenCV HH s | OpenCV 3WAY s | riverbed | seconds | vs HH | vs 3WAY |"
-          + (f" vs commit {args.before} |" if older else ""))
-    print("|---|---:|---:|---:|---|---:|---:|---:|" + ("---:|" if older else ""))
-    for kind, label in (("near", f"near (< {args.near:g} ns)"), ("far", f"far (> {args.far:g} ns)"),
-                        ("changed", "changed during the round")):
-        sel = [r for r in rounds if r[0] == kind]
+    return {"minutes": minutes, "near": near, "far": far, "before": before, "rounds": rounds}
+
+
+def summary(res):
+    """Per placement: ``{kind: {"rounds", "3way", "four", "four_x_3way", "fused_x_hh", "four_x_before"}}`` (medians;
+    ratios the medians of each round's)."""
+    out = {}
+    for kind in ("near", "far", "changed"):
+        sel = [r for r in res["rounds"] if r["placement"] == kind]
         if not sel:
-            print(f"| {label} | 0 | | | | | | |" + (" |" if older else ""))
             continue
-        hh = np.array([r[1]["HH"] for r in sel])
-        w3 = np.array([r[1]["SGBM_3WAY"] for r in sel])
-        for name in variants:
-            s = np.array([r[2][name] for r in sel])
-            vs = ""
-            if older:  # the median of each round's ratio to the older commit's 4-path match
-                vs = f" {np.median(s / np.array([r[2][older] for r in sel])):.2f} |" if "4 paths" in name else " |"
-            print(f"| {label} | {len(sel)} | {np.median(hh):.3f} | {np.median(w3):.4f} | {name} | {np.median(s):.4f} | "
-                  f"{np.median(s / hh):.2f} | {np.median(s / w3):.2f} |" + vs)
+        hh = np.array([r["opencv"]["HH"] for r in sel])
+        w3 = np.array([r["opencv"]["SGBM_3WAY"] for r in sel])
+        four = np.array([r["riverbed"][FOUR_NAME] for r in sel])
+        fused = np.array([r["riverbed"][FUSED_NAME] for r in sel])
+        row = {"rounds": len(sel), "3way": float(np.median(w3)), "four": float(np.median(four)),
+               "four_x_3way": float(np.median(four / w3)), "fused_x_hh": float(np.median(fused / hh))}
+        if res.get("before"):
+            old = np.array([r["riverbed"][f"commit {res['before']}, 4 paths, --fusion none"] for r in sel])
+            row["four_x_before"] = float(np.median(four / old))
+        out[kind] = row
+    return out
+
+
+def table(res):
+    """docs/tubes.md's block: the rounds by placement."""
+    labels = {"near": "near", "far": "far", "changed": "changed during the round"}
+    lines = [f"{len(res['rounds'])} rounds in {res['minutes']:g} minutes (near: both probes under {res['near']:g} ns, "
+             f"far: both over {res['far']:g} ns):", "",
+             "| placement | rounds | OpenCV 3WAY s | `--paths 4 --fusion none` s | x 3WAY | fused default x HH |",
+             "|---|---:|---:|---:|---:|---:|"]
+    for kind, r in summary(res).items():
+        bold = "**" if kind != "changed" else ""
+        lines.append(f"| {labels[kind]} | {r['rounds']} | {r['3way']:.4f} | {r['four']:.4f} | "
+                     f"{bold}{r['four_x_3way']:.2f}{bold} | {r['fused_x_hh']:.2f} |")
+    return "\n".join(lines)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("data_dir", nargs="?", default=os.environ.get("RIVERBED_DATA", "../shared/data"))
+    ap.add_argument("--minutes", type=float, default=10.0)
+    ap.add_argument("--near", type=float, default=200.0, help="round trips below this (ns): caches shared")
+    ap.add_argument("--far", type=float, default=350.0, help="round trips above this (ns): cores far apart")
+    ap.add_argument("--before", help="also run this commit's --paths 4 --fusion none each round")
+    ap.add_argument("--write", help="store the rounds in this JSON file (benchmarks/results_placement.json)")
+    ap.add_argument("--rows", help="take the rounds from this JSON file instead of running")
+    ap.add_argument("--docs", help="rewrite this Markdown file's block (docs/tubes.md)")
+    args = ap.parse_args()
+    res = (json.loads(Path(args.rows).read_text()) if args.rows
+           else measure(args.data_dir, args.minutes, args.near, args.far, args.before))
+    if args.write:
+        Path(args.write).write_text(json.dumps(res, indent=1) + "\n")
+    if args.docs:
+        rewrite_block(args.docs, BEGIN, END, table(res))
+    print(table(res))
+    for kind, r in summary(res).items():
+        if "four_x_before" in r:
+            print(f"{kind}: 4 paths x commit {res['before']}: {r['four_x_before']:.3f}")
 
 
 if __name__ == "__main__":

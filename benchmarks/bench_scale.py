@@ -148,6 +148,29 @@ def opencv_tile(folder, size=1024, d_range=512):
     return L.size * d_range / dt / 1e6, dt
 
 
+#: the markers of docs/tubes.md's scale block
+BEGIN, END = "<!-- bench_scale: begin -->", "<!-- bench_scale: end -->"
+#: the throughput before tubes the targets compare against (M disparity evaluations per second, nominal)
+BEFORE_TUBES = 55
+
+
+def doc_table(res):
+    """docs/tubes.md's block: per size and range mode, time, memory, work and accuracy; then the tubes' throughput
+    against the target's 55 M/s."""
+    lines = ["| size | ranges | tiles | seconds | peak RSS MiB | evaluations done, M | nominal Mevals/s | "
+             "bad3 % / avg px |", "|---|---|---:|---:|---:|---:|---:|---|"]
+    for x in res["rows"]:
+        r, m = x["run"], x["accuracy"]
+        lines.append(f"| {x['mp']} MP | {x['label']} | {r['tiles']} of {r['tile']} | {r['seconds']:.1f} | "
+                     f"{r['peak_rss_mib']:.0f} | {r['disparity_evaluations'] / 1e6:.0f} | "
+                     f"{x['H'] * x['W'] * 521 / r['seconds'] / 1e6:.0f} | {m['bad3']:.2f} / {m['avg']:.3f} |")
+    tubes = [x for x in res["rows"] if x["rng"] == "tube"]
+    lines += ["", "The LiDAR tubes' nominal throughput: " + ", ".join(
+        f"{x['mp']} MP {x['H'] * x['W'] * 521 / x['run']['seconds'] / 1e6 / BEFORE_TUBES:.0f}x the {BEFORE_TUBES} M/s "
+        f"before tubes at {x['run']['peak_rss_mib']:.0f} MiB peak" for x in tubes) + "."]
+    return "\n".join(lines)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sizes", default="10,20,40", help="megapixels, comma separated")
@@ -156,12 +179,23 @@ def main():
     ap.add_argument("--skip-full", action="store_true", help="do not match the full range on the largest size")
     ap.add_argument("--ranges", default="tile,tube",
                     help="range modes matched at every size (tile, tube; map: a range map of the GT +- 4 px)")
+    ap.add_argument("--write", help="store the rows in this JSON file (benchmarks/results_scale.json)")
+    ap.add_argument("--rows", help="take the rows from this JSON file instead of running")
+    ap.add_argument("--docs", help="rewrite this Markdown file's block (docs/tubes.md)")
     args = ap.parse_args()
+    if args.rows:
+        res = json.loads(Path(args.rows).read_text())
+        if args.docs:
+            from datasets import rewrite_block
+
+            rewrite_block(args.docs, BEGIN, END, doc_table(res))
+        print(doc_table(res))
+        return
     sizes = [int(s) for s in args.sizes.split(",")]
     if args.workdir:
         Path(args.workdir).mkdir(parents=True, exist_ok=True)  # the pairs go in a temporary folder inside it
     with tempfile.TemporaryDirectory(dir=args.workdir) as tmp:
-        rows = []
+        rows, kept = [], []
         for mp in sizes:
             folder = Path(tmp) / f"{mp}mp"
             folder.mkdir()
@@ -173,6 +207,8 @@ def main():
                 m = accuracy(folder, f"disp_1_{rng}.tif")
                 label = {"tube": "LiDAR tubes", "map": "range map (GT +- 4 px)"}.get(rng, "LiDAR tile ranges")
                 rows.append((mp, H, W, label, r, m))
+                kept.append({"mp": mp, "H": H, "W": W, "rng": rng, "label": label, "run": r,
+                             "accuracy": {k: float(m[k]) for k in ("bad1", "bad3", "avg")}})
                 print(f"{mp} MP ({W}x{H}, generated in {gen:.0f} s), range {rng}: {r}", file=sys.stderr, flush=True)
             if mp == max(sizes) and not args.skip_full:
                 rf = run_child(folder, False, "full")
@@ -194,6 +230,12 @@ def main():
             print(f"\nLiDAR tile ranges vs full range on {full[0][0]} MP: {speedup:.1f}x "
                   f"faster; OpenCV StereoSGBM MODE_HH on one 1024x1024 tile, 512 disparities: {cv_mevals:.0f} "
                   f"Mevals/s ({cv_t:.1f} s).")
+    if args.write:
+        Path(args.write).write_text(json.dumps({"sizes": sizes, "ranges": args.ranges, "rows": kept}, indent=1) + "\n")
+    if args.docs:
+        from datasets import rewrite_block
+
+        rewrite_block(args.docs, BEGIN, END, doc_table({"rows": kept}))
 
 
 if __name__ == "__main__":

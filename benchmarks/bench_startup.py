@@ -54,13 +54,13 @@ def run(pythonpath, args, extra_env):
     return time.perf_counter() - t, json.loads(p.stdout)["seconds"]
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("data_dir", nargs="?", default=os.environ.get("RIVERBED_DATA", "../shared/data"))
-    ap.add_argument("--before", default=BEFORE)
-    ap.add_argument("--repeat", type=int, default=7)
-    args = ap.parse_args()
-    left, right, sparse = speed_pair(args.data_dir)
+#: the markers of docs/tubes.md's start-up block
+BEGIN, END = "<!-- bench_startup: begin -->", "<!-- bench_startup: end -->"
+
+
+def measure(data_dir, before, repeat):
+    """``{"repeat", "before", "times": {variant: [[wall s, --json seconds], ...]}}`` (module docstring)."""
+    left, right, sparse = speed_pair(data_dir)
     with tempfile.TemporaryDirectory() as tmp, tempfile.TemporaryDirectory() as old:
         for n, img in (("l.png", left), ("r.png", right)):
             cv2.imwrite(os.path.join(tmp, n), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
@@ -71,23 +71,47 @@ def main():
             ("this tree", ROOT, {}),
             ("this tree, RIVERBED_NUMBA_REFRESH=1 (Numba's own cache loading)", ROOT, {"RIVERBED_NUMBA_REFRESH": "1"}),
             ("this tree, RIVERBED_GC=default (Python's collector as it is)", ROOT, {"RIVERBED_GC": "default"}),
-            (f"commit {args.before}", export(args.before, old), {}),
+            (f"commit {before}", export(before, old), {}),
         ]
         for _, path, env in variants:
             run(path, base, env)  # fill (or check) the variant's Numba cache
         times = {name: [] for name, _, _ in variants}
-        for _ in range(args.repeat):
+        for _ in range(repeat):
             for name, path, env in variants:
-                times[name].append(run(path, base, env))
-    print(f"### Fresh `riverbed match` of the 740x500 speed pair (0..79, 5 % LiDAR, default tubes and fusion), "
-          f"medians of {args.repeat}, round-robin\n")
-    print("| riverbed | wall s | matching s (--json seconds) | rest s (start-up, I/O) | wall vs this tree |")
-    print("|---|---:|---:|---:|---:|")
-    ref = float(np.median([w for w, _ in times[variants[0][0]]]))
-    for name, _, _ in variants:
-        wall = float(np.median([w for w, _ in times[name]]))
-        sec = float(np.median([s for _, s in times[name]]))
-        print(f"| {name} | {wall:.3f} | {sec:.3f} | {wall - sec:.3f} | {wall / ref:.2f} |")
+                times[name].append(list(run(path, base, env)))
+    return {"repeat": repeat, "before": before, "times": times}
+
+
+def table(res):
+    """The run's table: per variant the medians of the wall time and of the matching ``seconds``."""
+    lines = [f"Fresh `riverbed match` of the 740x500 speed pair (0..79, 5 % LiDAR, default tubes and fusion), medians "
+             f"of {res['repeat']}, round-robin:", "",
+             "| riverbed | wall s | matching s (--json seconds) | rest s (start-up, I/O) | wall vs this tree |",
+             "|---|---:|---:|---:|---:|"]
+    ref = float(np.median([w for w, _ in res["times"]["this tree"]]))
+    for name, t in res["times"].items():
+        wall, sec = float(np.median([w for w, _ in t])), float(np.median([s for _, s in t]))
+        lines.append(f"| {name} | {wall:.3f} | {sec:.3f} | {wall - sec:.3f} | {wall / ref:.2f} |")
+    return "\n".join(lines)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("data_dir", nargs="?", default=os.environ.get("RIVERBED_DATA", "../shared/data"))
+    ap.add_argument("--before", default=BEFORE)
+    ap.add_argument("--repeat", type=int, default=7)
+    ap.add_argument("--write", help="store the times in this JSON file (benchmarks/results_startup.json)")
+    ap.add_argument("--rows", help="take the times from this JSON file instead of running")
+    ap.add_argument("--docs", help="rewrite this Markdown file's block (docs/tubes.md)")
+    args = ap.parse_args()
+    res = json.loads(Path(args.rows).read_text()) if args.rows else measure(args.data_dir, args.before, args.repeat)
+    if args.write:
+        Path(args.write).write_text(json.dumps(res, indent=1) + "\n")
+    if args.docs:
+        from datasets import rewrite_block
+
+        rewrite_block(args.docs, BEGIN, END, table(res))
+    print(table(res))
 
 
 if __name__ == "__main__":

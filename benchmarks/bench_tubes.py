@@ -45,7 +45,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_match import opencv_grey_files, opencv_times_apart  # noqa: E402
 from bench_placement import probe  # noqa: E402
-from datasets import DEV_SCENES, middlebury, speed_pair  # noqa: E402
+from datasets import DEV_SCENES, middlebury, rewrite_block, speed_pair  # noqa: E402
 
 from riverbed_cli.io.disparity import read_disparity, write_disparity  # noqa: E402
 from riverbed_cli.io.images import read_image  # noqa: E402
@@ -120,13 +120,19 @@ OPENCV_MODES = ("HH", "SGBM_3WAY", "SGBM")
 VARIANTS = [
     ("range full", ["--range", "full"], {"range": "full"}),
     ("range tube (default)", ["--range", "tube"], {"range": "tube"}),
-    ("range tube, --fusion-lidar linear (the fusion's LiDAR side until 2026-12-03)",
+    ("range tube, --fusion-lidar linear",
      ["--range", "tube", "--fusion-lidar", "linear"], {"range": "tube", "fusion_lidar": "linear"}),
     ("range tube, --fusion none", ["--range", "tube", "--fusion", "none"], {"range": "tube", "fusion": "none"}),
     ("range tube, --paths 4", ["--range", "tube", "--paths", "4"], {"range": "tube", "paths": 4}),
     ("range tube, --paths 4 --fusion none", ["--range", "tube", "--paths", "4", "--fusion", "none"],
      {"range": "tube", "paths": 4, "fusion": "none"}),
-    ("range tube, --paths 4 --fusion none, GOMP_SPINCOUNT=0 (idle workers sleep at once, as before 2026-12-04)",
+    ("range tube, --paths 4 --fusion none --lidar-check off --lidar-offset none",
+     ["--range", "tube", "--paths", "4", "--fusion", "none", "--lidar-check", "off", "--lidar-offset", "none"],
+     {"range": "tube", "paths": 4, "fusion": "none", "lidar_check": "off", "lidar_offset": "none"}),
+    ("range tube, --lidar-check off --lidar-offset none", ["--range", "tube", "--lidar-check", "off",
+                                                           "--lidar-offset", "none"],
+     {"range": "tube", "lidar_check": "off", "lidar_offset": "none"}),
+    ("range tube, --paths 4 --fusion none, GOMP_SPINCOUNT=0 (idle workers sleep at once)",
      ["--range", "tube", "--paths", "4", "--fusion", "none"], {"range": "tube", "paths": 4, "fusion": "none"},
      {"GOMP_SPINCOUNT": "0"}),
     ("range tube (default), RIVERBED_PREFAULT=0", ["--range", "tube"], {"range": "tube"}, NO_PREFAULT),
@@ -155,21 +161,17 @@ def run_cli(args, env):
     return json.loads(p.stdout), time.perf_counter() - t
 
 
-def speed(data_dir, repeat):
-    print("\n### Speed: fresh `riverbed match` processes and warm in this process (median of runs, round-robin), "
-          "OpenCV warm in a process of its own (opencv_timer.py)\n")
+def speed_measure(data_dir, repeat):
+    """Fresh ``riverbed match`` processes and warm runs in this process, OpenCV in a process of its own, round-robin
+    over ``repeat`` rounds: ``{"repeat", "pairs": [{"label", "d_max", "probes", "opencv": {mode: [s]}, "riverbed":
+    {variant: {"seconds": [s], "wall": [s], "warm": [s], "width"}}}]}``."""
     cases = [("740x500 Reindeer, 0..79, 5 % LiDAR", *speed_pair(data_dir), 79),
              ("740x500 Reindeer, 0..79, the same LiDAR and the points beyond 79 px", *speed_pair(data_dir, beyond=True),
               79)]
     if (Path(data_dir) / AERIAL).is_dir():
         left, right, gt = aerial(data_dir, pad_to=1024)
         cases.append(("1024x1024 Dublin aerial, 0..143, 1 % LiDAR", left, right, simulate_lidar(gt, 0.01, 0), 143))
-    print("Ratios: medians over the rounds of each round's ratio (riverbed's time over OpenCV's of the same round: "
-          "the machine's drift between rounds cancels); the times are medians over the rounds.\n")
-    print("| pair | method | seconds (--json) | wall s | warm s | mean tube width | vs OpenCV HH | vs OpenCV 3WAY | "
-          "vs OpenCV SGBM | warm vs HH | warm vs 3WAY |")
-    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
-    placements = []
+    pairs = []
     for label, left, right, sparse, d_max in cases:
         opencv = {mode: [] for mode in OPENCV_MODES}
         with tempfile.TemporaryDirectory() as tmp:
@@ -189,34 +191,90 @@ def speed(data_dir, repeat):
             probes = []
             for _ in range(repeat):
                 probes.append(probe())  # where the VM put its two vCPUs this round (bench_placement.py)
-                # OpenCV apart: in this process riverbed's memory settings (riverbed_cli.runtime.Env) made HH 1.5-1.8x faster
+                # OpenCV apart: in this process riverbed's process settings (runtime.Env) made HH 1.5-1.8x faster
                 for mode, times in opencv_times_apart(grey, 0, d_max, OPENCV_MODES).items():
                     opencv[mode] += times
                 for name, extra, kw, *more in VARIANTS:
                     runs[name].append(run_cli(base + extra, {**env, **(more[0] if more else {})}))
                     warm[name].append(match_pair(left, right, sparse, 0, d_max, **kw).info["seconds"])
-            placements.append((label, probes))
-            refs = {mode: np.array(times) for mode, times in opencv.items()}
-            hhs, w3s, sgs = (refs[m] for m in OPENCV_MODES)
-            for name, *_ in VARIANTS:
-                runs_v = runs[name]
-                secs = np.array([r[0]["seconds"] for r in runs_v])
-                wall = float(np.median([r[1] for r in runs_v]))
-                width = (runs_v[0][0].get("tubes") or {}).get("mean_width", d_max + 1)
-                sws = np.array(warm[name])
-                ratios = [float(np.median(a / b)) for a, b in ((secs, hhs), (secs, w3s), (secs, sgs), (sws, hhs),
-                                                               (sws, w3s))]
-                print(f"| {label} | riverbed, {name} | {np.median(secs):.3f} | {wall:.2f} | {np.median(sws):.3f} | "
-                      f"{width:.1f} | " + " | ".join(f"{r:.2f}" for r in ratios) + " |", flush=True)
+        pairs.append({"label": label, "d_max": d_max, "probes": probes, "opencv": opencv,
+                      "riverbed": {name: {"seconds": [r[0]["seconds"] for r in runs[name]],
+                                          "wall": [r[1] for r in runs[name]], "warm": warm[name],
+                                          "width": (runs[name][0][0].get("tubes") or {}).get("mean_width",
+                                                                                             d_max + 1)}
+                                   for name, *_ in VARIANTS}})
+    return {"repeat": repeat, "pairs": pairs}
+
+
+def _ratio(a, b):
+    """The median over the rounds of each round's ratio ``a / b`` (OpenCV gives ``len(b) / len(a)`` calls a round)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    per = len(b) // len(a)
+    return float(np.median(a / np.array([np.median(b[i * per:(i + 1) * per]) for i in range(len(a))])))
+
+
+def speed_table(res):
+    """The whole speed table of a run (every variant, every ratio)."""
+    lines = ["Ratios: medians over the rounds of each round's ratio (riverbed's time over OpenCV's of the same round: "
+             "the machine's drift between rounds cancels); the times are medians over the rounds.", "",
+             "| pair | method | seconds (--json) | wall s | warm s | mean tube width | vs OpenCV HH | vs OpenCV 3WAY | "
+             "vs OpenCV SGBM | warm vs HH | warm vs 3WAY |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for p in res["pairs"]:
+        cv = p["opencv"]
+        for name, r in p["riverbed"].items():
+            ratios = [_ratio(r["seconds"], cv[m]) for m in OPENCV_MODES] + [_ratio(r["warm"], cv[m])
+                                                                            for m in OPENCV_MODES[:2]]
+            lines.append(f"| {p['label']} | riverbed, {name} | {np.median(r['seconds']):.3f} | "
+                         f"{np.median(r['wall']):.2f} | {np.median(r['warm']):.3f} | {r['width']:.1f} | "
+                         + " | ".join(f"{x:.2f}" for x in ratios) + " |")
         for mode, title in zip(OPENCV_MODES, ("MODE_HH", "MODE_SGBM_3WAY", "MODE_SGBM (its default)")):
-            t = refs[mode]
-            vs = " | ".join(f"{float(np.median(t / refs[m])):.2f}" for m in OPENCV_MODES)
-            print(f"| {label} | OpenCV {title} | {np.median(t):.3f} | | {np.median(t):.3f} | {d_max + 1} | {vs} | | |",
-                  flush=True)
-    print("\nThe two vCPUs' cache-line round trip before each round (core_latency.py; about 100 ns where they share "
-          "their caches, 500 ns far apart, where riverbed's fresh matches are slower and OpenCV's are not):")
-    for label, probes in placements:
-        print(f"* {label}: " + ", ".join(f"{p:.0f}" for p in probes) + " ns")
+            vs = " | ".join(f"{float(np.median(np.array(cv[mode]) / np.array(cv[m]))):.2f}" for m in OPENCV_MODES)
+            lines.append(f"| {p['label']} | OpenCV {title} | {np.median(cv[mode]):.3f} | | {np.median(cv[mode]):.3f} "
+                         f"| {p['d_max'] + 1} | {vs} | | |")
+    lines += ["", "The two vCPUs' cache-line round trip before each round (core_latency.py; about 100 ns where they "
+              "share their caches, 500 ns far apart):"]
+    lines += [f"* {p['label']}: " + ", ".join(f"{x:.0f}" for x in p["probes"]) + " ns" for p in res["pairs"]]
+    return "\n".join(lines)
+
+
+#: the variants docs/tubes.md's table shows: the matcher alone against 3WAY, the fused default against HH, each
+#: also without the LiDAR's check and offset estimate
+FOUR, DEFAULT = "range tube, --paths 4 --fusion none", "range tube (default)"
+FOUR_UNCHECKED = "range tube, --paths 4 --fusion none --lidar-check off --lidar-offset none"
+DEFAULT_UNCHECKED = "range tube, --lidar-check off --lidar-offset none"
+#: the markers of docs/tubes.md's speed block
+SPEED_BEGIN, SPEED_END = "<!-- bench_tubes speed: begin -->", "<!-- bench_tubes speed: end -->"
+
+
+def speed_doc(res):
+    """docs/tubes.md's block: per pair the 4-path matcher against OpenCV 3WAY and the fused default against HH."""
+    near = [sum(x < 200 for x in p["probes"]) for p in res["pairs"]]
+    lines = [f"{res['repeat']} rounds per pair; probes near (under 200 ns) in {sum(near)} of "
+             f"{sum(len(p['probes']) for p in res['pairs'])} rounds:", "",
+             "| pair | mean width | OpenCV 3WAY s | `--paths 4 --fusion none` s | x 3WAY | without the check s | "
+             "x 3WAY | OpenCV HH s | fused default s | x HH | without the check s | x HH |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for p in res["pairs"]:
+        cv, rb = p["opencv"], p["riverbed"]
+        cells = [f"{rb[FOUR]['width']:.1f}", f"{np.median(cv['SGBM_3WAY']):.3f}"]
+        for name, mode in ((FOUR, "SGBM_3WAY"), (FOUR_UNCHECKED, "SGBM_3WAY")):
+            cells += [f"{np.median(rb[name]['seconds']):.3f}", f"**{_ratio(rb[name]['seconds'], cv[mode]):.2f}**"]
+        cells.append(f"{np.median(cv['HH']):.3f}")
+        for name, mode in ((DEFAULT, "HH"), (DEFAULT_UNCHECKED, "HH")):
+            cells += [f"{np.median(rb[name]['seconds']):.3f}", f"**{_ratio(rb[name]['seconds'], cv[mode]):.2f}**"]
+        lines.append(f"| {p['label']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def speed(data_dir, repeat, write=None, rows=None, docs=None):
+    res = json.loads(Path(rows).read_text()) if rows else speed_measure(data_dir, repeat)
+    if write:
+        Path(write).write_text(json.dumps(res, indent=1) + "\n")
+    if docs:
+        rewrite_block(docs, SPEED_BEGIN, SPEED_END, speed_doc(res))
+    print("\n### Speed: fresh `riverbed match` processes and warm in this process (median of runs, round-robin), "
+          "OpenCV warm in a process of its own (opencv_timer.py)\n")
+    print(speed_table(res), flush=True)
 
 
 def beside(data_dir, repeat):
@@ -255,6 +313,9 @@ def main():
     ap.add_argument("--skip-holes", action="store_true")
     ap.add_argument("--skip-beyond", action="store_true")
     ap.add_argument("--skip-beside", action="store_true")
+    ap.add_argument("--write-speed", help="store the speed rounds in this JSON (benchmarks/results_tube_speed.json)")
+    ap.add_argument("--speed-rows", help="take the speed rounds from this JSON file instead of running")
+    ap.add_argument("--docs", help="rewrite this Markdown file's speed block (docs/tubes.md)")
     args = ap.parse_args()
     logging.getLogger("riverbed_cli").setLevel(logging.ERROR)  # each match would warn of the points beyond the range
     shares = [float(s) for s in args.shares.split(",")]
@@ -267,7 +328,7 @@ def main():
     if not args.skip_beyond:
         beyond(args.data_dir)
     if not args.skip_speed:
-        speed(args.data_dir, args.repeat)
+        speed(args.data_dir, args.repeat, args.write_speed, args.speed_rows, args.docs)
     if not args.skip_beside:
         beside(args.data_dir, max(args.repeat, 7))
 
