@@ -3,7 +3,7 @@
 On the dev VM (2 vCPUs) it is either about 100 ns or about 500 ns, in periods of ten seconds to minutes: the
 hypervisor places the two vCPUs on cores that share their caches, or on cores far apart. Far apart, every cache
 line one thread wrote and the other reads or writes crosses between them, and riverbed's stages that hand arrays
-from thread to thread slow down (docs/tubes.md, nineteenth session). ``bench_placement.py`` runs this before and
+from thread to thread slow down (docs/tubes.md, Speed). ``bench_placement.py`` runs this before and
 after each timed command to tell which placement the command ran in.
 
 Usage: ``python core_latency.py [ROUND_TRIPS]`` prints the median round trip in ns of three runs of ROUND_TRIPS

@@ -1,22 +1,24 @@
 import os
 from pathlib import Path
 
-import numpy as np
-import pytest
-
-from riverbed_cli.io.disparity import read_disparity
-from riverbed_cli.io.images import read_image
 from riverbed_cli.runtime import Env
+
+#: The tests run with the process settings of the ``riverbed`` program (riverbed_cli.runtime), as a program that
+#: imports riverbed opts in to them, entered before any kernel module is imported (Numba reads its cache folder as
+#: each is); the processes the tests start inherit its environment variables.
+ENV = Env().__enter__()
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from riverbed_cli.io.disparity import read_disparity  # noqa: E402
+from riverbed_cli.io.images import read_image  # noqa: E402
 
 DATA = Path(__file__).parent / "data"
 
 
-@pytest.fixture(scope="session", autouse=True)
-def riverbed_env():
-    """The tests run with the process settings of the ``riverbed`` program (riverbed_cli.runtime), as a program that
-    imports riverbed opts in to them; the test processes they start inherit its environment variables."""
-    with Env() as env:
-        yield env
+def pytest_unconfigure(config):
+    ENV.__exit__(None, None, None)
 
 
 @pytest.fixture(scope="session")

@@ -15,7 +15,7 @@ from riverbed_cli.runtime import Env
 PACKAGE = Path(runtime.__file__).parents[1]
 
 #: the variables riverbed's Env sets (and a test process inherits from this session's Env)
-OURS = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "RIVERBED_OMP_DEFAULT", "NUMPY_MADVISE_HUGEPAGE")
+OURS = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "RIVERBED_OMP_DEFAULT", "NUMPY_MADVISE_HUGEPAGE", "NUMBA_CACHE_DIR")
 
 # import every module of the package, then report what changed in the process: environment variables, the
 # collector, Numba's cache loading, and whether glibc keeps a freed 64 MiB array (malloc's thresholds)
@@ -63,10 +63,11 @@ def test_the_env_sets_what_the_program_runs_with_and_restores_the_variables():
                               "before_kernels\nenv = Env().__enter__()\nbefore_kernels()\n")
     res = json.loads(subprocess.run([sys.executable, "-c", code], env=clean_environ(), capture_output=True,
                                     text=True, check=True).stdout)
-    assert res["changed"] == ["NUMPY_MADVISE_HUGEPAGE", "OMP_WAIT_POLICY", "RIVERBED_OMP_DEFAULT"]
+    assert res["changed"] == ["NUMBA_CACHE_DIR", "NUMPY_MADVISE_HUGEPAGE", "OMP_WAIT_POLICY", "RIVERBED_OMP_DEFAULT"]
     assert res["numba"] == "riverbed_cli.runtime.numba_cache" and res["kept"] and res["freeze"] == 0 and res["gc"]
     # the user's own settings win
-    user = {**clean_environ(), "OMP_WAIT_POLICY": "ACTIVE", "NUMPY_MADVISE_HUGEPAGE": "1", "GLIBC_TUNABLES": ""}
+    user = {**clean_environ(), "OMP_WAIT_POLICY": "ACTIVE", "NUMPY_MADVISE_HUGEPAGE": "1", "GLIBC_TUNABLES": "",
+            "NUMBA_CACHE_DIR": "/tmp/users-own"}
     res = json.loads(subprocess.run([sys.executable, "-c", code], env=user, capture_output=True, text=True,
                                     check=True).stdout)
     assert res["changed"] == [] and not res["kept"]
@@ -93,3 +94,37 @@ def test_outside_an_env_the_run_hooks_do_nothing(monkeypatch):
     with runtime.prefault_heap(1 << 20) as nothing:
         assert nothing is None
     assert "GOMP_SPINCOUNT" not in os.environ or os.environ["GOMP_SPINCOUNT"] == os.environ.get("GOMP_SPINCOUNT")
+
+
+# A kernel that inlines a helper of another module, run in a fresh process with NUMBA_CACHE_DIR as given
+KERNEL = """
+import sys
+sys.path.insert(0, sys.argv[1])
+from kern import kernel
+print(kernel())
+"""
+
+
+def test_an_edited_helper_recompiles_the_kernels_that_inline_it(tmp_path):
+    from riverbed_cli.runtime import numba_cache
+
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    (pkg / "helper.py").write_text("from numba import njit\n\n\n@njit(inline='always')\ndef value():\n    return 1\n")
+    (pkg / "kern.py").write_text("from numba import njit\nfrom helper import value\n\n\n@njit(cache=True)\n"
+                                 "def kernel():\n    return value() + 10\n")
+
+    def run(cache):
+        env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+        return subprocess.run([sys.executable, "-c", KERNEL, str(pkg)], env=env, capture_output=True, text=True,
+                              check=True).stdout.strip()
+
+    first = numba_cache.cache_dir(pkg, root=tmp_path / "cache")
+    assert run(first) == "11" and run(tmp_path / "fixed") == "11"
+    (pkg / "helper.py").write_text((pkg / "helper.py").read_text().replace("return 1", "return 2"))
+    # Numba's own key (the kernel's file) misses the helper's edit: the cached kernel still inlines the old helper
+    assert run(tmp_path / "fixed") == "11"
+    # a folder per sources' digest: a fresh cache, the edit compiled in; the old version's folder pruned
+    second = numba_cache.cache_dir(pkg, root=tmp_path / "cache")
+    assert second != first and run(second) == "12"
+    assert numba_cache.prune_other_caches(second) == [first] and not first.exists() and second.exists()

@@ -24,17 +24,22 @@ freed arrays kept in the process        glibc's ``mallopt`` thresholds (unless `
                                         (:func:`prefault_heap`; ``RIVERBED_PREFAULT=0``; :mod:`.heap`)
 cached kernels load without Numba's     before a command runs (:func:`before_kernels`; ``RIVERBED_NUMBA_REFRESH=1``;
 compiler start-up                       :mod:`.numba_cache`)
+the kernels cached per sources' digest  ``NUMBA_CACHE_DIR`` in the user's cache folder, one folder per installed copy
+                                        and version of the sources (an edited helper recompiles its callers); the
+                                        other versions' folders removed (:func:`.numba_cache.cache_dir`)
 the garbage collector (program only)    off while a command starts up, everything alive frozen for the exit
                                         (``RIVERBED_GC=default``; :mod:`.collector`)
 ======================================  ==============================================================================
 
 The environment variables :class:`Env` set are restored when it exits; the child processes started inside it (dask
-workers of ``riverbed block``) inherit them. Two settings last for the rest of the process, as the libraries read
-them once: glibc's thresholds, and Numba's cache loading.
+workers of ``riverbed block``) inherit them. Three settings last for the rest of the process, as the libraries read
+them once: glibc's thresholds, Numba's cache loading, and the cache folder of the kernel modules imported inside the
+``Env`` (enter it before importing riverbed's kernels).
 """
 
 import contextlib
 import os
+import sys
 
 from . import collector, heap, numba_cache, openmp
 
@@ -58,6 +63,7 @@ class Env:
         self.program = bool(program)
         self._saved = {}
         self._collector = None
+        self._numba_cache_dir = None
 
     def set_environ(self, values):
         """Set environment variables for the rest of the block (restored when it exits). Returns True if any."""
@@ -72,11 +78,25 @@ class Env:
         if "NUMPY_MADVISE_HUGEPAGE" not in os.environ:
             self.set_environ({"NUMPY_MADVISE_HUGEPAGE": "0"})
         self.freed_memory_kept = heap.keep_freed_memory()
+        self._use_kernel_cache()
         if self.program:
             self._collector = collector.program()
             self._collector.__enter__()
             collector.pause_for_start_up()
         return self
+
+    def _use_kernel_cache(self):
+        # read by Numba when it is imported (and by the child processes that inherit it); where it already is, its
+        # config too, which it reads as each kernel module is imported
+        if "NUMBA_CACHE_DIR" in os.environ:
+            return
+        folder = numba_cache.cache_dir()
+        self.set_environ({"NUMBA_CACHE_DIR": str(folder)})
+        numba = sys.modules.get("numba")
+        if numba is not None:
+            self._numba_cache_dir = numba.config.CACHE_DIR
+            numba.config.CACHE_DIR = str(folder)
+        numba_cache.prune_other_caches(folder)
 
     def __exit__(self, *exc):
         try:
@@ -84,6 +104,9 @@ class Env:
                 self._collector.__exit__(*exc)
                 self._collector = None
         finally:
+            numba = sys.modules.get("numba")
+            if numba is not None and self._numba_cache_dir is not None:
+                numba.config.CACHE_DIR = self._numba_cache_dir
             for key, value in self._saved.items():
                 if value is None:
                     os.environ.pop(key, None)

@@ -15,9 +15,12 @@ for the programs that import it unless they opt in. ``RIVERBED_NUMBA_REFRESH=1``
 Numba's own behaviour (a way out should a Numba release change what a cached kernel needs).
 """
 
+import hashlib
 import logging
 import os
+import shutil
 import sys
+from pathlib import Path
 
 _DONE = []
 
@@ -68,3 +71,49 @@ def skip_refresh_on_cache_loads():
     cache.load_overload = load_overload
     _DONE.append(True)
     return True
+
+
+#: the package whose sources key the cache folder
+PACKAGE = Path(__file__).resolve().parents[1]
+
+
+def sources_digest(package=PACKAGE):
+    """A digest of the ``.py`` files of ``package`` that use Numba (their paths and bytes): the kernels and what they
+    inline or call. An edit elsewhere (the command line, the docs) leaves the cached kernels as they are."""
+    h = hashlib.sha256()
+    for path in sorted(Path(package).rglob("*.py")):
+        text = path.read_bytes()
+        if b"numba" in text:
+            h.update(path.relative_to(package).as_posix().encode())
+            h.update(text)
+    return h.hexdigest()[:16]
+
+
+def cache_root():
+    """The user's cache folder for riverbed's kernels (``$XDG_CACHE_HOME`` or ``~/.cache``, then ``riverbed/numba``)."""
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "riverbed" / "numba"
+
+
+def cache_dir(package=PACKAGE, root=None):
+    """Where :class:`~riverbed_cli.runtime.Env` has Numba cache riverbed's kernels: one folder per installed copy of
+    the package (a digest of its path) and per version of its sources (:func:`sources_digest`).
+
+    Numba keys a cached kernel on its own source file only (its path, modification time and size): a kernel that
+    inlines or calls a function of another module keeps its old machine code after that module changes (the vector
+    helpers of ``matching/lanes.py``, the row sharing of ``matching/volume.py``). A folder per sources' digest makes
+    any edit of a module that uses Numba a fresh cache (constants a kernel takes from a module without Numba are not
+    tracked, as Numba does not track them either).
+    """
+    where = hashlib.sha256(str(Path(package).resolve()).encode()).hexdigest()[:12]
+    return Path(root or cache_root()) / f"{where}-{sources_digest(package)}"
+
+
+def prune_other_caches(current):
+    """Remove the cache folders of the same installed copy for other versions of its sources (their kernels are of
+    no use once the sources changed). Returns the folders removed."""
+    current = Path(current)
+    where = current.name.split("-")[0]
+    gone = [p for p in current.parent.glob(f"{where}-*") if p != current and p.is_dir()]
+    for p in gone:
+        shutil.rmtree(p, ignore_errors=True)
+    return gone
