@@ -10,9 +10,7 @@ LEFT --window 2 --margin 4``; unguided SGM in those ranges. Errors over the GT p
 px; a GT pixel left without a disparity counts as bad).
 """
 
-import json
 import math
-import subprocess
 import sys
 import tempfile
 import textwrap
@@ -22,6 +20,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_rpc_ventoux import riverbed  # noqa: E402  (runs the CLI as a user would)
 from bench_tubes import AERIAL, aerial  # noqa: E402
 from datasets import rows_main, speed_scene  # noqa: E402
 
@@ -32,16 +31,6 @@ BEGIN, END = "<!-- bench_range_map: begin -->", "<!-- bench_range_map: end -->"
 WINDOW, MARGIN = 2, 4
 
 
-def riverbed(*args):
-    """``riverbed ARGS`` in a fresh process; its ``--json`` output parsed."""
-    exe = Path(sys.executable).with_name("riverbed")
-    cmd = [str(exe) if exe.exists() else "riverbed", *map(str, args), "--json", "--overwrite"]
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    if r.returncode:
-        raise RuntimeError(f"{' '.join(cmd)} failed ({r.returncode}): {r.stderr.strip()}")
-    return json.loads(r.stdout)
-
-
 def pair_row(label, left, right, gt, d_max, work):
     """One pair's figures (dict)."""
     gt = np.where(gt <= d_max, gt, np.nan).astype(np.float32)
@@ -49,14 +38,15 @@ def pair_row(label, left, right, gt, d_max, work):
     half = [cv2.resize(im, (im.shape[1] // 2, im.shape[0] // 2), interpolation=cv2.INTER_AREA) for im in (left, right)]
     for n, im in zip(paths, (left, right, *half)):
         cv2.imwrite(str(paths[n]), cv2.cvtColor(im, cv2.COLOR_RGB2BGR) if im.ndim == 3 else im)
+    out = ("--json", "--overwrite")
     full = riverbed("match", paths["l"], paths["r"], "--guide", "none", "--min-disp", 0, "--max-disp", d_max,
-                    "--tile", 0, "-o", work / "full.tif")
+                    "--tile", 0, "-o", work / "full.tif", *out)
     coarse = riverbed("match", paths["lh"], paths["rh"], "--guide", "none", "--min-disp", 0, "--max-disp",
-                      math.ceil(d_max / 2), "--tile", 0, "-o", work / "half.tif")
+                      math.ceil(d_max / 2), "--tile", 0, "-o", work / "half.tif", *out)
     ranges = riverbed("range-map", work / "half.tif", "--like", paths["l"], "--window", WINDOW, "--margin", MARGIN,
-                      "--min-disp", 0, "--max-disp", d_max, "-o", work / "ranges.tif")
+                      "--min-disp", 0, "--max-disp", d_max, "-o", work / "ranges.tif", *out)
     fine = riverbed("match", paths["l"], paths["r"], "--guide", "none", "--min-disp", 0, "--max-disp", d_max,
-                    "--range-map", work / "ranges.tif", "--tile", 0, "-o", work / "fine.tif")
+                    "--range-map", work / "ranges.tif", "--tile", 0, "-o", work / "fine.tif", *out)
 
     def scores(path):
         e = evaluate_disparity(read_disparity(path), gt)

@@ -206,7 +206,7 @@ def speed_measure(data_dir, repeat):
     return {"repeat": repeat, "pairs": pairs}
 
 
-def _ratio(a, b):
+def ratio_per_round(a, b):
     """The median over the rounds of each round's ratio ``a / b`` (OpenCV gives ``len(b) / len(a)`` calls a round)."""
     a, b = np.asarray(a, float), np.asarray(b, float)
     per = len(b) // len(a)
@@ -222,7 +222,7 @@ def speed_table(res):
     for p in res["pairs"]:
         cv = p["opencv"]
         for name, r in p["riverbed"].items():
-            ratios = [_ratio(r["seconds"], cv[m]) for m in OPENCV_MODES] + [_ratio(r["warm"], cv[m])
+            ratios = [ratio_per_round(r["seconds"], cv[m]) for m in OPENCV_MODES] + [ratio_per_round(r["warm"], cv[m])
                                                                             for m in OPENCV_MODES[:2]]
             lines.append(f"| {p['label']} | riverbed, {name} | {np.median(r['seconds']):.3f} | "
                          f"{np.median(r['wall']):.2f} | {np.median(r['warm']):.3f} | {r['width']:.1f} | "
@@ -256,12 +256,12 @@ def speed_doc(res):
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for p in res["pairs"]:
         cv, rb = p["opencv"], p["riverbed"]
-        cells = [f"{rb[FOUR]['width']:.1f}", f"{np.median(cv['SGBM_3WAY']):.3f}"]
-        for name, mode in ((FOUR, "SGBM_3WAY"), (FOUR_UNCHECKED, "SGBM_3WAY")):
-            cells += [f"{np.median(rb[name]['seconds']):.3f}", f"**{_ratio(rb[name]['seconds'], cv[mode]):.2f}**"]
-        cells.append(f"{np.median(cv['HH']):.3f}")
-        for name, mode in ((DEFAULT, "HH"), (DEFAULT_UNCHECKED, "HH")):
-            cells += [f"{np.median(rb[name]['seconds']):.3f}", f"**{_ratio(rb[name]['seconds'], cv[mode]):.2f}**"]
+        cells = [f"{rb[FOUR]['width']:.1f}"]
+        for mode, names in (("SGBM_3WAY", (FOUR, FOUR_UNCHECKED)), ("HH", (DEFAULT, DEFAULT_UNCHECKED))):
+            cells.append(f"{np.median(cv[mode]):.3f}")
+            for name in names:
+                secs = rb[name]["seconds"]
+                cells += [f"{np.median(secs):.3f}", f"**{ratio_per_round(secs, cv[mode]):.2f}**"]
         lines.append(f"| {p['label']} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

@@ -45,7 +45,7 @@ def openmp_started():
 def sleep_between_regions(environ=os.environ):
     """The variables to set for workers that sleep as soon as a parallel region ends (``{}`` where the user chose).
     Returns them; the caller (:class:`~.Env`) sets and later restores them."""
-    if user_chose_wait(environ) or "OMP_WAIT_POLICY" in environ:
+    if "OMP_WAIT_POLICY" in environ or "GOMP_SPINCOUNT" in environ:  # the user's, or riverbed's inherited
         return {}
     return {"OMP_WAIT_POLICY": "PASSIVE", MARK: "PASSIVE"}
 
