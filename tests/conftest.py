@@ -1,4 +1,5 @@
 import os
+import sys
 from pathlib import Path
 
 from riverbed_cli.runtime import Env
@@ -15,6 +16,13 @@ from riverbed_cli.io.disparity import read_disparity  # noqa: E402
 from riverbed_cli.io.images import read_image  # noqa: E402
 
 DATA = Path(__file__).parent / "data"
+
+#: this interpreter, for a process of its own that imports the riverbed these tests import: ``-P`` keeps the working
+#: directory off the child's path, where a checkout beside a non-editable install (CI's) would be imported instead,
+#: its kernels compiled apart in a cache folder of their own (one per copy: numba_cache.cache_dir)
+PYTHON = (sys.executable, "-P") if sys.version_info >= (3, 11) else (sys.executable,)
+#: ``riverbed`` in a process of its own (``python -m riverbed_cli``)
+RIVERBED = (*PYTHON, "-m", "riverbed_cli")
 
 
 def pytest_unconfigure(config):

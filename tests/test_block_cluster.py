@@ -13,7 +13,6 @@ import re
 import shutil
 import signal
 import subprocess
-import sys
 import time
 
 import numba
@@ -34,6 +33,7 @@ from riverbed_cli.products.visualize import write_png
 from riverbed_cli.scale.block import plan_block, run_block
 from riverbed_cli.scale.tiles import match_tiled
 from test_block import CRS, write_cones_block
+from conftest import RIVERBED
 
 OUTPUTS = ["disparity.tif", "done.json", "dsm.tif", "points.laz", "sparse.tif"]
 PAIRS = ["a", "b_pair", "c", "d_pair"]
@@ -99,7 +99,7 @@ def statuses(info):
 
 def riverbed(*args):
     """The command line of ``riverbed ARGS`` in a fresh process (this interpreter, this checkout)."""
-    return [sys.executable, "-m", "riverbed_cli", *map(str, args)]
+    return [*RIVERBED, *map(str, args)]
 
 
 def read_dsm(path):

@@ -5,7 +5,6 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -21,6 +20,7 @@ from riverbed_cli.io.disparity import read_disparity, write_disparity, write_ran
 from riverbed_cli.io.images import read_image
 from riverbed_cli.matching.pipeline import match_pair
 from riverbed_cli.scale.block.manifest import _clouds
+from conftest import RIVERBED
 
 REPO = Path(__file__).resolve().parents[1]
 REINDEER = REPO / "sample_data" / "reindeer"
@@ -67,7 +67,7 @@ def crop_pair(tmp_path, width=200, height=150):
 
 def program(*args, **kw):
     # the riverbed program itself (CliRunner bypasses main(): usage errors, Ctrl-C)
-    return subprocess.run([sys.executable, "-m", "riverbed_cli", *map(str, args)], capture_output=True, text=True,
+    return subprocess.run([*RIVERBED, *map(str, args)], capture_output=True, text=True,
                           **kw)
 
 
@@ -281,7 +281,7 @@ def test_ctrl_c_exits_130_and_leaves_no_file(tmp_path):
         cv2.imwrite(str(tmp_path / f"{name}.png"), np.tile(cv2.imread(src), (3, 3, 1)))
     before = set(os.listdir(tmp_path))
     # SIGINT at its default (a shell's background job would ignore it, and so would the child)
-    p = subprocess.Popen([sys.executable, "-m", "riverbed_cli", "match", "left.png", "right.png", "--max-disp", "200",
+    p = subprocess.Popen([*RIVERBED, "match", "left.png", "right.png", "--max-disp", "200",
                           "-o", "out.tif"], cwd=tmp_path, stderr=subprocess.PIPE, text=True,
                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:

@@ -21,6 +21,7 @@ from riverbed_cli.errors import RiverbedError
 from riverbed_cli.io.disparity import write_disparity, write_range_map
 from riverbed_cli.io.textfiles import MAX_DEPTH, MAX_YAML_NODES, parse_yaml
 from riverbed_cli.io.windowed import read_range_map
+from conftest import PYTHON, RIVERBED
 
 REPO = Path(__file__).resolve().parents[1]
 CONES = REPO / "tests" / "data" / "cones"
@@ -105,7 +106,7 @@ def test_truncated_png_prints_one_line_in_a_real_process(tmp_path):
     # libpng prints its own "Read Error" on the process's stderr when it meets a truncated file
     bad, problem = _bad_images(tmp_path)["corrupt png"]
     out = tmp_path / "out.tif"
-    p = subprocess.run([sys.executable, "-m", "riverbed_cli", "match", str(bad), str(CONES / "im6.png"), "-o",
+    p = subprocess.run([*RIVERBED, "match", str(bad), str(CONES / "im6.png"), "-o",
                         str(out), "--max-disp", "64"], capture_output=True, text=True, timeout=120)
     assert (p.returncode, p.stdout, p.stderr) == (1, "", f"riverbed: error: {bad}: {problem}\n")
     assert not out.exists()
@@ -316,8 +317,8 @@ def _measured(args):
     (a fresh parent, so RUSAGE_CHILDREN holds that one child)."""
     probe = ("import json, resource, subprocess, sys, time\n"
              "t = time.perf_counter()\n"
-             "p = subprocess.run([sys.executable, '-m', 'riverbed_cli', *sys.argv[1:]], capture_output=True, "
-             "text=True, timeout=300)\n"
+             f"p = subprocess.run([sys.executable, *{list(PYTHON[1:])!r}, '-m', 'riverbed_cli', *sys.argv[1:]], "
+             "capture_output=True, text=True, timeout=300)\n"
              "s = time.perf_counter() - t\n"
              "kib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss\n"
              "print(json.dumps([p.returncode, p.stderr, s, kib / 1024]))\n")

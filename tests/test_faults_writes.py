@@ -13,7 +13,6 @@ import resource
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -24,6 +23,7 @@ from riverbed_cli.errors import RiverbedError
 from riverbed_cli.io.atomic import (TEMP_NAME, atomic_output, check_output, lock_folder, output_group,
                                     release_claims, temporary_name, unlock_folder)
 from test_cli_project import CALIB as MIDDLEBURY_CALIB
+from conftest import RIVERBED
 
 REPO = Path(__file__).resolve().parents[1]
 REINDEER = REPO / "sample_data" / "reindeer"
@@ -40,7 +40,7 @@ def riverbed(*args, cwd=None, fsize=None, check=None, timeout=300):
         if fsize is not None:
             resource.setrlimit(resource.RLIMIT_FSIZE, (fsize, fsize))
 
-    r = subprocess.run([sys.executable, "-m", "riverbed_cli", *map(str, args)], cwd=cwd, capture_output=True,
+    r = subprocess.run([*RIVERBED, *map(str, args)], cwd=cwd, capture_output=True,
                        text=True, preexec_fn=limit, timeout=timeout)
     if check is not None:
         assert r.returncode == check, r.stderr
@@ -140,7 +140,7 @@ def test_a_killed_run_keeps_the_old_output_and_the_next_run_removes_its_temporar
     riverbed(*args, check=0)
     old = out.read_bytes()
     tmp = temporary_name(out)
-    proc = subprocess.Popen([sys.executable, "-m", "riverbed_cli", *map(str, args), "--overwrite"],
+    proc = subprocess.Popen([*RIVERBED, *map(str, args), "--overwrite"],
                             stderr=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + 120
@@ -183,7 +183,7 @@ def test_two_runs_started_together_write_one_output_once(tmp_path):
     """Two real runs to one new output without --overwrite: one writes it, the other fails in one line (in use, or
     the output exists) and nothing is replaced."""
     out = tmp_path / "d.tif"
-    args = [sys.executable, "-m", "riverbed_cli", "match", LEFT, RIGHT, "--max-disp", "120", "-o", str(out)]
+    args = [*RIVERBED, "match", LEFT, RIGHT, "--max-disp", "120", "-o", str(out)]
     procs = [subprocess.Popen(args, stderr=subprocess.PIPE, text=True) for _ in range(2)]
     results = [(p.wait(timeout=300), p.stderr.read()) for p in procs]
     codes = sorted(rc for rc, _ in results)

@@ -16,7 +16,7 @@ from riverbed_cli.matching.lidar_offset import (MIN_OFFSET, correct_lidar, estim
 from riverbed_cli.matching.pipeline import match_pair
 from riverbed_cli.products.evaluate import evaluate_disparity
 from riverbed_cli.settings import SettingError
-from conftest import DATA, REPO
+from conftest import DATA, REPO, RIVERBED
 
 REINDEER = REPO / "sample_data" / "reindeer"
 
@@ -179,7 +179,6 @@ def test_project_reports_a_raised_cloud_in_metres(tmp_path):
     """The sample block's LiDAR raised by 2 m (another vertical datum, say): `riverbed project` reports the offset the
     images see, in px and in metres, with one warning; `riverbed match` removes it."""
     import subprocess
-    import sys
 
     import laspy
 
@@ -187,7 +186,7 @@ def test_project_reports_a_raised_cloud_in_metres(tmp_path):
     las = laspy.read(block / "lidar.laz")
     las.z = las.z + 2.0
     las.write(tmp_path / "raised.laz")
-    r = subprocess.run([sys.executable, "-m", "riverbed_cli", "project", str(tmp_path / "raised.laz"),
+    r = subprocess.run([*RIVERBED, "project", str(tmp_path / "raised.laz"),
                         str(block / "pair.yaml"), "-o", str(tmp_path / "s.tif"), "--json"], capture_output=True,
                        text=True)
     assert r.returncode == 0, r.stderr

@@ -4,7 +4,6 @@ LiDAR guidance pays on it."""
 import json
 import math
 import subprocess
-import sys
 import warnings
 from pathlib import Path
 
@@ -18,6 +17,7 @@ from riverbed_cli import sample as S
 from riverbed_cli.io.disparity import read_disparity
 from riverbed_cli.io.images import read_image
 from riverbed_cli.geometry.pairfile import load_pairfile
+from conftest import PYTHON
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "block"
 COMMAND = "riverbed sample sample_data/block --size small --seed 0"
@@ -349,7 +349,7 @@ def test_cli_refuses_to_overwrite_and_missing_parent(written, tmp_path):
 
 def test_python_m_sample_writes_the_block(tmp_path):
     out = tmp_path / "blk"
-    p = subprocess.run([sys.executable, "-m", "riverbed_cli.sample", str(out), "--json"], capture_output=True,
+    p = subprocess.run([*PYTHON, "-m", "riverbed_cli.sample", str(out), "--json"], capture_output=True,
                        text=True, timeout=600, check=False)
     assert p.returncode == 0, p.stderr
     summary = json.loads(p.stdout)
