@@ -14,6 +14,7 @@ from riverbed_cli.io.disparity import read_disparity, read_disparity_tags, write
 from riverbed_cli.products.evaluate import evaluate_disparity
 from riverbed_cli.products.simulate import simulate_lidar
 from riverbed_cli.products.visualize import disparity_picture
+from conftest import PYTHON
 
 DATA = Path(__file__).parent / "data" / "cones"
 LEFT, RIGHT, GT = str(DATA / "im2.png"), str(DATA / "im6.png"), str(DATA / "disp2.png")
@@ -158,7 +159,7 @@ def test_command_line_turns_numpy_huge_pages_off_unless_the_user_set_them(user, 
     env = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
     if user is not None:
         env["NUMPY_MADVISE_HUGEPAGE"] = user
-    out = subprocess.run([sys.executable, "-c", _HUGEPAGE_PROBE], env=env, capture_output=True, text=True, check=True)
+    out = subprocess.run([*PYTHON, "-c", _HUGEPAGE_PROBE], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == expected
 
 
@@ -179,7 +180,7 @@ def test_command_line_keeps_freed_memory_unless_the_user_set_malloc(user, kept):
     # of returning it to the kernel; a user's own malloc settings win
     env = {k: v for k, v in os.environ.items() if k not in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_",
                                                              "GLIBC_TUNABLES")}
-    out = subprocess.run([sys.executable, "-c", _MALLOC_PROBE], env={**env, **user}, capture_output=True, text=True,
+    out = subprocess.run([*PYTHON, "-c", _MALLOC_PROBE], env={**env, **user}, capture_output=True, text=True,
                          check=True)
     assert out.stdout.strip() == kept
 
@@ -205,11 +206,11 @@ def test_command_line_loads_cached_kernels_without_numbas_compiler_start_up(work
     if refresh is not None:
         env["RIVERBED_NUMBA_REFRESH"] = refresh
     args = [LEFT, RIGHT, str(work / "sparse.tif"), str(work / "d.tif")]
-    subprocess.run([sys.executable, "-c", _FRESH_MATCH, *args], env=env, check=True, capture_output=True)  # cache
-    out = subprocess.run([sys.executable, "-c", _FRESH_MATCH, *args], env=env, capture_output=True, text=True,
+    subprocess.run([*PYTHON, "-c", _FRESH_MATCH, *args], env=env, check=True, capture_output=True)  # cache
+    out = subprocess.run([*PYTHON, "-c", _FRESH_MATCH, *args], env=env, capture_output=True, text=True,
                          check=True).stdout.split()
     assert out[:2] == (["True", "True"] if refresh else ["False", "False"])
-    same = subprocess.run([sys.executable, "-c", _FRESH_MATCH, *args],
+    same = subprocess.run([*PYTHON, "-c", _FRESH_MATCH, *args],
                           env={**env, "RIVERBED_NUMBA_REFRESH": "0" if refresh else "1"}, capture_output=True,
                           text=True, check=True).stdout.split()
     assert same[2] == out[2]

@@ -5,7 +5,6 @@ import gc
 import json
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -13,6 +12,7 @@ import pytest
 from riverbed_cli.products.simulate import simulate_lidar
 from riverbed_cli.io.disparity import write_disparity
 from riverbed_cli.runtime import collector
+from conftest import PYTHON
 
 DATA = Path(__file__).parent / "data" / "cones"
 LEFT, RIGHT = str(DATA / "im2.png"), str(DATA / "im6.png")
@@ -70,7 +70,7 @@ def test_program_with_riverbed_gc_default_changes_nothing(restore_collector, mon
 
 
 def _probe(args, tmp_path, **env):
-    p = subprocess.run([sys.executable, "-c", _PROBE, *args], capture_output=True, text=True, timeout=600,
+    p = subprocess.run([*PYTHON, "-c", _PROBE, *args], capture_output=True, text=True, timeout=600,
                        env={**os.environ, **env}, cwd=tmp_path)
     *lines, state = p.stderr.strip().splitlines()
     return p, lines, state.split()

@@ -322,7 +322,7 @@ def _measured(args):
              "s = time.perf_counter() - t\n"
              "kib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss\n"
              "print(json.dumps([p.returncode, p.stderr, s, kib / 1024]))\n")
-    p = subprocess.run([sys.executable, "-c", probe, *map(str, args)], capture_output=True, text=True, timeout=360)
+    p = subprocess.run([*PYTHON, "-c", probe, *map(str, args)], capture_output=True, text=True, timeout=360)
     rc, err, seconds, mib = json.loads(p.stdout)
     print(f"riverbed {' '.join(map(str, args[:1]))}: exit {rc}, {seconds:.2f} s, peak {mib:.0f} MiB")
     return rc, err, seconds, mib

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from riverbed_cli.runtime.heap import HEAP_PER_CELL, HEAP_PER_PIXEL, match_heap_bytes
+from conftest import PYTHON
 
 # A fresh process as the commands run: their memory settings, then a block of the heap prefaulted (or not), then the
 # page faults of a 48 MiB array first touched afterwards, as a match's volumes are.
@@ -28,7 +29,7 @@ print(json.dumps({"faults": resource.getrusage(resource.RUSAGE_SELF).ru_minflt -
 
 def _probe(**env):
     e = {k: v for k, v in os.environ.items() if not k.startswith(("MALLOC_", "GLIBC_TUNABLES", "RIVERBED_PREFAULT"))}
-    out = subprocess.run([sys.executable, "-c", PROBE], env={**e, **env}, capture_output=True, text=True, check=True)
+    out = subprocess.run([*PYTHON, "-c", PROBE], env={**e, **env}, capture_output=True, text=True, check=True)
     return json.loads(out.stdout)
 
 

@@ -2,7 +2,6 @@
 ``riverbed --help`` that loads no Numba kernel, and registries that agree with the settings table."""
 
 import subprocess
-import sys
 from pathlib import Path
 
 from layout_check import summary
@@ -10,6 +9,7 @@ from layout_check import summary
 from riverbed_cli.matching import pipeline  # noqa: F401  (fills the registries)
 from riverbed_cli.matching.config import GUIDE_NAMES, MATCH_SETTINGS, MATCHER_NAMES, MatchConfig
 from riverbed_cli.matching.registry import GUIDES, MATCHERS
+from conftest import PYTHON
 
 PACKAGE = Path(__file__).resolve().parents[1] / "riverbed_cli"
 
@@ -50,7 +50,7 @@ def test_no_module_over_600_lines():
 
 
 def _imported_by(code):
-    out = subprocess.run([sys.executable, "-c", code + "\nimport sys\nprint('\\n'.join(sorted(sys.modules)))"],
+    out = subprocess.run([*PYTHON, "-c", code + "\nimport sys\nprint('\\n'.join(sorted(sys.modules)))"],
                          capture_output=True, text=True, check=True).stdout.split()
     return [m for m in out if m.startswith(("numba", "riverbed_cli.matching.census", "riverbed_cli.matching.sgm"))]
 
@@ -67,7 +67,7 @@ def test_registries_are_full_on_first_access():
     code = ("import sys, riverbed_cli\nfrom riverbed_cli.matching.registry import FUSIONS\n"
             "print(sorted(riverbed_cli.MATCHERS), sorted(riverbed_cli.GUIDES), sorted(FUSIONS),"
             " 'riverbed_cli.matching.pipeline' in sys.modules)")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    out = subprocess.run([*PYTHON, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == str(sorted(MATCHER_NAMES)) + " " + str(sorted(GUIDE_NAMES)) + " ['confidence', 'none'] False"
 
 

@@ -9,7 +9,6 @@ import json
 import logging
 import struct
 import subprocess
-import sys
 from pathlib import Path
 
 import laspy
@@ -19,6 +18,7 @@ from pyproj import CRS
 
 from riverbed_cli.errors import RiverbedError
 from riverbed_cli.io.lidar import iter_lidar, lidar_info, read_lidar, resolve_crs
+from conftest import PYTHON
 
 DATA = Path(__file__).parent / "data" / "lidar"
 BOUND_S = 5.0  # robustness bound: a malformed file must be refused within this many seconds
@@ -92,7 +92,7 @@ def _refuse_all(calls):
     within BOUND_S seconds (timed with time.monotonic in the child). Returns the messages."""
     calls = [(fn, str(path)) for fn, path in calls]
     try:
-        proc = subprocess.run([sys.executable, "-c", _CHILD, json.dumps(calls)], check=False,
+        proc = subprocess.run([*PYTHON, "-c", _CHILD, json.dumps(calls)], check=False,
                               capture_output=True, text=True, timeout=30 + 2 * BOUND_S * len(calls))
     except subprocess.TimeoutExpired:
         pytest.fail(f"reader hung on {calls}")

@@ -11,6 +11,7 @@ import pytest
 
 from riverbed_cli import runtime
 from riverbed_cli.runtime import Env
+from conftest import PYTHON
 
 PACKAGE = Path(runtime.__file__).parents[1]
 
@@ -48,7 +49,7 @@ def clean_environ():
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc and /proc")
 def test_importing_every_module_changes_nothing_in_the_process():
-    out = subprocess.run([sys.executable, "-c", IMPORT_ALL], env=clean_environ(), capture_output=True, text=True,
+    out = subprocess.run([*PYTHON, "-c", IMPORT_ALL], env=clean_environ(), capture_output=True, text=True,
                          check=True)
     res = json.loads(out.stdout)
     # every module but the package itself (imported first)
@@ -61,14 +62,14 @@ def test_importing_every_module_changes_nothing_in_the_process():
 def test_the_env_sets_what_the_program_runs_with_and_restores_the_variables():
     code = IMPORT_ALL.replace("import riverbed_cli\n", "import riverbed_cli\nfrom riverbed_cli.runtime import Env, "
                               "before_kernels\nenv = Env().__enter__()\nbefore_kernels()\n")
-    res = json.loads(subprocess.run([sys.executable, "-c", code], env=clean_environ(), capture_output=True,
+    res = json.loads(subprocess.run([*PYTHON, "-c", code], env=clean_environ(), capture_output=True,
                                     text=True, check=True).stdout)
     assert res["changed"] == ["NUMBA_CACHE_DIR", "NUMPY_MADVISE_HUGEPAGE", "OMP_WAIT_POLICY", "RIVERBED_OMP_DEFAULT"]
     assert res["numba"] == "riverbed_cli.runtime.numba_cache" and res["kept"] and res["freeze"] == 0 and res["gc"]
     # the user's own settings win
     user = {**clean_environ(), "OMP_WAIT_POLICY": "ACTIVE", "NUMPY_MADVISE_HUGEPAGE": "1", "GLIBC_TUNABLES": "",
             "NUMBA_CACHE_DIR": "/tmp/users-own"}
-    res = json.loads(subprocess.run([sys.executable, "-c", code], env=user, capture_output=True, text=True,
+    res = json.loads(subprocess.run([*PYTHON, "-c", code], env=user, capture_output=True, text=True,
                                     check=True).stdout)
     assert res["changed"] == [] and not res["kept"]
 
@@ -116,7 +117,7 @@ def test_an_edited_helper_recompiles_the_kernels_that_inline_it(tmp_path):
 
     def run(cache):
         env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
-        return subprocess.run([sys.executable, "-c", KERNEL, str(pkg)], env=env, capture_output=True, text=True,
+        return subprocess.run([*PYTHON, "-c", KERNEL, str(pkg)], env=env, capture_output=True, text=True,
                               check=True).stdout.strip()
 
     first = numba_cache.cache_dir(pkg, root=tmp_path / "cache")

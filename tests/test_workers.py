@@ -3,8 +3,9 @@
 import json
 import os
 import subprocess
-import sys
 from pathlib import Path
+
+from conftest import PYTHON
 
 DATA = Path(__file__).parent / "data" / "cones"
 
@@ -24,7 +25,7 @@ print(json.dumps({"exit": r.exit_code, "spins": spins, "policy": policy, "output
 
 def _match(tmp_path, *args, **env):
     e = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "RIVERBED_OMP_DEFAULT")}
-    cmd = [sys.executable, "-c", PROBE, "match", str(DATA / "im2.png"), str(DATA / "im6.png"), "--max-disp", "63",
+    cmd = [*PYTHON, "-c", PROBE, "match", str(DATA / "im2.png"), str(DATA / "im6.png"), "--max-disp", "63",
            "-o", str(tmp_path / "d.tif"), "--overwrite", *args]
     out = subprocess.run(cmd, env={**e, **env}, capture_output=True, text=True, check=True)
     res = json.loads(out.stdout.strip().splitlines()[-1])
@@ -65,8 +66,8 @@ census_transform(np.zeros((20, 20), np.float32))  # a parallel kernel: libgomp h
 print(spin_between_regions(), os.environ.get("GOMP_SPINCOUNT"))
 """
     e = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "RIVERBED_OMP_DEFAULT")}
-    out = subprocess.run([sys.executable, "-c", code], env=e, capture_output=True, text=True, check=True)
+    out = subprocess.run([*PYTHON, "-c", code], env=e, capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "None"]
     code2 = code.replace('census_transform(np.zeros((20, 20), np.float32))  #', '#')
-    out = subprocess.run([sys.executable, "-c", code2], env=e, capture_output=True, text=True, check=True)
+    out = subprocess.run([*PYTHON, "-c", code2], env=e, capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["True", "30000"]
