@@ -1,34 +1,36 @@
 """Speed and memory of ``riverbed project`` on 10 million points, against reading the file with laspy alone.
 
-Usage: python benchmarks/bench_project.py [--points N] [--laz] [--width 6000] [--height 4000] [--keep DIR]
+    python benchmarks/bench_project.py --write benchmarks/results_project.json --docs docs/projection.md
 
 Generates, in a temporary folder, an aerial-like scene: a hilly terrain with flat-roofed buildings in a
 UTM-like frame (origin 500000, 5000000), sampled at random and stored in 5 m strips (as a flight line would
-be; LAS 1.4 point format 6, 1 mm scale; ``--laz`` for LAZ), and a pair file for a nadir camera 1000 m above it
-(f = 10000 px, 300 m baseline, ``--width`` x ``--height`` px) that sees the whole cloud. Then, each in a fresh
-subprocess (peak RSS as VmHWM and RSS after the imports, from /proc/self/status):
+be; LAS 1.4 point format 6, 1 mm scale), written as LAS and as LAZ, and a pair file for a nadir camera 1000 m
+above it (f = 10000 px, 300 m baseline, 6000 x 4000 px) that sees the whole cloud. Then, for each file, each run
+in a fresh subprocess after one warm-up run that compiles or loads the kernels (peak RSS as VmHWM and RSS after the
+imports, from /proc/self/status):
 
 - ``laspy``: read the file in 1-million-point chunks and compute the float64 coordinates (the decoding floor);
 - ``project``: the full ``riverbed project`` (CLI, default options: SOR, z-buffer visibility in both views);
 - ``project --outliers none --visibility none``: streaming projection and the nearest point per pixel only.
 
-Prints a markdown table (seconds, points per second, RSS, and ``project``'s own stage times).
+``--write`` stores the figures (the committed result file), ``--docs`` rewrites docs/projection.md's speed block
+from it (``tests/test_projection_doc.py`` checks the doc). ``--points N`` for a smaller cloud.
 
 The hidden point removal methods are compared by ``bench_hidden_points.py``.
 """
 
-import argparse
 import json
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import laspy
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from datasets import rows_main  # noqa: E402
 
 # Peak RSS from /proc (VmHWM): ru_maxrss would include the parent's memory at fork time (it survives exec).
 RSS_NOW = """
@@ -111,47 +113,62 @@ def sub(code, *args):
     return json.loads(p.stdout)
 
 
-def speed(args):
-    with tempfile.TemporaryDirectory(prefix="bench_project_") as tmp:
-        folder = Path(args.keep or tmp)
-        folder.mkdir(parents=True, exist_ok=True)
-        t = time.perf_counter()
-        cloud, pair = make_scene(folder, args.points, args.laz, args.width, args.height)
-        print(f"generated {args.points:,} points ({cloud.stat().st_size / 2**20:.0f} MiB) in "
-              f"{time.perf_counter() - t:.1f} s; image {args.width}x{args.height}")
-        # Compile (or load from the cache) the kernels once.
-        sub(PROJECT, "project", cloud, pair, "-o", folder / "warm.tif", "--json", "--overwrite")
-        rows = [("laspy read (chunks of 1M, float64 xyz)", sub(LASPY_READ, cloud))]
-        for name, extra in (("riverbed project (defaults: SOR, z-buffer both views)", []),
-                            ("riverbed project --outliers none --visibility none",
-                             ["--outliers", "none", "--visibility", "none"])):
-            rows.append((name, sub(PROJECT, "project", cloud, pair, "-o", folder / "s.tif", "--json",
-                                   "--overwrite", *extra)))
-    print(f"\n{'LAZ' if args.laz else 'LAS'} 1.4, {args.points:,} points, {args.width}x{args.height} image\n")
-    print("| run | seconds | points/s | peak RSS (MiB) | RSS after imports (MiB) | stages (s) |\n"
-          "|---|---:|---:|---:|---:|---|")
-    for name, r in rows:
-        st = r.get("stats")
-        stages = ", ".join(f"{k} {v:.1f}" for k, v in st["stage_seconds"].items()) if st else ""
-        print(f"| {name} | {r['seconds']:.1f} | {args.points / r['seconds'] / 1e6:.2f} M | "
-              f"{r['rss_kb'] / 1024:.0f} | {r['base_kb'] / 1024:.0f} | {stages} |")
-    st = rows[1][1]["stats"]
-    print(f"\nkept {st['kept']:,} pixels (share {st['lidar_share']:.3f}), same pixel "
-          f"{st['occluded']['same_pixel']:,}, occluded left {st['occluded']['left']:,} right "
-          f"{st['occluded']['right']:,}, outliers {st['filtered']['outliers']:,}")
-    return 0
+RUNS = (("laspy read (chunks of 1M, float64 xyz)", None),
+        ("`riverbed project` (defaults: SOR, z-buffer both views)", []),
+        ("`riverbed project --outliers none --visibility none`", ["--outliers", "none", "--visibility", "none"]))
+BEGIN, END = "<!-- bench_project: begin -->", "<!-- bench_project: end -->"
+
+
+def measure(data=None, points=None, width=6000, height=4000):
+    """The figures of the committed result file (module docstring); ``data`` is not used (the scene is made)."""
+    n = int(points or 10_000_000)
+    out = {"points": n, "width": width, "height": height, "files": []}
+    for laz in (False, True):
+        with tempfile.TemporaryDirectory(prefix="bench_project_") as tmp:
+            folder = Path(tmp)
+            cloud, pair = make_scene(folder, n, laz, width, height)
+            sub(PROJECT, "project", cloud, pair, "-o", folder / "warm.tif", "--json", "--overwrite")
+            runs = []
+            for name, extra in RUNS:
+                r = sub(LASPY_READ, cloud) if extra is None else sub(
+                    PROJECT, "project", cloud, pair, "-o", folder / "s.tif", "--json", "--overwrite", *extra)
+                st = r.get("stats")
+                runs.append({"run": name, "seconds": round(r["seconds"], 2), "rss_mib": round(r["rss_kb"] / 1024),
+                             "base_mib": round(r["base_kb"] / 1024),
+                             "stages": {k: round(v, 2) for k, v in st["stage_seconds"].items()} if st else None})
+                if extra == []:
+                    counts = {k: st[k] for k in ("kept", "lidar_share")} | dict(st["occluded"]) | {
+                        "outliers": st["filtered"]["outliers"]}
+            out["files"].append({"format": "LAZ" if laz else "LAS", "mib": round(cloud.stat().st_size / 2**20),
+                                 "runs": runs, "counts": counts})
+    return out
+
+
+def tables(result):
+    """docs/projection.md's speed block: the table and the counts of the default run."""
+    n = result["points"]
+    lines = ["| file | run | seconds | points/s | peak RSS (MiB) | stages (s) |", "|---|---|---:|---:|---:|---|"]
+    for f in result["files"]:
+        for i, r in enumerate(f["runs"]):
+            name = f"{f['format']} ({f['mib']} MiB)" if i == 0 else f["format"]
+            stages = ", ".join(f"{k} {v:.1f}" for k, v in r["stages"].items()) if r["stages"] else ""
+            lines.append(f"| {name} | {r['run']} | {r['seconds']:.1f} | {n / r['seconds'] / 1e6:.2f} M | "
+                         f"{r['rss_mib']} | {stages} |")
+    c = result["files"][0]["counts"]
+    pixels = result["width"] * result["height"]
+    las = result["files"][0]["runs"]
+    lines += ["", f"{n / 1e6:g} million points, a {result['width']} x {result['height']} frame: {c['kept']:,} pixels "
+              f"get a disparity (share {100 * c['lidar_share']:.0f} %); {c['same_pixel']:,} points lose their pixel "
+              f"to a nearer one, {c['left']:,} are hidden in the left view and {c['right']:,} in the right (next to "
+              f"the buildings' walls), {c['outliers']:,} are outliers. The imports alone take "
+              f"{las[1]['base_mib']} MiB (riverbed) and {las[0]['base_mib']} MiB (laspy); the default run's peak is "
+              f"{1024 ** 2 * las[1]['rss_mib'] / pixels:.0f} bytes per image pixel."]
+    return "\n".join(lines)
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--points", type=int, default=10_000_000)
-    ap.add_argument("--laz", action="store_true", help="Write and read LAZ instead of LAS.")
-    ap.add_argument("--width", type=int, default=6000)
-    ap.add_argument("--height", type=int, default=4000)
-    ap.add_argument("--keep", default=None, help="Folder to keep the generated files in (default: none).")
-    args = ap.parse_args()
-    return speed(args)
+    rows_main(__doc__, measure, tables, BEGIN, END, options=[("--points", "points in the cloud (10,000,000)")])
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

@@ -1,10 +1,9 @@
 """Hidden point removal against known visibility: Cones (round-trip scene) and the sample aerial block.
 
-Usage: python benchmarks/bench_visibility.py [--before REV] [--reach 1,0.25] [--modes surface,surface+zbuffer:0.75]
-[--shares 0.05,0.1,0.3] [--time]
+    python benchmarks/bench_visibility.py --write benchmarks/results_visibility.json --docs docs/projection.md
 
 Two scenes whose LiDAR points have a known visibility, each projected by ``project_cloud`` with the default
-options (SOR, z-buffer in both views):
+options (SOR, z-buffer in both views) but for the visibility rule of the row:
 
 - **Cones**: the round-trip scene of tests/test_cli_project.py (Middlebury 2003 Cones GT as LiDAR at a share of
   the pixels; hidden points behind the surface at 20 % of the other pixels and behind every tenth visible point on
@@ -19,27 +18,27 @@ options (SOR, z-buffer in both views):
 Per scene: **visible kept** (share of the pixels holding a truly visible point whose disparity, or that of another
 visible point of that pixel, is in the sparse map), **hidden removed** (share of the hidden points whose own
 disparity is not in the map), and **wrong pixels**, kept pixels more than 1 px off the ground-truth disparity
-map. ``--before REV`` also runs ``riverbed_cli/geometry/visibility.py`` as it is at git revision ``REV`` (loaded
-from ``git show``) for the before/after table; ``--reach`` lists the ``edge_reach`` values run with the working
-tree's code (1 is the default). ``--time`` adds the visibility stage seconds on the block
-(best of 5; noisy on a shared machine).
+map. Then the round trip of tests/test_cli_project.py (Cones, 10 %) under the command's options, against what that
+test requires (:data:`REQUIRED`).
+
+``--write`` stores the rows (the committed result file), ``--docs`` rewrites docs/projection.md's three tables
+from it (``tests/test_visibility.py`` gates the projections against the rows, ``tests/test_projection_doc.py``
+checks the doc).
 """
 
-import argparse
-import contextlib
-import importlib.util
 import os
-import subprocess
-import sys
 import tempfile
-import types
+import sys
 from pathlib import Path
 
 import laspy
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(ROOT / "tests"))
+
+from datasets import rows_main  # noqa: E402
 
 from riverbed_cli.geometry import projection as pj  # noqa: E402
 from riverbed_cli.geometry.pairfile import load_pairfile  # noqa: E402
@@ -51,33 +50,20 @@ BLOCK = ROOT / "sample_data" / "block"
 TRUTH_TOLERANCE = 0.25
 #: A sparse pixel "holds" a point when it carries the point's disparity to this (px; float32 storage).
 MATCH = 1e-3
-
-
-def load_module(rev):
-    """``riverbed_cli/geometry/visibility.py`` at git revision ``rev``, as a module (for the 'before' runs)."""
-    src = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:riverbed_cli/geometry/visibility.py"],
-                         capture_output=True, text=True, check=True).stdout
-    folder = Path(tempfile.mkdtemp(prefix="vis_before_"))
-    path = folder / "visibility_before.py"
-    path.write_text(src)
-    spec = importlib.util.spec_from_file_location("visibility_before", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    # The old zbuffer_visible has no edge_reach (project_cloud passes it last): drop it.
-    return types.SimpleNamespace(zbuffer_visible=lambda *args: mod.zbuffer_visible(*args[:7]),
-                                 hpr_visible=mod.hpr_visible)
-
-
-@contextlib.contextmanager
-def visibility_module(mod):
-    """Run ``project_cloud`` with ``mod`` as its visibility module (None: the current one)."""
-    saved = pj.vis
-    if mod is not None:
-        pj.vis = mod
-    try:
-        yield
-    finally:
-        pj.vis = saved
+DEFAULT = "z-buffer, `edge_reach 1` (default)"
+#: the visibility rules compared on both scenes: (label, project_cloud keywords)
+RULES = [(DEFAULT, {})] + [(f"z-buffer, `edge_reach {r:g}`", {"edge_reach": r}) for r in (0.5, 0.25, 0.0)]
+RULES += [("`surface`", {"visibility": "surface"}), ("`surface+zbuffer`", {"visibility": "surface+zbuffer"}),
+          ("`surface+zbuffer`, `edge_reach 0.75`", {"visibility": "surface+zbuffer", "edge_reach": 0.75})]
+#: the most aggressive z-buffer tried on the block
+AGGRESSIVE = ("z-buffer, `footprint 8`, `slope 0`", {"footprint": 8, "slope": 0.0})
+SHARES = (0.05, 0.1, 0.3)
+#: the round trip of tests/test_cli_project.py (Cones, 10 % LiDAR) under the command's options
+ROUND_TRIP = [("defaults", {}), ("`--outliers none`", {"outliers": "none"}), ("`--side left`", {"side": "left"}),
+              ("`--visibility hpr`", {"visibility": "hpr"})]
+#: what tests/test_cli_project.py requires of the defaults' round trip: (figure, bound, at least / at most)
+REQUIRED = {"max_error": (0.01, "max"), "hidden_removed": (0.99, "min"), "outliers_removed": (1.0, "min"),
+            "visible_kept": (0.93, "min"), "right_occluded_removed": (0.90, "min")}
 
 
 def cones_scene(share, folder):
@@ -162,61 +148,97 @@ def score_points(sparse, gt, rows, cols, disp, visible, hidden):
             "wrong": wrong, "n_visible": int(vis_pix.size), "n_hidden": int(hidden.sum())}
 
 
-def run_block(truth, mod, kw, repeat=1):
-    seconds = []
-    with visibility_module(mod):
-        for _ in range(repeat):
-            sparse, st = pj.project_cloud(BLOCK / "lidar.laz", truth["pair"], **kw)
-            seconds.append(st["stage_seconds"]["visibility"])
-    m = score_points(sparse, truth["gt"], truth["rows"], truth["cols"], truth["disp"], truth["visible"],
-                     truth["hidden"])
-    m["seconds"] = min(seconds)
-    m["kept"] = st["kept"]
-    return m
+def _scores(m):
+    return {k: round(float(m[k]), 6) for k in ("visible_kept", "hidden_removed")} | {
+        "wrong": int(m["wrong"]), "n_visible": int(m["n_visible"]), "n_hidden": int(m["n_hidden"])}
 
 
-def run_cones(scene, mod, kw, folder):
-    sc, gt = scene
-    with visibility_module(mod):
-        sparse, st = pj.project_cloud(Path(folder) / "scene.las", sc["pair"], **kw)
-    m = score_cones(sparse, gt, sc)
-    m["seconds"] = st["stage_seconds"]["visibility"]
-    m["kept"] = st["kept"]
-    return m
+def run(data=None):
+    rows = []
+    for share in SHARES:
+        with tempfile.TemporaryDirectory(prefix="bench_vis_") as tmp:
+            sc, gt = cones_scene(share, tmp)
+            for name, kw in RULES:
+                sparse, _ = pj.project_cloud(Path(tmp) / "scene.las", sc["pair"], **kw)
+                rows.append({"scene": "Cones", "share": share, "rule": name, **_scores(score_cones(sparse, gt, sc))})
+            if share == 0.1:
+                from test_cli_project import score
+
+                for name, kw in ROUND_TRIP:
+                    sparse, st = pj.project_cloud(Path(tmp) / "scene.las", sc["pair"], **kw)
+                    m = score(sparse, gt, sc)
+                    rows.append({"scene": "Cones round trip", "share": share, "options": name,
+                                 **{k: round(float(m[k]), 6) for k in REQUIRED},
+                                 "n_hidden": int(sc["n_hidden"]), "n_outliers": int(sc["n_outliers"]),
+                                 "sor_removed": int(st["filtered"]["outliers"])})
+    truth = block_truth()
+    for name, kw in RULES + [AGGRESSIVE]:
+        sparse, _ = pj.project_cloud(BLOCK / "lidar.laz", truth["pair"], **kw)
+        m = score_points(sparse, truth["gt"], truth["rows"], truth["cols"], truth["disp"], truth["visible"],
+                         truth["hidden"])
+        rows.append({"scene": "sample block", "share": None, "rule": name, **_scores(m)})
+    return rows
+
+
+def row(rows, scene, rule, share=None):
+    """The row of ``scene`` (``Cones``, ``sample block``) and ``rule`` (a label of :data:`RULES`)."""
+    return next(r for r in rows if r["scene"] == scene and r.get("rule") == rule and r["share"] == share)
+
+
+def _label(r):
+    return f"Cones {100 * r['share']:.0f} %" if r["scene"] == "Cones" else r["scene"]
+
+
+def _table(rows, rules):
+    out = ["| scene | rule | visible kept | hidden removed | wrong pixels |", "|---|---|---:|---:|---:|"]
+    for r in rows:
+        if r.get("rule") in rules:
+            out.append(f"| {_label(r)} | {r['rule']} | {100 * r['visible_kept']:.2f} % | "
+                       f"{100 * r['hidden_removed']:.2f} % | {r['wrong']} |")
+    return out
+
+
+def reach_table(rows):
+    """The ``edge_reach`` table (the z-buffer's rules; the block's hidden and visible counts)."""
+    b = row(rows, "sample block", DEFAULT)
+    return "\n".join(_table(rows, [n for n, kw in RULES if "visibility" not in kw] + [AGGRESSIVE[0]]) + [
+        "", f"The block's truth: {b['n_visible']} pixels with a visible point, {b['n_hidden']} hidden points."])
+
+
+def surface_table(rows):
+    """The surface modes' table, beside the default."""
+    return "\n".join(_table(rows, [DEFAULT] + [n for n, kw in RULES if "visibility" in kw]))
+
+
+def round_trip_table(rows):
+    """The round trip's figures under the command's options, and what tests/test_cli_project.py requires."""
+    def cells(r):
+        return [f"{r['max_error']:.4f} px", f"{100 * r['hidden_removed']:.2f} %",
+                f"{100 * r['outliers_removed']:.1f} %", f"{100 * r['visible_kept']:.1f} %",
+                f"{100 * r['right_occluded_removed']:.1f} %", str(r["sor_removed"])]
+    trips = [r for r in rows if r["scene"] == "Cones round trip"]
+    t = trips[0]
+    out = [f"Cones, 10 % LiDAR: {t['n_hidden']:,} points hidden behind the surface, {t['n_outliers']} outliers "
+           "floating above it.", "",
+           "| options | max error at kept visible points | hidden removed | outliers removed | visible kept | "
+           "right-hidden removed | SOR removed |", "|---|---:|---:|---:|---:|---:|---:|"]
+    out += [f"| {r['options']} | " + " | ".join(cells(r)) + " |" for r in trips]
+    req = {k: "all" if (v, how) == (1.0, "min") else f"{'<=' if how == 'max' else '>='} {100 * v:g} %"
+           for k, (v, how) in REQUIRED.items()}
+    out.append(f"| required of the defaults | <= {REQUIRED['max_error'][0]:g} px | {req['hidden_removed']} | "
+               f"{req['outliers_removed']} | {req['visible_kept']} | {req['right_occluded_removed']} | |")
+    return "\n".join(out)
+
+
+TABLES = [(reach_table, "<!-- bench_visibility reach: begin -->", "<!-- bench_visibility reach: end -->"),
+          (surface_table, "<!-- bench_visibility surface: begin -->", "<!-- bench_visibility surface: end -->"),
+          (round_trip_table, "<!-- bench_visibility round trip: begin -->",
+           "<!-- bench_visibility round trip: end -->")]
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--before", default=None, help="Also run visibility.py of this git revision (e.g. ac957d7).")
-    ap.add_argument("--reach", default="1,0.25", help="edge_reach values for the working tree (comma-separated).")
-    ap.add_argument("--modes", default="surface,surface+zbuffer:1,surface+zbuffer:0.75",
-                    help="Other visibility modes, MODE or MODE:EDGE_REACH (comma-separated; '' for none).")
-    ap.add_argument("--shares", default="0.05,0.1,0.3", help="Cones LiDAR shares (comma-separated).")
-    ap.add_argument("--time", action="store_true", help="Best of 5 visibility-stage seconds on the block.")
-    args = ap.parse_args()
-    versions = [(f"after, edge_reach {r}", None, {"edge_reach": float(r)}) for r in args.reach.split(",")]
-    for item in filter(None, args.modes.split(",")):
-        mode, _, reach = item.partition(":")
-        kw = {"visibility": mode, **({"edge_reach": float(reach)} if reach else {})}
-        versions.append((f"{mode}" + (f", edge_reach {reach}" if reach else ""), None, kw))
-    if args.before:
-        versions.insert(0, (f"before ({args.before})", load_module(args.before), {}))
-    rows = []
-    for share in (float(s) for s in filter(None, args.shares.split(","))):
-        with tempfile.TemporaryDirectory(prefix="bench_vis_") as tmp:
-            scene = cones_scene(share, tmp)
-            for name, mod, kw in versions:
-                rows.append((f"Cones {100 * share:.0f} %", name, run_cones(scene, mod, kw, tmp)))
-    truth = block_truth()
-    for name, mod, kw in versions:
-        rows.append(("sample block", name, run_block(truth, mod, kw, 5 if args.time else 1)))
-    print("| scene | code | visible kept | hidden removed | wrong pixels (> 1 px) | kept | visible | hidden | "
-          "visibility s |\n|---|---|---:|---:|---:|---:|---:|---:|---:|")
-    for scene, name, m in rows:
-        print(f"| {scene} | {name} | {100 * m['visible_kept']:.2f} % | {100 * m['hidden_removed']:.2f} % | "
-              f"{m['wrong']} | {m['kept']} | {m['n_visible']} | {m['n_hidden']} | {m['seconds']:.3f} |")
-    return 0
+    rows_main(__doc__, run, TABLES)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

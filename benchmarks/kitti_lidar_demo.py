@@ -1,22 +1,26 @@
 """The real LiDAR case: KITTI object frame -> pair file -> sparse LiDAR disparities -> guided matching.
 
-Usage: python benchmarks/kitti_lidar_demo.py DATA_DIR [--out docs] [--work DIR]
+    python benchmarks/kitti_lidar_demo.py DATA_DIR --write benchmarks/results_kitti_lidar.json \\
+        --docs docs/projection.md [--png docs]
 
 DATA_DIR is the shared data folder (``../shared/data``); the KITTI frame stays there (CC BY-NC-SA: never
 copied into the repository). Runs the real CLI (``riverbed pair kitti``, ``riverbed project``, ``riverbed
-match``) and prints:
+match``, ``riverbed densify``) and measures:
 
 - the projection counts and the photometric check: median |I_left(x, y) - I_right(x - d, y)| at the LiDAR
   pixels, against the same with the disparity off by +-3 px;
 - held-out accuracy: half of the LiDAR pixels (seeded) guide ``match``; every map is scored on the other half
-  (LiDAR as sparse ground truth): unguided matching on the same range, riverbed with the default fusion and
-  without it (``--fusion none``), and the LiDAR-only interpolations of the guiding half (``riverbed densify``
-  nearest, linear, guided);
-- writes OUT/kitti_guided.png and OUT/kitti_unguided.png: colourised maps guided by *all* LiDAR pixels and
-  unguided, on one colour scale.
+  (LiDAR as sparse ground truth): unguided matching on the same range, riverbed with the default fusion, with the
+  LiDAR check off and without the fusion (``--fusion none``), and the LiDAR-only interpolations of the guiding half
+  (``riverbed densify`` nearest, linear, guided);
+- what the LiDAR check dropped of the guiding half, and how much of it lies at a LiDAR depth edge.
+
+``--write`` stores the figures (the committed result file), ``--docs`` rewrites docs/projection.md's KITTI block
+from it (``tests/test_kitti_lidar.py`` gates the runs against the file, ``tests/test_projection_doc.py`` checks the
+doc); ``--png FOLDER`` also writes kitti_guided.png and kitti_unguided.png: colourised maps guided by *all* LiDAR
+pixels and unguided, on one colour scale.
 """
 
-import argparse
 import json
 import sys
 import tempfile
@@ -30,6 +34,9 @@ from riverbed_cli.cli.main import cli
 from riverbed_cli.io.disparity import read_disparity, write_disparity
 from riverbed_cli.products.evaluate import evaluate_disparity
 from riverbed_cli.products.visualize import colorize_disparity, write_png
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from datasets import rows_main  # noqa: E402
 
 KITTI = "kitti_object_stereo_lidar_stereorcnn/demo"
 
@@ -79,74 +86,137 @@ def edge_share(sparse, dropped, reach=8, step=3.0):
     return float(np.mean(near[rows, cols] >= sparse[rows, cols] + step))
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("data_dir")
-    ap.add_argument("--out", default="docs", help="Folder for kitti_guided.png and kitti_unguided.png.")
-    ap.add_argument("--work", default=None, help="Folder for intermediate files (default: a temporary one).")
-    args = ap.parse_args()
-    work = Path(args.work or tempfile.mkdtemp(prefix="kitti_"))
-    work.mkdir(parents=True, exist_ok=True)
-    paths, summary = pipeline(args.data_dir, work)
-    st = summary["project"]
-    print(f"project: {st['points_read']} read, {st['behind_camera']} behind, {st['outside']} outside, "
-          f"{st['row_offset']} off the row, {st['filtered']['outliers']} outliers, occluded "
-          f"{st['occluded']}, {st['kept']} kept (share {st['lidar_share']:.4f}, window {st['window']}), "
-          f"d {st['d_range']}, "
-          f"{st['seconds']:.2f} s")
-    ph = summary["photometric"]
-    print(f"photometric median |dI|: at x-d {ph['0']:.2f}, at x-d-3 {ph['-3']:.2f}, at x-d+3 {ph['+3']:.2f}")
+BEGIN, END = "<!-- kitti_lidar_demo: begin -->", "<!-- kitti_lidar_demo: end -->"
+#: the matches of the held-out comparison: (name, options); the guided ones take the guiding half
+MATCHES = (("unguided census-SGM", ["--guide", "none"]),
+           ("riverbed (default: LiDAR check, fusion)", ["--lidar-mask", "mask.png"]),
+           ("riverbed, LiDAR check off", ["--lidar-check", "off"]),
+           ("riverbed, no fusion", ["--fusion", "none"]))
+#: the LiDAR-only interpolations of the guiding half (riverbed densify --method)
+DENSIFY = ("nearest", "linear", "guided")
 
+
+def held_out(paths, work):
+    """Half of the LiDAR pixels (rng seed 0) guide, the other half scores: per method its ``evaluate_disparity``
+    figures; with what the default's LiDAR check dropped. Returns (rows, check, maps)."""
     sparse = read_disparity(paths["sparse"])
     lo, hi = int(np.floor(np.nanmin(sparse))) - 4, int(np.ceil(np.nanmax(sparse))) + 4
     rng = np.random.default_rng(0)
-    guide_half = sparse.copy()
     held = np.isfinite(sparse) & (rng.random(sparse.shape) < 0.5)
-    guide_half[held] = np.nan
+    guide_half = np.where(held, np.nan, sparse)
     truth = np.where(held, sparse, np.nan)
     write_disparity(work / "half.tif", guide_half, overwrite=True)
-    rows = []
     common = [paths["left"], paths["right"], "--min-disp", lo, "--max-disp", hi, "--overwrite"]
-    runs = (("unguided", ["--guide", "none"]),
-            ("riverbed + fusion (default), half the LiDAR", ["--sparse", work / "half.tif", "--lidar-mask",
-                                                            work / "mask.png"]),
-            ("riverbed + fusion, LiDAR check off, half the LiDAR", ["--sparse", work / "half.tif", "--lidar-check",
-                                                                   "off"]),
-            ("riverbed, no fusion, half the LiDAR", ["--sparse", work / "half.tif", "--fusion", "none"]),
-            ("riverbed, all LiDAR", ["--sparse", paths["sparse"]]))
-    for name, extra in runs:
-        out = work / f"run_{len(rows)}.tif"
-        info = json.loads(run(["match", *common, *extra, "-o", out, "--json"]))
-        disp = read_disparity(out)
-        m = evaluate_disparity(disp, truth) if "all" not in name else None
-        rows.append((name, info, m, disp))
-    for method in ("nearest", "linear", "guided"):
+    rows, maps, check = [], {}, None
+    for i, (name, extra) in enumerate(MATCHES):
+        guided = [] if "--guide" in extra else ["--sparse", work / "half.tif"]
+        extra = [work / e if e.endswith(".png") else e for e in extra]
+        info = json.loads(run(["match", *common, *guided, *extra, "-o", work / f"run_{i}.tif", "--json"]))
+        disp = read_disparity(work / f"run_{i}.tif")
+        rows.append({"method": name, "kind": "stereo", **_figures(evaluate_disparity(disp, truth))})
+        maps[name] = disp
+        if "--lidar-mask" in extra:
+            check = info["lidar_check"]
+    for method in DENSIFY:
         out = work / f"densify_{method}.tif"
-        info = json.loads(run(["densify", work / "half.tif", "-o", out, "--method", method, "--image",
-                               paths["left"], "--json", "--overwrite"]))
-        disp = read_disparity(out)
-        rows.append((f"LiDAR only: {method} interpolation of half the LiDAR", info, evaluate_disparity(disp, truth),
-                     disp))
-    check = rows[1][1]["lidar_check"]
+        run(["densify", work / "half.tif", "-o", out, "--method", method, "--image", paths["left"], "--overwrite"])
+        rows.append({"method": f"LiDAR only: {method} interpolation", "kind": "lidar",
+                     **_figures(evaluate_disparity(read_disparity(out), truth))})
     mask = cv2.imread(str(work / "mask.png"), cv2.IMREAD_UNCHANGED)
-    dropped = (mask == 2) | (mask == 3)
-    print(f"LiDAR check (half the LiDAR): {check['points']} points, {check['outliers']} outliers and "
-          f"{check['changed']} in {check['regions']} changed regions dropped; {edge_share(guide_half, dropped):.0%} "
-          "of the dropped points lie at a LiDAR depth edge (a point within 8 px more than 3 px nearer)")
-    print("\n| matching | window | >1 px | >3 px | mean abs (px) | seconds |\n|---|---:|---:|---:|---:|---:|")
-    for name, info, m, _ in rows:
-        if m is None:
-            continue
-        print(f"| {name} | {info.get('window') or '-'} | {m['bad1']:.1f} % | {m['bad3']:.1f} % | "
-              f"{m['avg']:.2f} | {info['seconds']:.1f} |")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    unguided, guided = rows[0][3], rows[4][3]
-    for name, disp in (("kitti_unguided.png", unguided), ("kitti_guided.png", guided)):
-        write_png(out / name, colorize_disparity(disp, lo, hi), overwrite=True)
-        print(f"wrote {out / name}")
-    return 0
+    check = {k: check[k] for k in ("points", "compared", "disagree", "outliers", "changed", "regions")}
+    check["at_depth_edges"] = round(edge_share(guide_half, (mask == 2) | (mask == 3)), 4)
+    return rows, check, (maps, lo, hi)
+
+
+def _figures(m):
+    return {"bad1": round(m["bad1"], 3), "bad3": round(m["bad3"], 3), "avg": round(m["avg"], 4), "n": int(m["n"]),
+            "density": round(m["density"], 3)}
+
+
+def measure(data, png=None):
+    """The figures of the committed result file (module docstring); ``png``: a folder for the two maps."""
+    work = Path(tempfile.mkdtemp(prefix="kitti_"))
+    paths, summary = pipeline(data, work)
+    st = summary["project"]
+    rows, check, (maps, lo, hi) = held_out(paths, work)
+    result = {"project": {k: st[k] for k in ("points_read", "behind_camera", "outside", "row_offset", "occluded",
+                                             "kept", "window", "lidar_share", "row_offset_px")}
+              | {"outliers": st["filtered"]["outliers"], "d_range": [round(v, 1) for v in st["d_range"]]},
+              "photometric": {k: round(v, 2) for k, v in summary["photometric"].items()},
+              "held_out": rows, "check": check}
+    if png:
+        out = Path(png)
+        out.mkdir(parents=True, exist_ok=True)
+        sparse = read_disparity(paths["sparse"])
+        write_disparity(work / "all.tif", sparse, overwrite=True)
+        run(["match", paths["left"], paths["right"], "--min-disp", lo, "--max-disp", hi, "--sparse", work / "all.tif",
+             "-o", work / "all_guided.tif", "--overwrite"])
+        for name, disp in (("kitti_unguided.png", maps[MATCHES[0][0]]),
+                           ("kitti_guided.png", read_disparity(work / "all_guided.tif"))):
+            write_png(out / name, colorize_disparity(disp, lo, hi), overwrite=True)
+    return result
+
+
+def tables(result):
+    """docs/projection.md's KITTI block: the projection, the photometric check, the held-out table, the check."""
+    p, ph, c = result["project"], result["photometric"], result["check"]
+    occ = p["occluded"]
+    n = result["held_out"][0]["n"]
+    out = [f"`riverbed project lidar.bin` (defaults): {p['kept']:,} of {p['points_read']:,} points kept "
+           f"({p['behind_camera']:,} behind the camera, {p['outside']:,} outside the image, {p['outliers']:,} "
+           f"outliers, {occ['same_pixel']} beaten in their pixel, {occ['left']} hidden in the left view, "
+           f"{occ['right']} in the right), LiDAR share {100 * p['lidar_share']:.1f} %, suggested window "
+           f"{p['window']}, d {p['d_range'][0]}–{p['d_range'][1]} px; right-row offsets of the kept points: median "
+           f"{p['row_offset_px']['median']:.2f} px, maximum {p['row_offset_px']['max']:.2f} px, {p['row_offset']} "
+           "dropped.", "",
+           f"- **Photometric check**: median |I_left(x, y) - I_right(x - d, y)| (grey, linear interpolation) at the "
+           f"LiDAR pixels is **{ph['0']:.2f}**, against **{ph['-3']:.2f}** at `x - d - 3` and **{ph['+3']:.2f}** at "
+           "`x - d + 3`: the disparities agree with the images.",
+           "- **Guided vs unguided and LiDAR only** (half of the LiDAR pixels, seeded, guide or are interpolated; "
+           f"every map is scored on the other half, {n:,} LiDAR pixels: LiDAR shares are of image pixels, errors "
+           "of the held-out LiDAR pixels):", "",
+           "| method | >1 px | >3 px | mean abs error (px) | scored pixels with a disparity |",
+           "|---|---:|---:|---:|---:|"]
+    for r in result["held_out"]:
+        out.append(f"| {r['method']} | {r['bad1']:.1f} % | {r['bad3']:.1f} % | {r['avg']:.2f} | "
+                   f"{r['density']:.1f} % |")
+    out += ["", reading(result["held_out"])]
+    out += ["", f"The default's LiDAR check judged {c['compared']:,} of the guiding half's {c['points']:,} points "
+            f"against the images, found {c['disagree']:,} contradicted and dropped {c['outliers']} as outliers and "
+            f"{c['changed']} in {c['regions']} changed regions; {100 * c['at_depth_edges']:.0f} % of the dropped "
+            "points lie at a LiDAR depth edge (another LiDAR point within 8 px, more than 3 px nearer)."]
+    return "\n".join(out)
+
+
+METRICS = {"bad1": ">1 px", "bad3": ">3 px", "avg": "mean error"}
+
+
+def reading(rows):
+    """Which figures the fused default wins against unguided stereo, each LiDAR-only fill and the check turned off,
+    from the rows (a sentence of the doc)."""
+    by = {r["method"]: r for r in rows}
+    d = by[MATCHES[1][0]]
+
+    def versus(name):
+        won = [t for k, t in METRICS.items() if d[k] < by[name][k]]
+        lost = [t for k, t in METRICS.items() if d[k] > by[name][k]]
+        if not lost:
+            return "wins on every figure" if len(won) == len(METRICS) else f"wins on {', '.join(won) or 'none'}"
+        if not won:
+            return "loses on every figure" if len(lost) == len(METRICS) else f"loses on {', '.join(lost)}"
+        return f"wins on {', '.join(won)}, loses on {', '.join(lost)}"
+
+    fills = [r["method"] for r in rows if r["kind"] == "lidar"]
+    parts = [f"{name.split(': ')[1].split(' ')[0]}: {versus(name)}" for name in fills]
+    return (f"Against unguided stereo the fused default {versus(MATCHES[0][0])}; against the LiDAR-only fills "
+            f"({'; '.join(parts)}) it is judged on held-out LiDAR pixels, by the sensor the fills interpolate (the "
+            "KITTI 2015 frame of docs/benchmarks.md has camera ground truth). Against the same run with the LiDAR "
+            f"check off it {versus(MATCHES[2][0])}.")
+
+
+def main():
+    rows_main(__doc__, measure, tables, BEGIN, END, options=[("--png", "also write the two colourised maps here")])
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

@@ -14,19 +14,20 @@ FLOOR_PERCENT = 0.03  # percentage points
 FLOOR_LENGTH = 0.005  # px or m
 
 
-def tolerance(metric, expected):
-    """The largest accepted distance of a ``metric`` figure from its ``expected`` value."""
-    return max(RELATIVE * abs(expected), FLOOR_PERCENT if metric in PERCENT else FLOOR_LENGTH)
+def tolerance(metric, expected, relative=RELATIVE):
+    """The largest accepted distance of a ``metric`` figure from its ``expected`` value (``relative``: a tighter
+    share for figures the tests reproduce exactly, with the same floors)."""
+    return max(relative * abs(expected), FLOOR_PERCENT if metric in PERCENT else FLOOR_LENGTH)
 
 
-def off_gate(got, expected):
+def off_gate(got, expected, relative=RELATIVE):
     """Lines naming each ``(case, metric)`` of ``expected`` (``{case: {metric: value}}``) whose figure in ``got``
     (same layout) lies outside its tolerance; empty when all pass."""
     lines = []
     for case, metrics in expected.items():
         for metric, value in metrics.items():
             measured = got[case][metric]
-            tol = tolerance(metric, value)
+            tol = tolerance(metric, value, relative)
             if not abs(measured - value) <= tol:
                 lines.append(f"{case} {metric}: measured {measured:.4f}, expected {value} +- {tol:.4f} "
                              f"({100 * (measured - value) / value:+.1f} %)" if value else
@@ -34,9 +35,9 @@ def off_gate(got, expected):
     return lines
 
 
-def assert_within(got, expected):
+def assert_within(got, expected, relative=RELATIVE):
     """Every figure of ``expected`` within its tolerance in ``got``; the message lists every one that is not."""
-    lines = off_gate(got, expected)
+    lines = off_gate(got, expected, relative)
     assert not lines, f"{len(lines)} figure(s) off their committed expectation:\n" + "\n".join(lines)
 
 
