@@ -5,7 +5,7 @@ Usage: python benchmarks/bench_startup.py [DATA_DIR] [--before REV] [--repeat 7]
 On the 740 x 500 speed pair (80 disparities, 5 % LiDAR, ``--tile 0``, the default tubes and fusion), fresh
 processes in round-robin: this tree, this tree with ``RIVERBED_NUMBA_REFRESH=1`` (Numba refreshes its target context
 before loading the cached kernels, as it does by default: riverbed_cli/runtime/numba_cache.py), and the commit ``REV``
-(default: the last commit before this session's start-up work) run from an exported copy of its sources, and
+(default: a commit before the start-up changes of riverbed_cli/runtime) run from an exported copy of its sources, and
 this tree with ``RIVERBED_GC=default`` (Python's garbage collector as it is: no pause while the command starts up,
 nothing frozen for the exit; riverbed_cli/runtime/collector.py). Each
 variant's Numba cache is filled by one run first. Reports medians of the whole-process wall time, the matching
