@@ -1,6 +1,6 @@
 """End-to-end accuracy on a real pair (Middlebury Cones, quarter size) with simulated LiDAR.
 
-Every figure is gated within 10 % (small absolute floors: tests/gates.py) of the value measured with the current
+Every figure is gated within 2 % (small absolute floors: tests/gates.py) of the value measured with the current
 code and committed below, for the three LiDAR shares of docs/benchmarks.md, each guide the docs make a claim for
 (none, Gauss, riverbed), the default output (confidence fusion, ``fusion=auto``) and the matcher alone
 (``fusion="none"``, the paper's method), and three LiDAR samplings (seeds 0, 1, 2): each seed is gated, so the worst
@@ -25,24 +25,24 @@ CASES = (("none", "none"), ("gauss", "confidence"), ("gauss", "none"), ("riverbe
 MEASURED = {
     (0.05, "none", "none"): {"bad1": (15.612, 15.665, 15.672), "bad3": (12.511, 12.536, 12.542),
                              "avg": (0.6958, 0.6982, 0.6985)},
-    (0.05, "gauss", "confidence"): {"bad1": (7.344, 7.530, 7.552), "bad3": (4.068, 4.087, 4.303),
-                                    "avg": (0.5443, 0.5505, 0.5635)},
-    (0.05, "gauss", "none"): {"bad1": (7.522, 7.695, 7.745), "bad3": (4.108, 4.132, 4.333),
-                              "avg": (0.5746, 0.5802, 0.5943)},
-    (0.05, "riverbed", "confidence"): {"bad1": (3.184, 3.250, 3.325), "bad3": (1.498, 1.522, 1.564),
-                                       "avg": (0.2690, 0.2702, 0.2747)},
-    (0.05, "riverbed", "none"): {"bad1": (3.204, 3.277, 3.359), "bad3": (1.510, 1.537, 1.574),
-                                 "avg": (0.2780, 0.2794, 0.2843)},
+    (0.05, "gauss", "confidence"): {"bad1": (7.347, 7.528, 7.562), "bad3": (4.073, 4.088, 4.307),
+                                    "avg": (0.5443, 0.5506, 0.5641)},
+    (0.05, "gauss", "none"): {"bad1": (7.526, 7.694, 7.754), "bad3": (4.113, 4.133, 4.337),
+                              "avg": (0.5748, 0.5803, 0.5949)},
+    (0.05, "riverbed", "confidence"): {"bad1": (3.219, 3.267, 3.352), "bad3": (1.533, 1.543, 1.595),
+                                       "avg": (0.2733, 0.2718, 0.2787)},
+    (0.05, "riverbed", "none"): {"bad1": (3.237, 3.294, 3.386), "bad3": (1.545, 1.558, 1.605),
+                                 "avg": (0.2824, 0.2811, 0.2885)},
     (0.0123, "none", "none"): {"bad1": (15.610, 15.622, 15.626), "bad3": (12.487, 12.511, 12.503),
                                "avg": (0.6947, 0.6956, 0.6964)},
-    (0.0123, "gauss", "confidence"): {"bad1": (10.617, 10.619, 10.701), "bad3": (6.086, 6.258, 6.106),
-                                      "avg": (0.7359, 0.7490, 0.7345)},
-    (0.0123, "gauss", "none"): {"bad1": (10.751, 10.785, 10.798), "bad3": (6.108, 6.265, 6.139),
-                                "avg": (0.7546, 0.7684, 0.7538)},
-    (0.0123, "riverbed", "confidence"): {"bad1": (5.197, 5.494, 5.389), "bad3": (2.374, 2.540, 2.545),
-                                         "avg": (0.3896, 0.4141, 0.4045)},
-    (0.0123, "riverbed", "none"): {"bad1": (5.217, 5.485, 5.405), "bad3": (2.372, 2.544, 2.551),
-                                   "avg": (0.3981, 0.4225, 0.4145)},
+    (0.0123, "gauss", "confidence"): {"bad1": (10.627, 10.623, 10.699), "bad3": (6.109, 6.258, 6.105),
+                                      "avg": (0.7380, 0.7489, 0.7344)},
+    (0.0123, "gauss", "none"): {"bad1": (10.762, 10.790, 10.798), "bad3": (6.132, 6.266, 6.138),
+                                "avg": (0.7568, 0.7683, 0.7539)},
+    (0.0123, "riverbed", "confidence"): {"bad1": (5.165, 5.472, 5.379), "bad3": (2.373, 2.520, 2.537),
+                                         "avg": (0.3899, 0.4115, 0.4027)},
+    (0.0123, "riverbed", "none"): {"bad1": (5.185, 5.463, 5.396), "bad3": (2.371, 2.524, 2.543),
+                                   "avg": (0.3985, 0.4199, 0.4129)},
     (0.0016, "none", "none"): {"bad1": (15.626, 15.630, 15.629), "bad3": (12.502, 12.507, 12.505),
                                "avg": (0.6958, 0.6962, 0.6960)},
     (0.0016, "gauss", "confidence"): {"bad1": (12.686, 13.113, 12.857), "bad3": (8.501, 9.019, 8.801),
@@ -74,7 +74,7 @@ def results(cones):
     return out
 
 
-def test_gates_catch_a_20_percent_regression():
+def test_gates_catch_a_5_percent_regression():
     assert sorted(MEASURED) == sorted((share, *case) for share in SHARES for case in CASES)
     assert_catches(EXPECTED)
 
@@ -109,7 +109,7 @@ def test_riverbed_beats_unguided_at_every_share(results):
 
 def test_the_gates_catch_a_real_regression(cones):
     """Not only arithmetic: riverbed run with a worse setting (a 5 px window instead of the auto 9 at 5 %: measured
-    bad3 1.92 against 1.50 %) falls outside the committed gates, and the default run inside them."""
+    bad3 1.92 against 1.53 %) falls outside the committed gates, and the default run inside them."""
     left, right, gt = cones
     sparse = simulate_lidar(gt, 0.05, seed=0)
     case = (0.05, "riverbed", "confidence", 0)

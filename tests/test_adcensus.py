@@ -16,6 +16,7 @@ from riverbed_cli.matching.pipeline import match_pair
 from tube_volumes import blocky, scanline_ref
 from riverbed_cli.products.evaluate import evaluate_disparity
 from riverbed_cli.products.simulate import simulate_lidar
+from gates import assert_within
 
 DATA = Path(__file__).parent / "data" / "cones"
 
@@ -281,23 +282,29 @@ def cones_results(cones):
     return out
 
 
+#: AD-Census on Cones at 5 % LiDAR (seed 0), each guide's default output (fused with LiDAR), measured with the current
+#: code: bad1 / bad2 / bad3 % and avg px over the GT pixels not used as LiDAR (an invalid pixel is an error), density %.
+#: Gated within 2 % (tests/gates.py); Cones is the closest race with diffusion among the dev scenes
+#: (docs/benchmarks.md).
+MEASURED = {
+    "none": {"bad1": 13.627, "bad2": 12.457, "bad3": 11.737, "avg": 0.7172, "density": 92.695},
+    "gauss": {"bad1": 5.615, "bad2": 4.251, "bad3": 3.360, "avg": 0.4382, "density": 99.999},
+    "diffusion": {"bad1": 2.341, "bad2": 1.971, "bad3": 1.579, "avg": 0.2732, "density": 99.999},
+    "riverbed": {"bad1": 2.315, "bad2": 1.836, "bad3": 1.510, "avg": 0.2486, "density": 99.999},
+}
+
+
 def test_adcensus_is_a_real_matcher(cones_results):
     m = cones_results["none"]
     # the refinement fills every outlier inside the overlap; left of column 59 a match may lie outside the right
     # image, and is then invalid (matching/overlap.py)
     assert np.isfinite(m["disparity"][:, 59:]).all() and np.isnan(m["disparity"][:, :59]).any()
-    # measured: 11.74 % and 0.717 px, 92.7 % dense; right of column 59 (every match inside the right image)
-    # 4.67 % and 0.713 px, 100 % dense
-    assert 10.5 < m["bad3"] < 13.0 and 0.65 < m["avg"] < 0.79 and 91.0 < m["density"] < 94.0
+    assert_within({g: cones_results[g] for g in MEASURED}, MEASURED)
 
 
 def test_adcensus_riverbed_cuts_bad3(cones_results):
-    # measured on Cones at 5 % LiDAR (bad1 / bad2 / bad3 %, avg px): AD-Census 10.19 / 7.40 / 6.02 / 0.84;
-    # + Gauss 6.43 / 4.95 / 4.15 / 0.65; + diffusion 2.35 / 1.98 / 1.59 / 0.30; + riverbed 2.34 / 1.88 / 1.58 / 0.27
-    # (Cones is the closest race with diffusion among the dev scenes, docs/benchmarks.md)
     none, rb, gauss, diff = (cones_results[g] for g in ("none", "riverbed", "gauss", "diffusion"))
     assert rb["bad3"] <= 0.3 * none["bad3"]
-    assert rb["avg"] <= 0.35
     for key in ("bad1", "bad2", "bad3", "avg"):
         assert rb[key] < 0.7 * gauss[key], key
     assert rb["avg"] < diff["avg"] and rb["bad2"] < diff["bad2"]
@@ -319,9 +326,9 @@ def test_cli_adcensus(tmp_path, cones):
     assert {"cost", "aggregation", "guidance", "optimisation", "refinement"} <= set(s["stages"])
     m = evaluate_disparity(read_disparity(out), gt, exclude=read_disparity(tmp_path / "sparse.tif"))
     # AD-Census + diffusion on Cones at 5 %, fused: measured bad1 / bad3 / avg 2.331 / 1.581 % / 0.274 px (without
-    # the fusion 2.353 / 1.592 / 0.299); gated within 10 %
+    # the fusion 2.353 / 1.592 / 0.299); gated within 2 % (tests/gates.py)
     assert m["density"] > 99.99  # (a LiDAR-guided match is kept outside the overlap where the LiDAR covers it)
-    assert m["bad1"] <= 1.1 * 2.331 and m["bad3"] <= 1.1 * 1.581 and m["avg"] <= 1.1 * 0.274
+    assert_within({"adcensus": m}, {"adcensus": {"bad1": 2.331, "bad3": 1.581, "avg": 0.274}})
     r = CliRunner().invoke(cli, ["match", str(DATA / "im2.png"), str(DATA / "im6.png"), "--matcher", "bm",
                                  "--max-disp", "59", "-o", str(tmp_path / "e.tif")])
     assert r.exit_code == 1 and r.output == "riverbed: error: --matcher: expected one of sgm, adcensus, got 'bm'\n"

@@ -27,33 +27,33 @@ SECTIONS = {
 }
 
 #: Measured on the bundled block (720x540, seed 0) with the current code (guided: riverbed with the confidence fusion,
-#: riverbed match's default), 2 cores:
+#: riverbed match's default, the LiDAR check on), 2 cores:
 #:   disparity (px, % of the 365815 GT pixels without LiDAR)   guided   unguided
-#:     bad1 %                                                    5.223    16.613
-#:     bad2 %                                                    3.173     9.304
-#:     bad3 %                                                    1.915     6.782
-#:     avg px                                                    0.270     0.925
-#:     rmse px                                                   0.956     2.530
+#:     bad1 %                                                  5.323    16.638
+#:     bad2 %                                                  3.276     9.372
+#:     bad3 %                                                  2.023     6.878
+#:     avg px                                                  0.273     0.825
+#:     rmse px                                                 0.972     1.976
 #:   DSM against the ground-truth DSM (m, %)                   guided   unguided
-#:     rmse m                                                    1.494     3.106
-#:     nmad m                                                    0.092     0.516
-#:     over_0.5 %                                               12.193    37.540
-#:     over_1 %                                                  7.365    20.526
-#:     over_2 %                                                  4.836    11.612
-#:     over_3res %                                              10.487    31.810
-#:     completeness % (higher is better)                        97.642    96.975
-#: Each figure is gated within 10 % (small absolute floors: tests/gates.py), and so is guided matching's margin.
+#:     rmse m                                                  1.515     2.376
+#:     nmad m                                                  0.091     0.509
+#:     over_0.5 %                                             11.521    37.024
+#:     over_1 %                                                7.265    20.047
+#:     over_2 %                                                4.882    11.193
+#:     over_3res %                                            10.048    31.292
+#:     completeness % (higher is better)                      97.215    95.724
+#: Each figure is gated within 2 % (small absolute floors: tests/gates.py), and so is guided matching's margin.
 MEASURED = {
-    "guided": {"bad1": 5.206, "bad2": 3.149, "bad3": 1.899, "avg": 0.267, "rmse": 0.955},
+    "guided": {"bad1": 5.323, "bad2": 3.276, "bad3": 2.023, "avg": 0.273, "rmse": 0.972},
     "unguided": {"bad1": 16.638, "bad2": 9.372, "bad3": 6.878, "avg": 0.825, "rmse": 1.976},
-    "dsm_guided": {"rmse": 1.498, "nmad": 0.090, "over_0.5": 11.434, "over_1": 7.167, "over_2": 4.773,
-                   "over_3res": 9.959, "completeness": 97.211},
+    "dsm_guided": {"rmse": 1.515, "nmad": 0.091, "over_0.5": 11.521, "over_1": 7.265, "over_2": 4.882,
+                   "over_3res": 10.048, "completeness": 97.215},
     "dsm_unguided": {"rmse": 2.376, "nmad": 0.509, "over_0.5": 37.024, "over_1": 20.047, "over_2": 11.193,
                      "over_3res": 31.292, "completeness": 95.724},
 }
-#: the guided figures the match without sub-pixel refinement takes off their gates (measured: mean error 0.324 px,
-#: +21 %; test_readme_gates_catch_a_real_regression)
-REGRESSED_OFF = ["guided avg"]
+#: the guided figures the match without sub-pixel refinement takes off their gates (test_readme_gates_catch_a_real_
+#: regression): the bad shares move by a few %, the mean error by about a fifth
+REGRESSED_OFF = ["guided bad1", "guided bad2", "guided bad3", "guided avg"]
 #: Files run.sh's last line promises in OUTDIR (and the unguided ones beside them).
 OUTPUTS = ("sparse.tif", "disparity.tif", "disparity.png", "points.laz", "dsm.tif", "dsm_hillshade.png",
            "accuracy.txt", "disparity_unguided.tif", "dsm_unguided.tif", "disparity_errors.png", "dsm_errors.png",
@@ -75,8 +75,8 @@ def parse_accuracy(text):
 
 
 def test_readme_gates_catch_a_real_regression(job):
-    # the job's guided match again without its sub-pixel refinement (a regression of the selection stage): its mean
-    # error leaves its gate (a 3 x 3 or 5 x 5 census window, 4 paths: all within 10 % on this block's dense LiDAR)
+    # the job's guided match again without its sub-pixel refinement (a regression of the selection stage): its
+    # figures leave their gates
     out, _ = job
     block = REPO / "sample_data" / "block"
     bin_dir = Path(sys.executable).parent

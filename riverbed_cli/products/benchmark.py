@@ -394,9 +394,11 @@ def figure5(rows, path, scene=None, matcher="sgm"):
 
 #: Relative tolerance of an expectation, and the absolute floor per metric (% points, px) below which a change is
 #: noise (the tests' gates, tests/gates.py): a metric is off its expectation when it differs from it, up or down, by
-#: more than ``relative * expected`` and more than the floor.
-RELATIVE = 0.10
-FLOORS = {"bad1": 0.03, "bad2": 0.03, "bad3": 0.03, "avg": 0.005, "rmse": 0.005}
+#: more than ``relative * expected`` and more than the floor. 2 %: a run is deterministic (seeded LiDAR, integer
+#: costs and paths, per-pixel float arithmetic), so on a machine like the one that wrote the expectations a figure
+#: moves only when the code does; a 5 % regression fails.
+RELATIVE = 0.02
+FLOORS = {"bad1": 0.01, "bad2": 0.01, "bad3": 0.01, "avg": 0.001, "rmse": 0.001}
 #: Decimals an expectation keeps (% points and px): below the floors, above the noise of re-runs.
 DECIMALS = 4
 
