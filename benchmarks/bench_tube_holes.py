@@ -26,7 +26,8 @@ from bench_tubes import scenes  # noqa: E402
 from datasets import cell, rows_main  # noqa: E402
 
 from riverbed_cli.matching.config import MatchConfig  # noqa: E402
-from riverbed_cli.matching.pipeline import fill_tube_holes, match_pair  # noqa: E402
+from riverbed_cli.matching.pipeline import match_pair  # noqa: E402
+from riverbed_cli.matching.range_maps import fill_tube_holes  # noqa: E402
 from riverbed_cli.matching.tubes import lidar_tubes  # noqa: E402
 from riverbed_cli.products.densify import densify  # noqa: E402
 from riverbed_cli.products.simulate import simulate_lidar  # noqa: E402
@@ -58,7 +59,8 @@ def run(data, share=0.05, seed=1):
         sparse = simulate_lidar(gt, share, seed=0)
         sparse[mask.astype(bool)] = np.nan
         lo, hi, hole = lidar_tubes(sparse, 0, d_max, return_holes=True)
-        clo, chi = fill_tube_holes(left, right, lo, hi, hole, 0, d_max, MatchConfig().replace(tube={"holes": "coarse"}))
+        clo, chi = fill_tube_holes(left, right, lo, hi, hole, 0, d_max, MatchConfig().replace(tube={"holes": "coarse"}),
+                                   match_pair)
         ev = hole & np.isfinite(gt)
         row = {"scene": name, "holes": round(100 * float(hole.mean()), 1), "gt_pixels": int(ev.sum()),
                "coverage_coarse": round(100 * float(((gt[ev] >= clo[ev]) & (gt[ev] <= chi[ev])).mean()), 2),

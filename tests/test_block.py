@@ -491,7 +491,7 @@ def test_block_pairs_search_the_ranges_of_a_dsm(tmp_path):
     `riverbed project DSM` + `riverbed range-map --window auto --margin M` give (the same bits, tiled or not); a
     changed DSM re-runs the pair."""
     from riverbed_cli.io.windowed import read_range_map
-    from riverbed_cli.matching.pipeline import resolve_disparity_range
+    from riverbed_cli.matching.lidar_input import resolve_disparity_range
 
     coarse_dsm(tmp_path / "coarse.tif", 16)  # the sample block's ground-truth DSM averaged to 3.2 m cells
     pairs = [{"pair": str(SAMPLE / "pair.yaml"), "cloud": str(SAMPLE / "lidar.laz"), "name": "whole"},
@@ -538,7 +538,7 @@ def test_block_pairs_search_their_range_maps(tmp_path):
     match_tiled with the map, untiled as match_pair; the pair's range widens to hold the map; a map of the wrong
     size fails its pair with one line naming the file."""
     from riverbed_cli.io.disparity import write_range_map
-    from riverbed_cli.matching.pipeline import resolve_disparity_range
+    from riverbed_cli.matching.lidar_input import resolve_disparity_range
 
     base = write_cones_block(tmp_path)
     gt = read_disparity(DATA / "disp2.png", scale=4)

@@ -120,7 +120,7 @@ def test_prepare_lidar_gives_the_points_and_shares_of_the_separate_passes(share,
     # match_pair's one pass over the map: the cut map, its points and both shares as lidar_points and lidar_share
     # give them (bit for bit), with points outside the range, +-inf and rows without any
     from riverbed_cli.geometry.coverage import lidar_points
-    from riverbed_cli.matching.pipeline import prepare_lidar, prepare_sparse
+    from riverbed_cli.matching.lidar_input import prepare_lidar, prepare_sparse
 
     rng = np.random.default_rng(seed)
     shape = (47, 61)
@@ -296,10 +296,10 @@ def test_riverbed_walls_equal_eq6_value_by_value(form, d_min):
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_prepare_lidar_equals_numpy(seed):
-    """The LiDAR map's one-pass kernel (pipeline._cut_to_range) against NumPy: the copy cut to the range, and per row
+    """The LiDAR map's one-pass kernel (lidar_input._cut_to_range) against NumPy: the copy cut to the range, and per row
     the finite values and those inside with their first and last columns; rows empty, all infinite, ends on the
     range's bounds."""
-    from riverbed_cli.matching.pipeline import _cut_to_range, prepare_lidar
+    from riverbed_cli.matching.lidar_input import _cut_to_range, prepare_lidar
 
     rng = np.random.default_rng(seed)
     H, W = 40, 53

@@ -223,7 +223,7 @@ def test_tiled_matches_check_the_lidar_against_the_range_as_untiled_ones(cones, 
 
 def test_prepare_sparse_keeps_the_finite_values_inside_the_range():
     # one pass of counts and one copy: the same map as NumPy's masks (bounds inclusive, inf and NaN no LiDAR)
-    from riverbed_cli.matching.pipeline import prepare_sparse
+    from riverbed_cli.matching.lidar_input import prepare_sparse
 
     rng = np.random.default_rng(3)
     sparse = np.where(rng.random((40, 50)) < 0.2, rng.uniform(-5.0, 45.0, (40, 50)), np.nan).astype(np.float32)

@@ -509,7 +509,7 @@ def test_lidar_tubes_report_the_pixels_no_lidar_reaches():
 
 def test_coarse_holes_bound_the_pixels_without_lidar_on_a_real_pair(cones):
     from riverbed_cli.matching.config import MatchConfig
-    from riverbed_cli.matching.pipeline import fill_tube_holes
+    from riverbed_cli.matching.range_maps import fill_tube_holes
     from riverbed_cli.products.simulate import simulate_lidar
 
     left, right, gt = cones
@@ -518,7 +518,7 @@ def test_coarse_holes_bound_the_pixels_without_lidar_on_a_real_pair(cones):
     lo, hi, hole = lidar_tubes(sparse, 0, 59, return_holes=True)
     assert 0.05 < hole.mean() < 0.07
     config = MatchConfig().replace(tube={"holes": "coarse"})
-    clo, chi = fill_tube_holes(left, right, lo, hi, hole, 0, 59, config)
+    clo, chi = fill_tube_holes(left, right, lo, hi, hole, 0, 59, config, match_pair)
     assert (clo[~hole] == lo[~hole]).all() and (chi[~hole] == hi[~hole]).all()  # the LiDAR's tubes are kept
     ev = hole & np.isfinite(gt)
     inside = (gt[ev] >= clo[ev]) & (gt[ev] <= chi[ev])

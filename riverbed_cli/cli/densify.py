@@ -9,7 +9,7 @@ from ..errors import RiverbedError
 from ..io.atomic import check_output
 from ..io.disparity import disparity_format, write_disparity
 from ..io.images import read_image
-from ..matching.pipeline import check_disparity_values
+from ..matching.lidar_input import check_disparity_values
 from ..products.densify import METHODS, densify
 from .options import (check_raster_pixels, input_path, json_opt, output_opt, overwrite_opt, print_json,
                       read_disparity_named)

@@ -12,7 +12,7 @@ from ..errors import RiverbedError
 from ..io.atomic import check_output
 from ..io.disparity import write_range_map
 from ..io.images import header_size, read_image
-from ..matching.pipeline import check_disparity_values
+from ..matching.lidar_input import check_disparity_values
 from ..matching.tubes import MAX_RANGE_WINDOW, ranges_from_disparity, spacing_window
 from .options import (check_raster_pixels, input_path, json_opt, output_opt, overwrite_opt, parsed_value,
                       print_json, read_disparity_named)

@@ -18,8 +18,8 @@ from ..io.images import check_pair, read_image
 from ..io.windowed import TiffSink, WindowedRaster, is_tiff, open_range_map, sparse_points_any, valid_area_source
 from ..matching.fusion import lidar_kind
 from ..matching.lidar_check import lidar_mask as lidar_mask_of
-from ..matching.pipeline import (ABSURD_WIDTHS, check_disparity_values, check_lidar_count, clamp_to_width,
-                                 disparity_range_from_sparse, match_pair, resolve_fusion, warm_up)
+from ..matching.lidar_input import ABSURD_WIDTHS, check_disparity_values, clamp_to_width, disparity_range_from_sparse
+from ..matching.pipeline import check_lidar_count, match_pair, resolve_fusion, warm_up
 from ..matching.registry import get_guide
 from ..runtime.heap import match_heap_bytes
 from ..products.visualize import disparity_picture, write_picture, write_png

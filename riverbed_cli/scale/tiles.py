@@ -24,9 +24,9 @@ from ..io.images import to_guide
 from ..io.windowed import bounded_raster_cache, image_bits, sparse_points_any
 from ..matching.config import OVERLAP_DEFAULT, TILE_DEFAULT
 from ..matching.guidance import lidar_share, lidar_share_of_points
-from ..matching.pipeline import (check_disparity_values, check_inside, check_lidar_count, check_range_map_shape,
-                                 check_range_summary, fill_tube_holes, lidar_points_needed, make_config, match_pair,
-                                 range_map_ends, resolve_disparity_range, resolve_range)
+from ..matching.lidar_input import check_disparity_values, check_inside, resolve_disparity_range
+from ..matching.pipeline import check_lidar_count, lidar_points_needed, make_config, match_pair, resolve_range
+from ..matching.range_maps import check_range_map_shape, check_range_summary, fill_tube_holes, range_map_ends
 from ..matching.lidar_check import check_pair
 from ..matching.lidar_offset import correct_large
 from ..matching.registry import get_guide, get_matcher
@@ -177,7 +177,7 @@ class RangeMapScan:
         return (int(math.floor(self.low)), int(math.ceil(self.high))) if self.known else None
 
     def check(self, d_min, d_max):
-        """:class:`RiverbedError` (the messages of :func:`~riverbed_cli.matching.pipeline.check_range_map`) for
+        """:class:`RiverbedError` (the messages of :func:`~riverbed_cli.matching.range_maps.check_range_map`) for
         a map with no range, min > max, or a range outside ``[d_min, d_max]``."""
         check_range_summary(self.known, self.crossed, self.low, self.high, d_min, d_max)
 
@@ -393,7 +393,7 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
         if coarse:
             # the holes take the coarse match of the tile's own crop over the tile's range (a tile that is the
             # whole image: the untiled match's)
-            lo, hi = fill_tube_holes(lc, rc, lo, hi, hole[0], lo_c, hi_c, p)
+            lo, hi = fill_tube_holes(lc, rc, lo, hi, hole[0], lo_c, hi_c, p, match_pair)
         range_map = (lo, hi)
     ch = None if changed is None else np.asarray(changed[ya:yb, a:b], np.bool_)
     # the fusion's LiDAR side in this thread: a thread's malloc arena would keep its freed memory from tile to tile

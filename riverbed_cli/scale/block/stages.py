@@ -24,7 +24,8 @@ from ...io.windowed import (WindowedRaster, image_bits, open_range_map, open_win
                             valid_area_source)
 from ...matching.guidance import lidar_share_of_points
 from ...matching.lidar_offset import correct_large
-from ...matching.pipeline import check_disparity_values, match_pair, resolve_disparity_range
+from ...matching.lidar_input import check_disparity_values, resolve_disparity_range
+from ...matching.pipeline import match_pair
 from ...matching.registry import get_guide
 from ...matching.tubes import ranges_from_disparity, spacing_window
 from ...products.dsm import Accumulator, Grid, close_lattice, default_resolution, disparity_points
