@@ -9,8 +9,8 @@ from scipy.special import erf
 
 from riverbed_cli.errors import RiverbedError
 from riverbed_cli.matching import pipeline
-from riverbed_cli.matching.fusion import (ConfidenceFusion, fuse_disparity, leave_one_out_residuals, lidar_kind,
-                                         lidar_model)
+from riverbed_cli.matching.fusion import fuse_disparity, leave_one_out_residuals, lidar_kind, lidar_model
+from riverbed_cli.matching.fusions.confidence import ConfidenceFusion
 from riverbed_cli.matching.pipeline import match_pair
 from riverbed_cli.products.evaluate import evaluate_disparity
 from riverbed_cli.products.simulate import simulate_lidar

@@ -16,6 +16,7 @@ config.py        the settings table (MATCH_SETTINGS) and the frozen, nested Matc
 registry.py      MATCHERS and GUIDES, filled by register_matcher / register_guide
 matchers/        sgm, adcensus: each runs its stages on a CostVolume (volume.py) with a guide
 guides/          none, gauss, riverbed, diffusion, riverbed+: what each needs and how it modulates the volume
+fusions/         none, confidence: what each needs of the LiDAR and how it combines it with the match
 lidar_input.py   the LiDAR entering a match: checked, the range derived from it, cut to the range
 range_maps.py    per-pixel ranges besides the tubes: range maps checked, the tube holes' coarse match
 pipeline.py      match_pair: checks the inputs, runs the guide's preparation and the matcher; results.py

@@ -45,7 +45,8 @@ LIDAR_CHECKS = ("auto", "off")
 TUBE_HOLES = ("full", "coarse")
 #: the fusion's interpolations of the LiDAR (``fusion_lidar``): auto, local planes, the Delaunay triangulation
 LIDAR_KINDS = ("auto", "planes", "linear")
-#: fusions of the matched disparity with the LiDAR (``matching/fusion.py``); ``auto`` is not one of them: it picks
+#: fusions of the matched disparity with the LiDAR (``matching/fusions/``; the arithmetic in ``matching/fusion.py``);
+#: ``auto`` is not one of them: it picks one per match (``pipeline.resolve_fusion``)
 FUSION_NAMES = ("none", "confidence")
 FUSION_CHOICES = ("auto",) + FUSION_NAMES
 

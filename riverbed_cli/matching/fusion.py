@@ -49,7 +49,6 @@ from ..geometry.interpolation import delaunay_graph, linear_fill, nearest_points
 from ..geometry.planes import PlaneFill, plane_fill, plane_fit
 from ..records import RecordMapping
 from .config import LIDAR_KINDS
-from .registry import register_fusion
 from .volume import spread_rows
 
 #: pixels farther than this many typical LiDAR spacings from their nearest point have a proportionally larger sigma
@@ -367,48 +366,3 @@ def _decide(stereo, lidar, sig_l, consistent, sig_s, gate):
         for k in range(3):
             counts[k] += per_row[y, k]
     return out, conf, counts
-
-
-class Fusion:
-    """A way of combining the matcher's output with the LiDAR. ``needs_status``: it asks the matcher for its
-    left-right check."""
-
-    name = ""
-    needs_status = False
-
-    def prepare(self, sparse, config, points=None):
-        """What the fusion needs of the ``sparse`` LiDAR alone (None: nothing), made before or beside the matcher
-        and handed to :meth:`fuse` as ``prepared`` (``points``: ``lidar_points(sparse)`` if already found)."""
-        return None
-
-    def fuse(self, disparity, status, sparse, config, prepared=None):
-        """A :class:`FusionOutput` from the matcher's ``disparity`` and ``status`` and the ``sparse`` LiDAR
-        (``prepared``: :meth:`prepare`'s result for it, if made)."""
-        raise NotImplementedError
-
-
-@register_fusion
-class NoFusion(Fusion):
-    """The matcher's output as it is (the paper's method)."""
-
-    name = "none"
-
-    def fuse(self, disparity, status, sparse, config, prepared=None):
-        return FusionOutput(disparity)
-
-
-@register_fusion
-class ConfidenceFusion(Fusion):
-    """:func:`fuse_disparity` with the ``fusion_*`` settings."""
-
-    name = "confidence"
-    needs_status = True
-
-    def prepare(self, sparse, config, points=None):
-        f = config.fuse
-        return lidar_model(sparse, f.neighbours, f.support, f.floor, points, f.lidar)
-
-    def fuse(self, disparity, status, sparse, config, prepared=None):
-        f = config.fuse
-        return fuse_disparity(disparity, status, sparse, f.gate, f.neighbours, f.support, f.floor, f.stereo_sigma,
-                              prepared, f.lidar)

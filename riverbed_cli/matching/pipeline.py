@@ -12,7 +12,7 @@ import numpy as np
 
 from ..errors import RiverbedError
 from ..runtime.beside import After, Beside
-from . import fusion, guides, matchers  # noqa: F401  (importing them fills the registries)
+from . import fusions, guides, matchers  # noqa: F401  (importing them fills the registries)
 from .config import MatchConfig
 from .overlap import keep_fusion_to_lidar, keep_to_overlap, lidar_coverage
 from .lidar_check import check_pair, prefer_stereo

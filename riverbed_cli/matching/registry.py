@@ -1,5 +1,5 @@
 """Registries of matchers, guides and fusions: dicts filled by the ``register_*`` decorators of
-``matching/matchers/``, ``matching/guides/`` and ``matching/fusion.py``, which load those modules on first access.
+``matching/matchers/``, ``matching/guides/`` and ``matching/fusions/``, which load those modules on first access.
 
 A new guide is one module in ``matching/guides/`` with a :class:`~.guides.base.Guide` subclass decorated by
 :func:`register_guide`, its import in ``guides/__init__.py``, and its name and settings in :mod:`.config` (where
@@ -65,7 +65,7 @@ class Registry(dict):
 
 MATCHERS = Registry(f"{__package__}.matchers")
 GUIDES = Registry(f"{__package__}.guides")
-FUSIONS = Registry(f"{__package__}.fusion")
+FUSIONS = Registry(f"{__package__}.fusions")
 
 
 def _register(table, names, kind):
