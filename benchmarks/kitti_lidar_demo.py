@@ -87,9 +87,10 @@ def edge_share(sparse, dropped, reach=8, step=3.0):
 
 
 BEGIN, END = "<!-- kitti_lidar_demo: begin -->", "<!-- kitti_lidar_demo: end -->"
-#: the matches of the held-out comparison: (name, options); the guided ones take the guiding half
+#: the matches of the held-out comparison: (name, options); the guided ones take the guiding half, the default (the
+#: second) also writes its LiDAR mask
 MATCHES = (("unguided census-SGM", ["--guide", "none"]),
-           ("riverbed (default: LiDAR check, fusion)", ["--lidar-mask", "mask.png"]),
+           ("riverbed (default: LiDAR check, fusion)", []),
            ("riverbed, LiDAR check off", ["--lidar-check", "off"]),
            ("riverbed, no fusion", ["--fusion", "none"]))
 #: the LiDAR-only interpolations of the guiding half (riverbed densify --method)
@@ -98,7 +99,8 @@ DENSIFY = ("nearest", "linear", "guided")
 
 def held_out(paths, work):
     """Half of the LiDAR pixels (rng seed 0) guide, the other half scores: per method its ``evaluate_disparity``
-    figures; with what the default's LiDAR check dropped. Returns (rows, check, maps)."""
+    figures; with what the default's LiDAR check dropped. Returns ``(rows, check, run)``, ``run`` the maps by method,
+    the range searched (``lo``, ``hi``) and the held-out ``truth``."""
     sparse = read_disparity(paths["sparse"])
     lo, hi = int(np.floor(np.nanmin(sparse))) - 4, int(np.ceil(np.nanmax(sparse))) + 4
     rng = np.random.default_rng(0)
@@ -110,12 +112,13 @@ def held_out(paths, work):
     rows, maps, check = [], {}, None
     for i, (name, extra) in enumerate(MATCHES):
         guided = [] if "--guide" in extra else ["--sparse", work / "half.tif"]
-        extra = [work / e if e.endswith(".png") else e for e in extra]
+        if i == 1:  # the default: what its LiDAR check did, per pixel
+            extra = [*extra, "--lidar-mask", work / "mask.png"]
         info = json.loads(run(["match", *common, *guided, *extra, "-o", work / f"run_{i}.tif", "--json"]))
         disp = read_disparity(work / f"run_{i}.tif")
         rows.append({"method": name, "kind": "stereo", **_figures(evaluate_disparity(disp, truth))})
         maps[name] = disp
-        if "--lidar-mask" in extra:
+        if i == 1:
             check = info["lidar_check"]
     for method in DENSIFY:
         out = work / f"densify_{method}.tif"
@@ -125,7 +128,7 @@ def held_out(paths, work):
     mask = cv2.imread(str(work / "mask.png"), cv2.IMREAD_UNCHANGED)
     check = {k: check[k] for k in ("points", "compared", "disagree", "outliers", "changed", "regions")}
     check["at_depth_edges"] = round(edge_share(guide_half, (mask == 2) | (mask == 3)), 4)
-    return rows, check, (maps, lo, hi)
+    return rows, check, {"maps": maps, "lo": lo, "hi": hi, "truth": truth}
 
 
 def _figures(m):
@@ -138,7 +141,8 @@ def measure(data, png=None):
     work = Path(tempfile.mkdtemp(prefix="kitti_"))
     paths, summary = pipeline(data, work)
     st = summary["project"]
-    rows, check, (maps, lo, hi) = held_out(paths, work)
+    rows, check, done = held_out(paths, work)
+    maps, lo, hi = done["maps"], done["lo"], done["hi"]
     result = {"project": {k: st[k] for k in ("points_read", "behind_camera", "outside", "row_offset", "occluded",
                                              "kept", "window", "lidar_share", "row_offset_px")}
               | {"outliers": st["filtered"]["outliers"], "d_range": [round(v, 1) for v in st["d_range"]]},

@@ -78,14 +78,8 @@ def beats_inputs(rows, scene, share, label, metric):
     return mean(mine_pred) < min(mean(p) for p in preds)
 
 
-def gt_protocol(shared_data, tmp_path, name):
-    """The fusion protocol of docs/benchmarks.md (shares of the GT pixels, 3 samplings, LiDAR-only baselines, the
-    fusion on and off): every committed case (each seed: the worst seed is gated too) checked."""
-    return committed(shared_data, tmp_path, name)
-
-
 def test_fused_default_beats_both_inputs_on_middlebury(shared_data, tmp_path):
-    rows = gt_protocol(shared_data, tmp_path, "middlebury_gt")
+    rows = committed(shared_data, tmp_path, "middlebury_gt")
     # every scene, share and metric but the two docs/fusion.md names (measured: Cones 5 % mean 0.263 vs the guided
     # interpolation's 0.256 px; Reindeer 0.16 % mean 1.78 vs 1.66 px)
     losses = {("cone", 0.05, "avg"), ("Reindeer", 0.0016, "avg")}
@@ -96,7 +90,7 @@ def test_fused_default_beats_both_inputs_on_middlebury(shared_data, tmp_path):
 
 
 def test_fused_riverbed_plus_beats_both_inputs_on_the_aerial_pair(shared_data, tmp_path):
-    rows = gt_protocol(shared_data, tmp_path, "aerial_gt")
+    rows = committed(shared_data, tmp_path, "aerial_gt")
     scene = rows[0]["scene"]
     for share in (0.05, 0.0123, 0.0016):
         for metric in ("bad1", "bad3", "avg"):
@@ -110,7 +104,7 @@ def test_fused_riverbed_plus_beats_both_inputs_on_the_aerial_pair(shared_data, t
 
 
 def test_kitti_gt_protocol_and_table_3(shared_data, tmp_path):
-    rows = gt_protocol(shared_data, tmp_path, "kitti_gt")
+    rows = committed(shared_data, tmp_path, "kitti_gt")
     for share in (0.05, 0.0123):
         assert all(beats_inputs(rows, "000046_10", share, "riverbed", m) for m in ("bad1", "bad3", "avg"))
     # at 0.16 % of the GT (88 points) the fused output loses to unguided matching (docs/fusion.md): bad1 / bad3

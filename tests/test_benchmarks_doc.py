@@ -32,8 +32,7 @@ def test_the_tubes_excerpt_is_the_committed_run():
 def test_the_commands_are_the_ones_the_tests_check():
     text = (REPO / "tests" / "test_benchmark_real.py").read_text()
     for name, (file, command) in bt.RUNS.items():  # each file's command run again with --check
-        assert f'committed(shared_data, tmp_path, "{name}")' in text or f'gt_protocol(shared_data, tmp_path, "{name}")' \
-            in text, name
+        assert f'committed(shared_data, tmp_path, "{name}")' in text, name
         assert f"--write-expected benchmarks/{file}" in command
 
 

@@ -16,6 +16,7 @@ check; measured: 0.0020 px). Pixel positions move by at most f / Z * 8.7e-5 = 0.
 its pixel (the jitter is at most 0.25 px).
 """
 
+import functools
 import json
 import math
 import sys
@@ -33,11 +34,16 @@ from riverbed_cli.geometry.pairfile import load_pairfile, write_pairfile
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import bench_visibility as bv  # noqa: E402
 
-def round_trip(options):
-    """The round trip's committed figures under ``options`` (benchmarks/results_visibility.json, docs/projection.md,
-    read when a test asks: the benchmark imports this module to build the scene)."""
+@functools.cache
+def round_trips():
+    """The round trip's committed figures by options (benchmarks/results_visibility.json, docs/projection.md), read
+    once when a test asks: the benchmark imports this module to build the scene before the file exists."""
     rows = json.loads((Path(__file__).resolve().parents[1] / "benchmarks" / "results_visibility.json").read_text())
-    return next(r for r in rows if r["scene"] == "Cones round trip" and r["options"] == options)
+    return {r["options"]: r for r in rows if r["scene"] == "Cones round trip"}
+
+
+def round_trip(options):
+    return round_trips()[options]
 
 
 def assert_round_trip(m, options):
