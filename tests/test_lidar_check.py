@@ -70,6 +70,22 @@ def test_single_gross_outliers_are_dropped_and_nothing_else():
     assert (dropped > 0).sum() <= 13 and res.info["lidar_check"]["changed"] == 0
 
 
+def test_a_lone_point_the_images_cannot_judge_is_dropped_only_far_off_its_neighbours():
+    # on a flat patch (the same grey in both views) no patch cost says anything: a point there with no neighbour
+    # within TAU is dropped when it lies more than 2 TAU off their median, kept closer than that
+    left, right, sparse, gt = constructed()
+    left, right = left.copy(), right.copy()
+    left[56:88, 96:128] = 128
+    right[56:88, 86:118] = 128
+    bad = sparse.copy()
+    bad[66, 110] = 25.0  # 15 px off: a bird over a roof the images cannot see
+    bad[74, 106] = 14.0  # 4 px off: within twice the tolerance, the benefit of the doubt
+    res = match_pair(left, right, bad)
+    dropped = res.lidar_check.dropped
+    assert dropped[66, 110] == 1 and dropped[74, 106] == 0
+    assert (dropped > 0).sum() == 1 and res.info["lidar_check"]["outliers"] == 1
+
+
 def test_clean_lidar_is_kept(cones):
     left, right, gt = cones
     sparse = simulate_lidar(gt, 0.05, seed=0)

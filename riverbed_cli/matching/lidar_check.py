@@ -33,8 +33,11 @@ Stage: ``(left, right, LiDAR disparities, a coarse unguided match of the pair) -
   contradict the same way, through at most :data:`UNKNOWN_HOPS` in a row they cannot judge, never through a point
   the reference confirms (within ``TAU``). A change is kept when the images contradict at least
   :data:`SEEN_SHARE` of the points it took. Every point it took is dropped.
-* **Gross outliers.** A point the images contradict, outside the changes, is dropped when no other LiDAR point
-  within ``NEAR`` spacings lies within ``TAU`` px of it: nothing around it supports it.
+* **Gross outliers.** A point outside the changes that no other LiDAR point within ``NEAR`` spacings supports
+  (none lies within ``TAU`` px of it) is dropped when the images contradict it, or when it lies more than
+  ``2 TAU`` px off the median of those points and the images do not vouch for it: the reference does not confirm
+  it and its patch cost is not at least :data:`MARGIN` below the best near the neighbours' median (a flat patch
+  vouches for nothing).
 * **Downstream** (:func:`~riverbed_cli.matching.pipeline.match_pair`). The points dropped guide nothing, bound no
   tube and are not interpolated by the fusion. The changed area (a disc of one spacing round each changed point,
   closed over two) searches the whole range instead of the tubes of the LiDAR around it, and there the fusion keeps
@@ -262,13 +265,20 @@ def neighbour_stats(sparse, rows, cols, radius):
 
 
 def _changed_area(rows, cols, shape, spacing):
-    # the changed points' surroundings: a disc of one spacing round each, closed over two: (H, W) bool
+    # the changed points' surroundings: a disc of one spacing round each, closed over two: (H, W) bool. Drawn in
+    # the points' bounding box with a margin the closing cannot reach past (3 r out, 2 r back), which gives the
+    # same area as the whole image at a fraction of the cost
     r = max(1, int(round(spacing)))
-    area = np.zeros(shape, np.uint8)
-    area[rows, cols] = 1
-    area = cv2.dilate(area, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
-    return cv2.morphologyEx(area, cv2.MORPH_CLOSE,
-                            cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (4 * r + 1, 4 * r + 1))).astype(bool)
+    m = 6 * r + 1
+    y0, y1 = max(0, int(rows.min()) - m), min(shape[0], int(rows.max()) + m + 1)
+    x0, x1 = max(0, int(cols.min()) - m), min(shape[1], int(cols.max()) + m + 1)
+    box = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    box[rows - y0, cols - x0] = 1
+    box = cv2.dilate(box, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    box = cv2.morphologyEx(box, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (4 * r + 1, 4 * r + 1)))
+    area = np.zeros(shape, bool)
+    area[y0:y1, x0:x1] = box.astype(bool)
+    return area
 
 
 @njit(cache=True)
@@ -404,7 +414,15 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
             changed = _changed_area(rows[in_region], cols[in_region], shape, spacing) if in_region.any() else None
         if changed is not None:
             n_regions = cv2.connectedComponents(changed.astype(np.uint8), connectivity=8)[0] - 1
-    outlier = (raw != 0) & ~supported & ~in_region
+    # a point no neighbour supports is dropped when the images contradict it, or when it lies off its neighbours and
+    # the images do not confirm it (its patch not clearly better than theirs) where the reference does not either
+    lonely = ~supported & ~in_region
+    outlier = lonely & (raw != 0)
+    off = lonely & (raw == 0) & (state != 2) & np.isfinite(around) & (np.abs(values - around) > 2 * TAU)
+    i = np.flatnonzero(off)
+    if i.size:
+        own, best = _costs(gl, gr, rows[i], cols[i], values[i], around[i], factor)
+        outlier[i] = ~((own < NO_INFO) & (own + MARGIN <= best))
 
     dropped = np.zeros(shape, np.uint8)
     dropped[rows[outlier], cols[outlier]] = 1
