@@ -76,6 +76,8 @@ def _dropped(res, faulty, have):
 
 def run(data):
     rows = []
+    first = scenes(data)[0]  # the kernels loaded before anything is timed
+    match_pair(first[1], first[2], simulate_lidar(first[3], SHARES[0], seed=0))
     for name, left, right, gt in scenes(data):
         H, W = gt.shape
         for share in SHARES:
