@@ -129,6 +129,30 @@ def test_the_neighbour_kernel_is_its_plain_statement():
         assert supported[i] == bool((np.abs(others - sparse[rows[i], cols[i]]) <= lidar_check.TAU).any())
 
 
+def test_the_plane_kernel_is_its_plain_statement():
+    rng = np.random.default_rng(3)
+    sparse = np.full((40, 50), np.nan, np.float32)
+    idx = rng.choice(2000, 150, replace=False)
+    sparse.flat[idx] = rng.uniform(0, 20, 150).astype(np.float32)
+    rows, cols = np.nonzero(np.isfinite(sparse))
+    plane = lidar_check.plane_at(sparse, rows, cols, 4)
+    for i in range(rows.size):
+        y, x = np.mgrid[max(0, rows[i] - 4):min(40, rows[i] + 5), max(0, cols[i] - 4):min(50, cols[i] + 5)]
+        v = sparse[y, x]
+        keep = np.isfinite(v) & ((y != rows[i]) | (x != cols[i]))
+        A = np.column_stack([np.ones(keep.sum()), x[keep] - cols[i], y[keep] - rows[i]])
+        if keep.sum() < 3 or np.linalg.matrix_rank(A) < 3:
+            assert np.isnan(plane[i])
+        else:
+            want = np.linalg.lstsq(A, v[keep].astype(np.float64), rcond=None)[0][0]
+            assert plane[i] == pytest.approx(want, abs=1e-6)
+    line = np.full((20, 30), np.nan, np.float32)
+    line[10, 2:28:3] = 5.0  # points all on one row: no plane
+    assert np.isnan(lidar_check.plane_at(line, [10], [14], 6)[0])
+    ramp = np.where(np.isfinite(sparse), 0, np.nan) + np.arange(50, dtype=np.float32) * 1.5  # a steep slope
+    assert lidar_check.plane_at(ramp, [20], [20], 4)[0] == pytest.approx(30.0)
+
+
 def test_the_setting_and_its_message():
     assert validate_setting("lidar_check", "off") == "off"
     with pytest.raises(SettingError, match="'maybe'"):

@@ -35,9 +35,10 @@ Stage: ``(left, right, LiDAR disparities, a coarse unguided match of the pair) -
   :data:`SEEN_SHARE` of the points it took. Every point it took is dropped.
 * **Gross outliers.** A point outside the changes that no other LiDAR point within ``NEAR`` spacings supports
   (none lies within ``TAU`` px of it) is dropped when the images contradict it, or when it lies more than
-  ``2 TAU`` px off the median of those points and the images do not vouch for it: the reference does not confirm
-  it and its patch cost is not at least :data:`MARGIN` below the best near the neighbours' median (a flat patch
-  vouches for nothing).
+  ``2 TAU`` px off both the median of those points and their least-squares plane (:func:`plane_at`: a point on
+  a steep slope lies off the median, not off the plane) and the images do not vouch for it: the reference does not
+  confirm it and its patch cost is not at least :data:`MARGIN` below the best near the neighbours' median (a flat
+  patch vouches for nothing).
 * **Downstream** (:func:`~riverbed_cli.matching.pipeline.match_pair`). The points dropped guide nothing, bound no
   tube and are not interpolated by the fusion. The changed area (a disc of one spacing round each changed point,
   closed over two) searches the whole range instead of the tubes of the LiDAR around it, and there the fusion keeps
@@ -264,6 +265,46 @@ def neighbour_stats(sparse, rows, cols, radius):
     return around, supported
 
 
+@njit(cache=True, parallel=True)
+def _plane_kernel(sparse, rows, cols, radius, out):
+    # out[j]: the least-squares plane through the other points within the square of the radius round point j, at
+    # its pixel (NaN with fewer than 3 points or all on a line); coordinates relative to the point, so the value
+    # sought is the plane's constant term, by Cramer's rule on the 3 x 3 normal equations
+    H, W = sparse.shape
+    for j in prange(rows.size):
+        r, c = rows[j], cols[j]
+        n = sx = sy = sxx = syy = sxy = sv = sxv = syv = 0.0
+        for y in range(max(0, r - radius), min(H, r + radius + 1)):
+            for x in range(max(0, c - radius), min(W, c + radius + 1)):
+                s = sparse[y, x]
+                if s == s and (y != r or x != c):
+                    dx, dy, v = np.float64(x - c), np.float64(y - r), np.float64(s)
+                    n += 1.0
+                    sx += dx
+                    sy += dy
+                    sxx += dx * dx
+                    syy += dy * dy
+                    sxy += dx * dy
+                    sv += v
+                    sxv += dx * v
+                    syv += dy * v
+        det = n * (sxx * syy - sxy * sxy) - sx * (sx * syy - sxy * sy) + sy * (sx * sxy - sxx * sy)
+        if n < 3.0 or abs(det) <= 1e-9 * n * (sxx + syy + 1.0) ** 2:
+            out[j] = np.nan
+        else:
+            out[j] = (sv * (sxx * syy - sxy * sxy) - sx * (sxv * syy - sxy * syv) + sy * (sxv * sxy - sxx * syv)) / det
+
+
+def plane_at(sparse, rows, cols, radius):
+    """Per LiDAR point ``(rows, cols)`` of ``sparse``: the least-squares plane through the other points within a
+    square of ``radius`` px, evaluated at the point (float64 px, NaN with fewer than 3 of them or all on a line).
+    A point on a steep slope lies off its neighbours' median but on their plane."""
+    out = np.empty(len(rows), np.float64)
+    _plane_kernel(np.ascontiguousarray(sparse, np.float32), np.asarray(rows, np.int64), np.asarray(cols, np.int64),
+                  int(radius), out)
+    return out
+
+
 def _changed_area(rows, cols, shape, spacing):
     # the changed points' surroundings: a disc of one spacing round each, closed over two: (H, W) bool. Drawn in
     # the points' bounding box with a margin the closing cannot reach past (3 r out, 2 r back), which gives the
@@ -420,6 +461,9 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
     outlier = lonely & (raw != 0)
     off = lonely & (raw == 0) & (state != 2) & np.isfinite(around) & (np.abs(values - around) > 2 * TAU)
     i = np.flatnonzero(off)
+    if i.size:  # ... and off their plane too: a point on a steep slope lies off the median, not off the plane
+        plane = plane_at(sparse, rows[i], cols[i], near)
+        i = i[~(np.abs(values[i] - plane) <= 2 * TAU)]
     if i.size:
         own, best = _costs(gl, gr, rows[i], cols[i], values[i], around[i], factor)
         outlier[i] = ~((own < NO_INFO) & (own + MARGIN <= best))
