@@ -80,9 +80,11 @@ def test_a_lone_point_the_images_cannot_judge_is_dropped_only_far_off_its_neighb
     bad = sparse.copy()
     bad[66, 110] = 25.0  # 15 px off: a bird over a roof the images cannot see
     bad[74, 106] = 14.0  # 4 px off: within twice the tolerance, the benefit of the doubt
-    res = match_pair(left, right, bad)
+    bad[72:89, 112:129] = np.nan
+    bad[82, 122], bad[78, 118], bad[86, 126] = 25.0, 10.0, 10.0  # 15 px off two neighbours only: no plane to
+    res = match_pair(left, right, bad)  # outvote it
     dropped = res.lidar_check.dropped
-    assert dropped[66, 110] == 1 and dropped[74, 106] == 0
+    assert dropped[66, 110] == 1 and dropped[74, 106] == 0 and dropped[82, 122] == 0
     assert (dropped > 0).sum() == 1 and res.info["lidar_check"]["outliers"] == 1
 
 

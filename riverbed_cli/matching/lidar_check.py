@@ -36,9 +36,9 @@ Stage: ``(left, right, LiDAR disparities, a coarse unguided match of the pair) -
 * **Gross outliers.** A point outside the changes that no other LiDAR point within ``NEAR`` spacings supports
   (none lies within ``TAU`` px of it) is dropped when the images contradict it, or when it lies more than
   ``2 TAU`` px off both the median of those points and their least-squares plane (:func:`plane_at`: a point on
-  a steep slope lies off the median, not off the plane) and the images do not vouch for it: the reference does not
-  confirm it and its patch cost is not at least :data:`MARGIN` below the best near the neighbours' median (a flat
-  patch vouches for nothing).
+  a steep slope lies off the median, not off the plane; with no plane the neighbours are too few to outvote it)
+  and the images do not vouch for it: the reference does not confirm it and its patch cost is not at least
+  :data:`MARGIN` below the best near the neighbours' median (a flat patch vouches for nothing).
 * **Downstream** (:func:`~riverbed_cli.matching.pipeline.match_pair`). The points dropped guide nothing, bound no
   tube and are not interpolated by the fusion. The changed area (a disc of one spacing round each changed point,
   closed over two) searches the whole range instead of the tubes of the LiDAR around it, and there the fusion keeps
@@ -461,10 +461,11 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
     outlier = lonely & (raw != 0)
     off = lonely & (raw == 0) & (state != 2) & np.isfinite(around) & (np.abs(values - around) > 2 * TAU)
     i = np.flatnonzero(off)
-    if i.size:  # ... and off their plane too: a point on a steep slope lies off the median, not off the plane
+    if i.size:  # ... and off their plane too: a point on a steep slope lies off the median, not off the plane;
+        # with no plane (fewer than 3 neighbours, or all on a line) they are too few to outvote it
         plane = plane_at(sparse, rows[i], cols[i], near)
-        i = i[~(np.abs(values[i] - plane) <= 2 * TAU)]
-    if i.size:
+        i = i[np.abs(values[i] - plane) > 2 * TAU]
+    if i.size:  # the images do not vouch for it: its patch is not clearly better than the neighbours'
         own, best = _costs(gl, gr, rows[i], cols[i], values[i], around[i], factor)
         outlier[i] = ~((own < NO_INFO) & (own + MARGIN <= best))
 
