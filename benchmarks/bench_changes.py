@@ -86,8 +86,10 @@ def run(data):
             have = np.isfinite(sparse)
             vals = sparse[have]
             span = float(vals.max() - vals.min())
-            clean = match_pair(left, right, sparse)
-            off = match_pair(left, right, sparse, lidar_check="off")
+            # timed as the fastest of three runs (the same outputs each time): one run's seconds vary by a third
+            clean = min((match_pair(left, right, sparse) for _ in range(3)), key=lambda r: r.info["seconds"])
+            off = min((match_pair(left, right, sparse, lidar_check="off") for _ in range(3)),
+                      key=lambda r: r.info["seconds"])
             unguided = match_pair(left, right, None, int(np.floor(vals.min())) - 8, int(np.ceil(vals.max())) + 8,
                                   guide="none").disparity
             check = clean.info["lidar_check"]
