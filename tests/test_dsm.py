@@ -153,6 +153,24 @@ def test_triangulated_points_and_dsm_are_exact():
     assert set(np.round(vals, 4)) == {0.0, 30.0}
 
 
+def test_kept_points_are_the_sinks_and_the_dsm_the_same():
+    # keep_points triangulates once: the same DSM as the two passes, and the points (with colours) the sink gets
+    pair = nadir_pair()
+    rng = np.random.default_rng(5)
+    disp = (1000 * 50 / (400.0 - rng.uniform(0, 40, (100, 120)))).astype(np.float32)
+    disp[rng.random(disp.shape) < 0.1] = np.nan
+    image = rng.integers(0, 255, (100, 120, 3), dtype=np.uint8)
+    sunk = []
+    two = build_dsm([(disp, pair, image), (disp[::-1], pair, image)], block_rows=32, agg="mean",
+                    point_sink=lambda xyz, rgb: sunk.append((xyz, rgb)))
+    one = build_dsm([(disp, pair, image), (disp[::-1], pair, image)], block_rows=32, agg="mean", keep_points=True)
+    assert two.points is None and np.array_equal(one.dsm, two.dsm, equal_nan=True) and one.stats == two.stats
+    xyz, rgb = one.points
+    assert np.array_equal(xyz, np.concatenate([b[0] for b in sunk]))
+    assert np.array_equal(rgb, np.concatenate([b[1] for b in sunk])) and len(xyz) == 2 * np.isfinite(disp).sum()
+    assert build_dsm([(disp, pair, None)], keep_points=True).points[1] is None  # no image, no colours
+
+
 def test_dsm_cli_with_lidar_merge(tmp_path, monkeypatch):
     pair = nadir_pair()
     from riverbed_cli.io.disparity import write_disparity

@@ -6,19 +6,15 @@ import click
 import numpy as np
 
 from ..errors import RiverbedError
-from ..io.atomic import check_outputs, output_group
-from ..io.disparity import read_disparity
-from ..io.images import read_image
-from ..io.lidar import lidar_info, resolve_crs
-from ..geometry.pairfile import load_pairfile, load_registration
+from ..io.atomic import check_outputs
+from ..io.lidar import resolve_crs
+from ..geometry.pairfile import load_registration
 from ..geometry.projection import crs_name
-from ..geometry.rpc_geometry import output_crs
-from ..io.pointcloud import check_pointcloud_path, write_points
-from ..io.raster import parse_creation_options, write_geotiff
+from ..io.pointcloud import check_pointcloud_path
+from ..io.raster import parse_creation_options
 from ..products.dsm import (AGGREGATIONS, build_dsm, check_bounds, check_creation_options, check_fill_holes,
-                            check_min_confidence, hillshade, read_confidence)
-from ..products.change_map import change_map, read_lidar_mask
-from ..products.visualize import hillshade_picture, write_picture
+                            check_min_confidence)
+from ..products.dsm_files import MERGE_RULE, RPC_HEIGHTS, dsm_crs, read_couples, write_dsm_outputs
 from .options import json_opt, overwrite_opt, print_json, progress_bar
 
 
@@ -143,77 +139,19 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
     co = parse_creation_options(creation)
     check_creation_options(co, bands=2 if fill_holes else 1, nodata=nodata)
 
-    sources, confs, changes = [], [], []
-    for i, (disp_path, pair_path) in enumerate(zip(disp_pair[::2], disp_pair[1::2])):
-        pair = load_pairfile(pair_path, accept_rpc=True, command="riverbed dsm")
-        disp = read_disparity(disp_path)
-        if pair.image_size is not None and pair.image_size != disp.shape:
-            raise RiverbedError(f"disparity map is {disp.shape[1]}x{disp.shape[0]} but the images of {pair_path} "
-                                f"are {pair.width}x{pair.height} (W x H)", disp_path)
-        image = None
-        if pair.left is not None and pair.left.exists():
-            image = read_image(pair.left)
-            if image.shape[:2] != disp.shape:
-                raise RiverbedError(f"left image {pair.left} is not the size of the disparity map", disp_path)
-        sources.append((disp, pair, image))
-        confs.append(read_confidence(confidences[i], disp.shape) if confidences else None)
-        if change_out:  # read before the work: a wrong file is refused now
-            sparse = read_disparity(sparses[i])
-            if sparse.shape != disp.shape:
-                raise RiverbedError(f"sparse map is {sparse.shape[1]}x{sparse.shape[0]} but the disparity map is "
-                                    f"{disp.shape[1]}x{disp.shape[0]} (W x H)", sparses[i])
-            changes.append((disp, sparse, read_lidar_mask(masks[i], disp.shape), pair))
+    sources, confs, changes = read_couples(disp_pair, confidences, sparses if change_out else (), masks)
     reg = load_registration(registration) if registration else None
-    rpc = [getattr(p, "kind", None) == "rpc" for _, p, _ in sources]
-    if any(rpc):  # RPC pairs: points converted to --crs (default: the scene's UTM zone), heights ellipsoidal
-        if not all(rpc):
-            raise RiverbedError("cannot merge RPC pair files with pinhole pair files in one DSM")
-        crs = output_crs(sources[0][1], crs)
-        for _, p, _ in sources:
-            p.crs = crs
-
-    if crs is None:
-        crs = next((p.crs for _, p, _ in sources if p.crs), None)
-        if crs is None and clouds:
-            found = resolve_crs(lidar_info(clouds[0]))
-            crs = found.to_wkt() if found is not None else None
-
-    blocks = []
-
-    def sink(xyz, rgb):
-        if points_out:
-            blocks.append((xyz, rgb))
-
+    crs, rpc = dsm_crs(sources, crs, clouds)
     total = sum(d.shape[0] for d, _, _ in sources)
     with progress_bar(total, bool(total), desc="dsm", unit="row", leave=False) as bar:
         result = build_dsm(sources, clouds, resolution, agg, bounds, fill_holes, lattice=not keep_lattice,
-                           point_sink=sink, lidar_registration=reg, progress=bar.update,
+                           lidar_registration=reg, progress=bar.update, keep_points=bool(points_out),
                            confidence=confs if confidences else None, min_confidence=min_confidence)
-
-    dsm = result.dsm
-    if not np.isnan(nodata):
-        dsm = np.where(np.isnan(dsm), np.float32(nodata), dsm)
-    bands = [dsm] if not fill_holes else [dsm, result.filled.astype(np.float32)]
-    with output_group():  # the DSM, its points and its hillshade appear together or not at all
-        write_geotiff(output, np.stack(bands), result.grid.transform, crs, nodata, co, overwrite,
-                      band_descriptions=["height", "filled"][: len(bands)],
-                      tags={"riverbed_aggregation": agg, "riverbed_merge_rule": "lidar wins where both exist",
-                            **({"riverbed_heights": "ellipsoidal (WGS 84, m)"} if any(rpc) else {})})
-        if points_out:
-            xyz = np.concatenate([b[0] for b in blocks]) if blocks else np.zeros((0, 3))
-            rgbs = [b[1] for b in blocks]
-            rgb = np.concatenate(rgbs) if blocks and all(r is not None for r in rgbs) else None
-            write_points(points_out, xyz, rgb, crs, overwrite=overwrite)
-        if change_out:
-            change, change_stats = change_map(changes, result.grid)
-            write_geotiff(change_out, change, result.grid.transform, crs, float("nan"), co, overwrite,
-                          band_descriptions=["height change (m), match minus LiDAR"],
-                          tags={"riverbed_change": "median height change of the LiDAR points the check dropped in "
-                                                   "changed regions"})
-        if hillshade_png:
-            res = result.grid.resolution
-            write_picture(hillshade_png, hillshade_picture(hillshade(result.dsm, res), result.dsm, res),
-                          overwrite=overwrite)
+    change_stats = write_dsm_outputs(
+        result, crs, output, points=points_out, changes=changes, change_out=change_out, hillshade_png=hillshade_png,
+        filled_band=bool(fill_holes), nodata=nodata, creation=co, overwrite=overwrite,
+        tags={"riverbed_aggregation": agg, "riverbed_merge_rule": MERGE_RULE,
+              **({"riverbed_heights": RPC_HEIGHTS} if rpc else {})})
     summary = {"output": str(output), **result.stats, "crs": crs_name(crs),
                **({"change_map": {"output": str(change_out), **change_stats}} if change_out else {}),
                "seconds": round(time.perf_counter() - t0, 3)}

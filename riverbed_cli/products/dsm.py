@@ -399,6 +399,7 @@ class DsmResult:
     grid: Grid
     filled: np.ndarray  # (H, W) uint8: 1 where --fill-holes filled a cell
     stats: dict
+    points: tuple = None  # keep_points: the image points (N x 3 float64) and their colours (N x 3 uint8, or None)
 
 
 def _no_points(bounds, lo, hi):
@@ -408,7 +409,7 @@ def _no_points(bounds, lo, hi):
 
 def build_dsm(sources=(), lidar=(), resolution=None, agg="max", bounds=None, fill=0, block_rows=256,
               point_sink=None, lidar_registration=None, drop_classes=NOISE_CLASSES, progress=None,
-              confidence=None, min_confidence=None, lattice=True):
+              confidence=None, min_confidence=None, lattice=True, keep_points=False):
     """Merge the points of several disparity maps (and optionally LiDAR clouds) into one DSM.
 
     Parameters
@@ -437,6 +438,9 @@ def build_dsm(sources=(), lidar=(), resolution=None, agg="max", bounds=None, fil
     min_confidence : float, optional
         With ``confidence``: the points whose pixel's confidence is below this (or NaN) are dropped before they
         reach the point sink and the DSM; ``stats["confidence_dropped"]`` counts them (valid disparities dropped).
+    keep_points : bool
+        Triangulate once and keep the image points (with their colours) in memory, in the result's ``points``,
+        instead of triangulating again to rasterise them: faster, for maps whose points fit in memory.
 
     Notes
     -----
@@ -480,13 +484,19 @@ def build_dsm(sources=(), lidar=(), resolution=None, agg="max", bounds=None, fil
     hi = np.full(3, -np.inf)
     depths = []
     n_img = n_dropped = 0
-    for (disp, pair, _), conf in zip(sources, confs):
+    kept = [] if keep_points else None  # per source, its blocks of (points, colours)
+    for (disp, pair, image), conf in zip(sources, confs):
+        if keep_points:
+            kept.append([])
         for r0 in range(0, disp.shape[0], block_rows):
             rows = slice(r0, r0 + block_rows)
-            xyz, depth, _ = disparity_points(disp, pair, rows, None, conf, min_confidence)
+            xyz, depth, rgb = disparity_points(disp, pair, rows, image if keep_points else None, conf, min_confidence)
             if conf is not None:
                 n_dropped += int(np.count_nonzero(np.isfinite(disp[rows]) & ~(conf[rows] >= min_confidence)))
-            xyz = xyz[np.isfinite(xyz).all(axis=1)]
+            ok = np.isfinite(xyz).all(axis=1)
+            xyz = xyz[ok]
+            if keep_points:
+                kept[-1].append((xyz, None if rgb is None else rgb[ok]))
             if len(xyz):
                 lo, hi = np.minimum(lo, xyz.min(axis=0)), np.maximum(hi, xyz.max(axis=0))
                 depths.append(depth[:: max(1, len(depth) // 2000)])
@@ -518,14 +528,17 @@ def build_dsm(sources=(), lidar=(), resolution=None, agg="max", bounds=None, fil
 
     # Pass 2: rasterise image points, then LiDAR points, each into its own accumulator.
     img_acc = Accumulator(grid, agg)
-    for (disp, pair, image), conf in zip(sources, confs):
-        for r0 in range(0, disp.shape[0], block_rows):
-            xyz, _, rgb = disparity_points(disp, pair, slice(r0, r0 + block_rows), image, conf, min_confidence)
-            ok = np.isfinite(xyz).all(axis=1)
-            xyz = xyz[ok]
+    for k, ((disp, pair, image), conf) in enumerate(zip(sources, confs)):
+        for b, r0 in enumerate(range(0, disp.shape[0], block_rows)):
+            if keep_points:
+                xyz, rgb = kept[k][b]
+            else:
+                xyz, _, rgb = disparity_points(disp, pair, slice(r0, r0 + block_rows), image, conf, min_confidence)
+                ok = np.isfinite(xyz).all(axis=1)
+                xyz, rgb = xyz[ok], None if rgb is None else rgb[ok]
             img_acc.add(xyz[:, 0], xyz[:, 1], xyz[:, 2])
             if point_sink is not None:
-                point_sink(xyz, None if rgb is None else rgb[ok])
+                point_sink(xyz, rgb)
             if progress:
                 progress(min(block_rows, disp.shape[0] - r0))
     dsm = img_acc.result() if sources else np.full((grid.height, grid.width), np.nan, np.float32)
@@ -554,4 +567,10 @@ def build_dsm(sources=(), lidar=(), resolution=None, agg="max", bounds=None, fil
              "cells_with_data": float(100.0 * np.isfinite(dsm).mean()), "cells_filled": int(filled.sum()),
              "cells_closed": n_closed,
              "aggregation": agg, "confidence_dropped": None if min_confidence is None else n_dropped}
-    return DsmResult(dsm.astype(np.float32), grid, filled, stats)
+    points = None
+    if keep_points:
+        blocks = [b for source in kept for b in source]
+        xyz = np.concatenate([b[0] for b in blocks]) if blocks else np.zeros((0, 3))
+        rgb = np.concatenate([b[1] for b in blocks]) if blocks and all(b[1] is not None for b in blocks) else None
+        points = (xyz, rgb)
+    return DsmResult(dsm.astype(np.float32), grid, filled, stats, points)

@@ -18,8 +18,6 @@ from ...io.disparity import read_disparity, write_disparity
 from ...io.images import check_pair, check_pixels, read_image, read_valid_area
 from ...io.lidar import lidar_info, resolve_crs
 from ...geometry.pairfile import load_pairfile, load_registration
-from ...io.pointcloud import write_points
-from ...io.raster import write_geotiff
 from ...io.windowed import (WindowedRaster, image_bits, open_range_map, open_windowed, sparse_points_any,
                             valid_area_source)
 from ...matching.guidance import lidar_share_of_points
@@ -28,8 +26,9 @@ from ...matching.lidar_input import check_disparity_values, resolve_disparity_ra
 from ...matching.pipeline import match_pair
 from ...matching.registry import get_guide
 from ...matching.tubes import ranges_from_disparity, spacing_window
-from ...products.dsm import Accumulator, Grid, close_lattice, default_resolution, disparity_points
-from ...products.change_map import CHANGED_POINT, change_map
+from ...products.dsm import build_dsm
+from ...products.dsm_files import RPC_HEIGHTS, write_dsm_outputs
+from ...products.change_map import CHANGED_POINT
 from ..tiles import Tile, check_whole, match_tile, plan_tiles, scan_range_map, tube_widths
 from .plan import (DONE, LIDAR_OUTPUT, OUTPUTS, WORK, clean_temps, rectify_rpc, riverbed_version, sha256_file,
                    write_json)
@@ -83,9 +82,6 @@ def _cloud_may_land(path, pair, reg, shape, crs=None):
 
 
 _EMPTY_CLOUD = ("no point lands in both images", "no point is left after")
-#: The heights of an RPC pair's points and DSMs (``riverbed dsm``'s tag on RPC pairs).
-RPC_HEIGHTS = "ellipsoidal (WGS 84, m)"
-
 
 def _image_source(path, shape, max_pixels):
     """The image as a windowed TIFF or an in-memory array, checked against the pair's size and the pixel limit."""
@@ -361,40 +357,6 @@ def n_tasks(proj):
     return len(proj["tiles"]) or 1
 
 
-def pair_dsm(disp, pair, image, resolution, agg, block_rows=256):
-    """A pair's points and DSM, triangulated once: :func:`~riverbed_cli.products.dsm.build_dsm` without LiDAR
-    (the same points in the same order into the same grid and accumulator, the lattice closed: the same DSM),
-    keeping the points it
-    would hand its point sink instead of triangulating twice (extent, then rasterisation).
-
-    Returns ``(dsm, grid, xyz, rgb)``: float32 heights (NaN empty), the
-    :class:`~riverbed_cli.products.dsm.Grid` (snapped to multiples of ``resolution``; default the left image's
-    ground sample distance at the median depth), the points (N x 3) and their colours (None without an image).
-    """
-    blocks, depths = [], []
-    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    for r0 in range(0, disp.shape[0], block_rows):
-        xyz, depth, rgb = disparity_points(disp, pair, slice(r0, r0 + block_rows), image)
-        ok = np.isfinite(xyz).all(axis=1)
-        xyz = xyz[ok]
-        if len(xyz):
-            lo, hi = np.minimum(lo, xyz.min(axis=0)), np.maximum(hi, xyz.max(axis=0))
-            depths.append(depth[:: max(1, len(depth) // 2000)])
-        blocks.append((xyz, None if rgb is None else rgb[ok]))
-    if not np.isfinite(lo).all():
-        raise RiverbedError("no valid points to rasterise (all disparities invalid and no LiDAR points)")
-    if resolution is None:
-        rpc = getattr(pair, "kind", None) == "rpc"  # its "depths" are ground sample distances
-        resolution = default_resolution(np.concatenate(depths), 1.0 if rpc else pair.focal)
-    grid = Grid.from_bounds(lo[0], lo[1], hi[0], hi[1], resolution)
-    acc = Accumulator(grid, agg)
-    for xyz, _ in blocks:
-        acc.add(xyz[:, 0], xyz[:, 1], xyz[:, 2])
-    xyz = np.concatenate([b[0] for b in blocks])
-    rgb = np.concatenate([b[1] for b in blocks]) if all(b[1] is not None for b in blocks) else None
-    return close_lattice(acc.result())[0], grid, xyz, rgb
-
-
 def finish_stage(job, proj, tiles):
     """Stitch the tiles, triangulate, write ``disparity.tif``, ``points.laz``, ``dsm.tif`` and, last, ``done.json``.
 
@@ -434,17 +396,19 @@ def finish_stage(job, proj, tiles):
         pair.crs = crs = output_crs(pair, s["crs"], option="crs")
     else:
         crs = s["crs"] or pair.crs or proj["stats"]["lidar_crs"]
-    dsm, grid, xyz, rgb = pair_dsm(disp, pair, image, s["resolution"], s["agg"])
+    # triangulated once, the points kept for points.laz: riverbed dsm's DSM of the pair
+    result = build_dsm([(disp, pair, image)], resolution=s["resolution"], agg=s["agg"], keep_points=True)
     del image
-    write_points(folder / "points.laz", xyz, rgb, crs, overwrite=True)
-    write_geotiff(folder / "dsm.tif", dsm, grid.transform, crs, float("nan"), None, overwrite=True,
-                  band_descriptions=["height"],
-                  tags={"riverbed_aggregation": s["agg"], "riverbed_block_pair": job.name,
-                        **({"riverbed_heights": RPC_HEIGHTS} if rpc else {})})
-    change_stats = None
+    changes, change_out = None, None
     if (work / "changed_points.npy").exists():  # where the surface left the LiDAR's: the pair's change map
-        change_stats = _pair_change_map(disp, np.load(work / "changed_points.npy"), pair, grid, crs,
-                                        folder / "change.tif")
+        changes, change_out = [_changed(disp, np.load(work / "changed_points.npy"), pair)], folder / "change.tif"
+    change_stats = write_dsm_outputs(result, crs, folder / "dsm.tif", points=folder / "points.laz", changes=changes,
+                                     change_out=change_out, overwrite=True,
+                                     tags={"riverbed_aggregation": s["agg"], "riverbed_block_pair": job.name,
+                                           **({"riverbed_heights": RPC_HEIGHTS} if rpc else {})})
+    if change_stats is not None:
+        change_stats.pop("lidar_offset_px", None)
+    grid, xyz = result.grid, result.points[0]
     t_match = sum(t["seconds"] for t in tiles)
     seconds = {"project": proj["seconds"], "match": round(t_match, 4), "dsm": round(time.perf_counter() - t0, 4)}
     if proj.get("rectify_seconds") is not None:  # included in "project"
@@ -463,18 +427,15 @@ def finish_stage(job, proj, tiles):
     return summary
 
 
-def _pair_change_map(disp, points, pair, grid, crs, path):
-    # the pair's change map (products/change_map.py) on its DSM grid, from the points its LiDAR check dropped in
-    # changed regions (rows, cols, disparities of the corrected LiDAR)
+def _changed(disp, points, pair):
+    # the pair's change_map input from the points its LiDAR check dropped in changed regions (rows, cols,
+    # disparities of the corrected LiDAR)
     rr, cc = points[:, 0].astype(np.intp), points[:, 1].astype(np.intp)
     then = np.full(disp.shape, np.nan, np.float32)
     then[rr, cc] = points[:, 2]
     mask = np.zeros(disp.shape, np.uint8)
     mask[rr, cc] = CHANGED_POINT
-    change, stats = change_map([(disp, then, mask, pair)], grid)
-    write_geotiff(path, change, grid.transform, crs, float("nan"), None, overwrite=True,
-                  band_descriptions=["height change (m), match minus LiDAR"])
-    return {k: v for k, v in stats.items() if k != "lidar_offset_px"}
+    return disp, then, mask, pair
 
 
 def run_pair(job, progress=None):
