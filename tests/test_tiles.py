@@ -13,7 +13,7 @@ from riverbed_cli.io.disparity import read_disparity, write_disparity
 from riverbed_cli.matching.pipeline import match_pair
 from riverbed_cli.products.evaluate import evaluate_disparity
 from riverbed_cli.products.simulate import simulate_lidar
-from riverbed_cli.scale.tiles import Tile, lidar_ranges, match_tiled, tile_grid
+from riverbed_cli.scale.tiles import Tile, check_tiling, lidar_ranges, match_tiled, tile_grid
 
 BORDER = 4  # census half-height/width: the image border where crops and the whole image differ anyway
 
@@ -61,8 +61,11 @@ def test_tiles_without_lidar_inherit_from_neighbours():
 
 
 def test_tile_size_is_checked():
-    with pytest.raises(RiverbedError, match="--tile must be at least 16 px, got 8"):
+    with pytest.raises(RiverbedError, match=r"--tile: expected 'auto' or an integer >= 16 \(px\), got 8; 0 never"):
         tile_grid(100, 100, 8)
+    with pytest.raises(RiverbedError, match="--tile: a tile grid needs a side in px, not 0"):
+        tile_grid(100, 100, 0)
+    assert check_tiling("96", 0) == 96 and check_tiling("auto", 8) == "auto" and check_tiling(0, 8) == 0
 
 
 def test_windowed_sources_give_the_same_result(cones, tmp_path):
@@ -133,7 +136,13 @@ def test_match_command_tiles_tiff_inputs(cones, tmp_path):
     assert (tmp_path / "t.png").is_file()
     r = CliRunner().invoke(cli, ["match", *common, "--tile", "8", "-o", str(tmp_path / "x.tif")])
     assert r.exit_code == 1
-    assert r.output == "riverbed: error: --tile must be auto, 0 or a size of at least 16 px, not '8'\n"
+    # the settings table's validator: the message a block manifest's tile gets (tests/test_block.py)
+    assert r.output == "riverbed: error: --tile: expected 'auto' or an integer >= 16 (px), got 8; 0 never tiles\n"
+    for tile, overlap, message in (("big", "16", "--tile: expected 'auto' or an integer >= 16 (px), got 'big'"),
+                                   ("64", "-1", "--overlap: expected an integer >= 0, got -1")):
+        r = CliRunner().invoke(cli, ["match", *common, "--tile", tile, "--overlap", overlap, "-o",
+                                     str(tmp_path / "y.tif")])
+        assert r.exit_code == 1 and r.output.startswith(f"riverbed: error: {message}"), r.output
 
 
 def test_tile_auto_tiles_under_a_small_budget(tmp_path, cones, monkeypatch):

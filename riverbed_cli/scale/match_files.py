@@ -24,19 +24,9 @@ from ..matching.registry import get_guide
 from ..runtime.heap import match_heap_bytes
 from ..products.visualize import disparity_picture, write_picture, write_png
 from ..matching.guidance import lidar_share_of_points
-from .tiles import match_tiled, plan_tiles, scan_range_map, tube_widths
+from .tiles import check_tiling, match_tiled, plan_tiles, scan_range_map, tube_widths
 
 log = logging.getLogger(__name__)
-
-
-def check_tile_option(tile, overlap):
-    """``--tile`` as ``"auto"`` or an int (0: never tile; else >= 16 px) and ``--overlap`` >= 0, or RiverbedError."""
-    tile = str(tile)
-    if tile != "auto" and not (tile.isdigit() and (int(tile) == 0 or int(tile) >= 16)):
-        raise RiverbedError(f"--tile must be auto, 0 or a size of at least 16 px, not '{tile}'")
-    if overlap < 0:
-        raise RiverbedError(f"--overlap must be >= 0, got {overlap}")
-    return tile if tile == "auto" else int(tile)
 
 
 def open_inputs(left, right, sparse, sparse_scale, max_pixels):
@@ -141,7 +131,7 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
                             "--sparse)", confidence)
     if fusion == "none":  # no LiDAR side beside the matcher: its idle workers may spin (runtime/openmp.py)
         runtime.spin_between_regions()
-    tile = check_tile_option(tile, overlap)
+    tile = check_tiling(tile, overlap)
     # the inputs before the range: a broken image is reported as such, not as a range to give
     left_src, right_src, sparse_src = open_inputs(left, right, sparse, sparse_scale, max_pixels)
     H, W = left_src.shape[:2]

@@ -22,7 +22,7 @@ import psutil
 from ..errors import RiverbedError
 from ..io.images import to_guide
 from ..io.windowed import bounded_raster_cache, image_bits, sparse_points_any
-from ..matching.config import OVERLAP_DEFAULT, TILE_DEFAULT
+from ..matching.config import OVERLAP_DEFAULT, SETTINGS_BY_NAME, TILE_DEFAULT, tile_size
 from ..matching.guidance import lidar_share, lidar_share_of_points
 from ..matching.lidar_input import check_disparity_values, check_inside, resolve_disparity_range
 from ..matching.pipeline import check_lidar_count, lidar_points_needed, make_config, match_pair, resolve_range
@@ -32,6 +32,7 @@ from ..matching.lidar_offset import correct_large
 from ..matching.registry import get_guide, get_matcher
 from ..matching.tubes import cell_widths_from_points, lidar_tubes_window, range_map_summary
 from ..matching.results import MatchResult, TiledMatchInfo
+from ..settings import SettingError, parse_text
 
 log = logging.getLogger(__name__)
 
@@ -94,10 +95,29 @@ class Tile:
     source: str = "global"  # where the range came from: lidar, neighbours or global
 
 
+def check_tiling(tile, overlap):
+    """``--tile`` (``"auto"``, 0: never tile, else a side >= 16 px; command-line text or a value) and ``--overlap``
+    checked by the settings table's validators, the ones block manifests use (one rule, one message); returns the
+    tile, or raises RiverbedError."""
+    out = {}
+    for name, value in (("tile", tile), ("overlap", overlap)):
+        setting = SETTINGS_BY_NAME[name]
+        try:
+            out[name] = setting.validate(parse_text(setting, value))
+        except SettingError as e:
+            raise RiverbedError(f"{setting.option}: {e}") from None
+    return out["tile"]
+
+
 def tile_grid(height, width, tile):
-    """Tiles of at most ``tile x tile`` pixels covering the image, row by row."""
-    if tile < 16:
-        raise RiverbedError(f"--tile must be at least 16 px, got {tile}")
+    """Tiles of at most ``tile x tile`` pixels covering the image, row by row; ``tile`` a side in px, checked by
+    the ``tile`` setting's validator (:func:`~riverbed_cli.matching.config.tile_size`: at least 16)."""
+    try:
+        tile = tile_size(tile)
+    except SettingError as e:
+        raise RiverbedError(f"--tile: {e}") from None
+    if tile in ("auto", 0):  # plan_tiles' to resolve, not a side
+        raise RiverbedError(f"--tile: a tile grid needs a side in px, not {tile!r}")
     ys = list(range(0, height, tile))
     xs = list(range(0, width, tile))
     return [Tile(y, min(y + tile, height), x, min(x + tile, width)) for y in ys for x in xs]
@@ -440,6 +460,7 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, *, params=None
     sums.
     """
     p = make_config(params, **overrides)
+    tile = check_tiling(tile, overlap)
     guide = get_guide(p.guide)
     H, W = left.shape[:2]
     if right.shape[:2] != (H, W):
@@ -487,8 +508,6 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, *, params=None
             check_seconds = round(time.perf_counter() - t0, 4)
         if scan is not None:
             scan.check(d_min, d_max)
-        if overlap < 0:
-            raise RiverbedError(f"--overlap must be >= 0, got {overlap}")
         # the LiDAR inside the range guides the cost, as match_pair's; all of it bounds the tubes (tube_share)
         guide_share = share
         if sparse is not None:
