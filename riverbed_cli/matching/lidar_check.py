@@ -482,6 +482,11 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
     return kept, LidarCheck(report, changed, dropped)
 
 
+#: the reference's settings (the others are the run's): unguided census SGM over the whole range, left-right checked
+REFERENCE_MATCH = {"matcher": "sgm", "guide": "none", "range": "full", "fusion": "none", "lr_check": True,
+                   "lidar_check": "off", "lidar_offset": "none"}
+
+
 def coarse_reference(left, right, d_min, d_max, config, match, factor=FACTOR):
     """The check's reference: ``match`` (:func:`~riverbed_cli.matching.pipeline.match_pair`) of the pair at
     ``1 / factor`` resolution, unguided census SGM over ``[d_min, d_max] / factor`` with its left-right check and
@@ -493,8 +498,7 @@ def coarse_reference(left, right, d_min, d_max, config, match, factor=FACTOR):
         return None
     small = [cv2.resize(np.ascontiguousarray(im), (w, h), interpolation=cv2.INTER_AREA) for im in (left, right)]
     return match(small[0], small[1], None, int(math.floor(d_min / factor)), int(math.ceil(d_max / factor)),
-                 params=config, matcher="sgm", guide="none", range="full", fusion="none", lr_check=True,
-                 lidar_check="off", lidar_offset="none").disparity
+                 params=config, **REFERENCE_MATCH).disparity
 
 
 def check_pair(left, right, sparse, d_min, d_max, config, match):
@@ -537,6 +541,7 @@ def warm_up():
     sparse[::3, ::3] = 3.0
     sparse[12:54:3, 24:84:3] = 13.0  # a raised block: the region and flood kernels run too
     check_lidar(left, right, sparse, np.full((32, 48), 1.5, np.float32))
+    plane_at(sparse, np.array([3]), np.array([3]), 3)  # the lone points' plane, which this pair does not reach
 
 
 def lidar_mask(sparse, check):

@@ -15,7 +15,7 @@ from ..runtime.beside import After, Beside
 from . import fusions, guides, matchers  # noqa: F401  (importing them fills the registries)
 from .config import MatchConfig
 from .overlap import keep_fusion_to_lidar, keep_to_overlap, lidar_coverage
-from .lidar_check import check_pair, prefer_stereo
+from .lidar_check import REFERENCE_MATCH, check_pair, prefer_stereo
 from .lidar_check import warm_up as warm_check
 from .lidar_input import check_disparity_values, prepare_lidar, resolve_disparity_range
 from .lidar_offset import correct_lidar
@@ -270,8 +270,9 @@ def warm_up(matcher="sgm", guide_names=("none", "gauss", "riverbed"), config=Non
     if config is not None:
         if fusion_lidar is not None:
             config = config.replace(fusion_lidar=fusion_lidar)
-        if config.lidar_check == "auto":  # the tiny pair is too small for the check's reference
-            warm_check()
+        if config.lidar_check == "auto":  # the check's kernels, and its reference's match (too small a pair for the
+            warm_check()  # reference itself)
+            match_pair(left, right, None, 0, 7, params=config, **REFERENCE_MATCH)
         match_pair(left, right, sparse if get_guide(config.guide).needs_sparse or config.range != "full" else None,
                    0, 7, params=config)
         if config.tube.holes == "coarse" and config.range != "full":  # the coarse match of the tube rule's holes
