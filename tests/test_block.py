@@ -337,8 +337,8 @@ def test_several_clouds_keep_the_nearer_point_and_skip_clouds_elsewhere(block, t
                                            {"pair": str(base / "a" / "pair.yaml"), "cloud": clouds[:1],
                                             "name": "w"}]}))
     plan = plan_block(m, tmp_path / "out")
-    proj = project_stage(plan.jobs[0])
-    assert proj["stats"]["clouds"] == 2 and proj["stats"]["clouds_without_points"] == 1
+    pair_plan = project_stage(plan.jobs[0])
+    assert pair_plan.stats["clouds"] == 2 and pair_plan.stats["clouds_without_points"] == 1
     merged = read_disparity(tmp_path / "out" / "pairs" / "a" / "sparse.tif")
     project_stage(plan.jobs[1])
     near = read_disparity(tmp_path / "out" / "pairs" / "w" / "sparse.tif")

@@ -114,7 +114,8 @@ from .plan import (DONE, MARKER, MERGED, OUTPUTS, RECTIFIED, TEMP_NAME, WORK, Bl
 from .runner import BlockResult, run_block, task_finish, task_merge, task_project, task_tile
 from .settings import SettingError, default_settings, match_params, settings_spec
 from .split import MIN_RIGHT_SHARE, split_axis, split_rois, write_split_manifest
-from .stages import PairFailure, RectifyError, finish_stage, n_tasks, project_stage, run_pair, tile_stage
+from .stages import (PairFailure, PairPlan, RectifyError, finish_stage, n_tasks, project_stage, run_pair,
+                     tile_stage)
 
 __all__ = [
     # manifest
@@ -129,7 +130,8 @@ __all__ = [
     # splitting a satellite scene into ROIs
     "MIN_RIGHT_SHARE", "split_axis", "split_rois", "write_split_manifest",
     # stages
-    "PairFailure", "RectifyError", "finish_stage", "n_tasks", "project_stage", "run_pair", "tile_stage",
+    "PairFailure", "PairPlan", "RectifyError", "finish_stage", "n_tasks", "project_stage", "run_pair",
+    "tile_stage",
     # merging
     "merge_dsm", "merge_heights", "merge_settings",
     # running

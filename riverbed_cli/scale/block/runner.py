@@ -48,19 +48,19 @@ def task_project(job, threads):
     return _guard("project", project_stage, job)
 
 
-def task_tile(job, proj, index, threads):
-    if isinstance(proj, PairFailure):
-        return proj
+def task_tile(job, pair_plan, index, threads):
+    if isinstance(pair_plan, PairFailure):
+        return pair_plan
     _numba_threads(threads)
-    return _guard("match", tile_stage, job, proj, index)
+    return _guard("match", tile_stage, job, pair_plan, index)
 
 
-def task_finish(job, proj, tiles, threads):
-    for r in (proj, *tiles):
+def task_finish(job, pair_plan, tiles, threads):
+    for r in (pair_plan, *tiles):
         if isinstance(r, PairFailure):
             return r
     _numba_threads(threads)
-    result = _guard("dsm", finish_stage, job, proj, tiles)
+    result = _guard("dsm", finish_stage, job, pair_plan, tiles)
     if isinstance(result, dict):  # the Numba threads this task ran with (the summary's, not done.json's)
         result = {**result, "numba_threads": numba.get_num_threads()}
     return result
@@ -276,8 +276,8 @@ def _settle(client, fut, kind, job, threads, run, opts, kinds, ac, entries, star
         exc = fut.exception() if fut.status == "error" else None
         entries[job.name] = _pair_entry(job, "failed", seconds, error=_describe(exc) if exc is not None
                                         else f"task {fut.status}", stage=kind if kind == "project" else None)
-    elif kind == "project" and not isinstance(proj := fut.result(), PairFailure):
-        n = n_tasks(proj)
+    elif kind == "project" and not isinstance(pair_plan := fut.result(), PairFailure):
+        n = n_tasks(pair_plan)
         if progress:
             progress("plan", job.name, n)
         fts = [client.submit(task_tile, job, fut, i, threads, key=f"tile-{job.name}-{i}-{run}", **opts)
@@ -304,16 +304,16 @@ def _run_sequential(jobs, progress):
     for job in jobs:
         t1 = time.perf_counter()
         try:
-            result = proj = task_project(job, 0)
-            if not isinstance(proj, PairFailure):
+            result = pair_plan = task_project(job, 0)
+            if not isinstance(pair_plan, PairFailure):
                 if progress:
-                    progress("plan", job.name, n_tasks(proj))
+                    progress("plan", job.name, n_tasks(pair_plan))
                 tiles = []
-                for i in range(n_tasks(proj)):
-                    tiles.append(task_tile(job, proj, i, 0))
+                for i in range(n_tasks(pair_plan)):
+                    tiles.append(task_tile(job, pair_plan, i, 0))
                     if progress:
                         progress("tile", job.name)
-                result = task_finish(job, proj, tiles, 0)
+                result = task_finish(job, pair_plan, tiles, 0)
         except Exception as e:  # one pair's crash must not stop the block
             log.debug("pair %s failed", job.name, exc_info=True)
             result = PairFailure(None, _describe(e))

@@ -6,6 +6,7 @@ import json
 import math
 import shutil
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -103,6 +104,34 @@ def _save_npy(src, path, rows=512):
         del out
 
 
+@dataclass
+class PairPlan:
+    """A projected pair's matching plan, handed from its project task to its match and finish tasks (plain values:
+    dask sends it between processes as it is).
+
+    ``tiles``: ``[y0, y1, x0, x1, d_min, d_max, source]`` per tile, empty when the pair is matched whole;
+    ``window``: the guide's window (one for every tile); ``bits``: the images' bit depth when tiled (one 16-bit
+    scale for all tiles), else None; ``d_min``, ``d_max``: the pair's range (px); ``stats``: what projection and
+    the LiDAR's offset and check found (the pair's summary takes them); ``shape``: ``[H, W]``; ``range_map``: the
+    pair's per-pixel ranges are in its ``.work`` folder; ``rectify_seconds``: its ROI's rectification (RPC
+    entries), None without one; ``seconds``: the project task's."""
+
+    tiles: list
+    window: object
+    bits: object
+    d_min: int
+    d_max: int
+    stats: dict
+    shape: list
+    range_map: bool = False
+    rectify_seconds: float = None
+    seconds: float = 0.0
+
+    @property
+    def tiled(self):
+        return bool(self.tiles)
+
+
 def project_stage(job):
     """Project the pair's clouds into sparse disparities (``sparse.tif``) and plan the matching.
 
@@ -110,8 +139,7 @@ def project_stage(job):
     clouds whose box misses the left image are not read, and a cloud with no point in the pair is ignored as
     long as another one has points. A pair larger than the tile is planned as :func:`match_tiled` plans it (tile
     size, LiDAR tile ranges, one riverbed window and one 16-bit scale for all tiles) and its images are copied
-    to ``.work/*.npy`` for the tile tasks to read crops from. Returns a small dict: ``tiles`` (``[y0, y1, x0, x1,
-    d_min, d_max, source]``, empty when not tiled), ``window``, ``bits``, ``d_min``, ``d_max``, ``stats``.
+    to ``.work/*.npy`` for the tile tasks to read crops from. Returns the :class:`PairPlan`.
     """
     t0 = time.perf_counter()
     s = job.settings
@@ -209,9 +237,8 @@ def project_stage(job):
              "tile": int(plan.size) if tiles else None,
              **({"lidar_offset": offset.to_dict()} if offset is not None else {}),
              **({"lidar_check": check.report.to_dict()} if check is not None else {}), **dsm_stats}
-    return {"tiles": tiles, "window": window, "bits": bits, "d_min": d_min, "d_max": d_max, "stats": stats,
-            "shape": [H, W], "range_map": rmap is not None, "rectify_seconds": t_rectify,
-            "seconds": round(time.perf_counter() - t0, 4)}
+    return PairPlan(tiles, window, bits, d_min, d_max, stats, [H, W], rmap is not None, t_rectify,
+                    round(time.perf_counter() - t0, 4))
 
 
 def pair_params(s, lidar=True):
@@ -293,14 +320,14 @@ def _pair_ranges(lo, hi, shape, d_min, d_max, s, work, source):
     return d_min, d_max, scan
 
 
-def _load_range_map(folder, proj):
+def _load_range_map(folder, plan):
     # the range map project_stage kept (memory-mapped: a tile reads its crop only), or None
-    if not proj.get("range_map"):
+    if not plan.range_map:
         return None
     return tuple(np.load(folder / WORK / f"range_{end}.npy", mmap_mode="r") for end in ("lo", "hi"))
 
 
-def tile_stage(job, proj, index):
+def tile_stage(job, plan, index):
     """Match tile ``index`` of a tiled pair (crops read from disk), or the whole pair when it is not tiled.
 
     Tiled: :func:`~riverbed_cli.scale.tiles.match_tile`, the body of ``match_tiled``'s loop
@@ -310,13 +337,13 @@ def tile_stage(job, proj, index):
     t0 = time.perf_counter()
     s = job.settings
     # sparse.tif holds the corrected and checked LiDAR, .work/changed.npy the check's changed area (project_stage)
-    lidar = bool(proj["stats"]["clouds"])
+    lidar = bool(plan.stats["clouds"])
     p = pair_params(s, lidar).replace(lidar_offset="none", lidar_check="off")
     folder = Path(job.folder)
-    H, W = proj["shape"]
+    H, W = plan.shape
     at = folder / WORK / "changed.npy"
     changed = np.load(at, mmap_mode="r") if at.exists() else None
-    if not proj["tiles"]:
+    if not plan.tiles:
         pair = load_pairfile(job.pair, accept_rpc=True)
         left = read_image(pair.left, s["max_pixels"])
         right = read_image(pair.right, s["max_pixels"])
@@ -325,39 +352,39 @@ def tile_stage(job, proj, index):
             raise RiverbedError(f"image is {left.shape[1]}x{left.shape[0]} but the pair file says {W}x{H} (WxH)",
                                 pair.left)
         sparse = read_disparity(folder / "sparse.tif") if lidar else None
-        rmap = _load_range_map(folder, proj)
+        rmap = _load_range_map(folder, plan)
         valid = tuple(read_valid_area(path) for path in (pair.left, pair.right))
         ch = None if changed is None else np.asarray(changed)
         if rmap is None:  # with LiDAR, the range it gives (as project_stage found it); without, the pair's
-            d0, d1 = (s["min_disp"], s["max_disp"]) if lidar else (proj["d_min"], proj["d_max"])
+            d0, d1 = (s["min_disp"], s["max_disp"]) if lidar else (plan.d_min, plan.d_max)
             res = match_pair(left, right, sparse, d0, d1, params=p, valid_areas=valid, changed_area=ch)
         else:  # the pair's range, widened to hold the map
-            res = match_pair(left, right, sparse, proj["d_min"], proj["d_max"], params=p, range_map=rmap,
+            res = match_pair(left, right, sparse, plan.d_min, plan.d_max, params=p, range_map=rmap,
                              valid_areas=valid, changed_area=ch)
         n_d = res.info["d_max"] - res.info["d_min"] + 1
         return {"index": 0, "disparity": res.disparity, "evaluations": H * W * n_d, "stages": res.info["stages"],
                 "seconds": round(time.perf_counter() - t0, 4)}
-    p = p.replace(window=proj["window"])
-    tile = Tile(*proj["tiles"][index])
+    p = p.replace(window=plan.window)
+    tile = Tile(*plan.tiles[index])
     left = np.load(folder / WORK / "left.npy", mmap_mode="r")
     right = np.load(folder / WORK / "right.npy", mmap_mode="r")
     sparse = WindowedRaster(folder / "sparse.tif", "disparity") if lidar else None
     # the pair's LiDAR share and range: every tile takes the whole pair's tubes, as match_tiled does
     valid = tuple(np.load(f, mmap_mode="r") if f.exists() else None
                   for f in (folder / WORK / f"{side}_valid.npy" for side in ("left", "right")))
-    disp, n, stages, _ = match_tile(left, right, sparse, tile, s["overlap"], p, proj["bits"],
-                                    proj["stats"]["lidar_share"], (proj["d_min"], proj["d_max"]),
-                                    _load_range_map(folder, proj), valid_areas=valid, changed=changed)
+    disp, n, stages, _ = match_tile(left, right, sparse, tile, s["overlap"], p, plan.bits,
+                                    plan.stats["lidar_share"], (plan.d_min, plan.d_max),
+                                    _load_range_map(folder, plan), valid_areas=valid, changed=changed)
     return {"index": index, "disparity": disp, "evaluations": n, "stages": stages,
             "seconds": round(time.perf_counter() - t0, 4)}
 
 
-def n_tasks(proj):
+def n_tasks(plan):
     """Number of matching tasks a projected pair needs (its tiles, or one)."""
-    return len(proj["tiles"]) or 1
+    return len(plan.tiles) or 1
 
 
-def finish_stage(job, proj, tiles):
+def finish_stage(job, plan, tiles):
     """Stitch the tiles, triangulate, write ``disparity.tif``, ``points.laz``, ``dsm.tif`` and, last, ``done.json``.
 
     Returns the pair's summary (``points``, ``resolution``, ``crs``, per-stage ``seconds``).
@@ -367,12 +394,12 @@ def finish_stage(job, proj, tiles):
     folder = Path(job.folder)
     clean_temps(folder, (*OUTPUTS, DONE))
     (folder / "change.tif").unlink(missing_ok=True)  # a previous run's: this one writes its own, if any
-    H, W = proj["shape"]
-    tiled = bool(proj["tiles"])
+    H, W = plan.shape
+    tiled = bool(plan.tiles)
     if tiled:
         disp = np.full((H, W), np.nan, np.float32)
         for t in tiles:
-            y0, y1, x0, x1 = proj["tiles"][t["index"]][:4]
+            y0, y1, x0, x1 = plan.tiles[t["index"]][:4]
             disp[y0:y1, x0:x1] = t["disparity"]
     else:
         disp = tiles[0]["disparity"]
@@ -395,7 +422,7 @@ def finish_stage(job, proj, tiles):
     if rpc:  # two RPC rays intersected: points in the block's crs, default the scene's UTM zone; heights ellipsoidal
         pair.crs = crs = output_crs(pair, s["crs"], option="crs")
     else:
-        crs = s["crs"] or pair.crs or proj["stats"]["lidar_crs"]
+        crs = s["crs"] or pair.crs or plan.stats["lidar_crs"]
     # triangulated once, the points kept for points.laz: riverbed dsm's DSM of the pair
     result = build_dsm([(disp, pair, image)], resolution=s["resolution"], agg=s["agg"], keep_points=True)
     del image
@@ -410,15 +437,15 @@ def finish_stage(job, proj, tiles):
         change_stats.pop("lidar_offset_px", None)
     grid, xyz = result.grid, result.points[0]
     t_match = sum(t["seconds"] for t in tiles)
-    seconds = {"project": proj["seconds"], "match": round(t_match, 4), "dsm": round(time.perf_counter() - t0, 4)}
-    if proj.get("rectify_seconds") is not None:  # included in "project"
-        seconds["rectify"] = proj["rectify_seconds"]
+    seconds = {"project": plan.seconds, "match": round(t_match, 4), "dsm": round(time.perf_counter() - t0, 4)}
+    if plan.rectify_seconds is not None:  # included in "project"
+        seconds["rectify"] = plan.rectify_seconds
     summary = {"points": len(xyz), "resolution": grid.resolution, "crs": crs,
                **({"heights": RPC_HEIGHTS, "roi": list(pair.roi)} if rpc else {}),
-               "bounds": list(grid.bounds), **proj["stats"], **info, "d_min": proj["d_min"],
-               "d_max": proj["d_max"], **({"change_map": change_stats} if change_stats else {}), "seconds": seconds}
+               "bounds": list(grid.bounds), **plan.stats, **info, "d_min": plan.d_min,
+               "d_max": plan.d_max, **({"change_map": change_stats} if change_stats else {}), "seconds": seconds}
     outputs = {name: {"size": (folder / name).stat().st_size, "sha256": sha256_file(folder / name)}
-               for name in OUTPUTS if name != LIDAR_OUTPUT or proj["stats"]["clouds"]}
+               for name in OUTPUTS if name != LIDAR_OUTPUT or plan.stats["clouds"]}
     record = {"name": job.name, "pair": job.pair, "clouds": job.clouds, "settings_hash": job.settings_hash,
               "settings": s, "inputs": job.inputs, "outputs": outputs, "stats": summary,
               "riverbed": riverbed_version(), "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
@@ -443,10 +470,10 @@ def run_pair(job, progress=None):
 
     Raises :class:`RiverbedError` on bad input.
     """
-    proj = project_stage(job)
+    plan = project_stage(job)
     tiles = []
-    for i in range(n_tasks(proj)):
-        tiles.append(tile_stage(job, proj, i))
+    for i in range(n_tasks(plan)):
+        tiles.append(tile_stage(job, plan, i))
         if progress:
             progress("tile", job.name)
-    return finish_stage(job, proj, tiles)
+    return finish_stage(job, plan, tiles)
