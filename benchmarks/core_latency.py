@@ -16,7 +16,7 @@ import time
 import numpy as np
 from numba import njit, prange
 
-from riverbed_cli.matching.atomics import load_acquire, store_release
+from riverbed_cli.matching.kernels.atomics import load_acquire, store_release
 
 
 @njit(cache=True, parallel=True)

@@ -9,7 +9,7 @@ from numba import njit, prange
 
 from ..errors import RiverbedError
 from ..settings import parse_census_window
-from .lanes import LANES, lanes_census, lanes_census_bits, lanes_census_half
+from .kernels.lanes import LANES, lanes_census, lanes_census_bits, lanes_census_half
 from .volume import band_pair_rows, band_pairs
 
 # SWAR popcount constants. They must be np.uint64: mixing uint64 with int64 silently gives float64 in Numba.

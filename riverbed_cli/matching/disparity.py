@@ -9,7 +9,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
-from .lanes import LANES, lanes_find, lanes_sum, lanes_sum_wide, lanes_vote, lanes_vote_half
+from .kernels.lanes import LANES, lanes_find, lanes_sum, lanes_sum_wide, lanes_vote, lanes_vote_half
 from .volume import band_pair_rows, band_pairs, volume_layout
 
 

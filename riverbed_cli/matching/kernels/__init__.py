@@ -1,0 +1,5 @@
+"""The matchers' compiled building blocks, inlined into the stage kernels that use them: vector_ir.py (the LLVM
+vector types and the loads, stores and masks the vector steps are written with), lanes.py (16-lane steps: SGM's
+passes, the selection and its left-right votes, the census cost of tubes), lanes_runs.py (SGM's runs along a row),
+lanes_guidance.py (the guidance's ownership claims and walls) and atomics.py (atomic loads, stores and exchanges
+for the threads that share rows). Each step's plain statement is in the tests beside its stage's."""
