@@ -116,12 +116,16 @@ def test_a_stale_block_on_a_real_scene(cones):
     assert 8.0 <= inside["bad3"] <= 12.0
 
 
-def test_the_neighbour_kernel_is_its_plain_statement():
-    rng = np.random.default_rng(2)
+def scattered(seed, n):
+    """A 40 x 50 sparse map of ``n`` points at random pixels, random disparities in [0, 20), and the points."""
+    rng = np.random.default_rng(seed)
     sparse = np.full((40, 50), np.nan, np.float32)
-    idx = rng.choice(2000, 300, replace=False)
-    sparse.flat[idx] = rng.uniform(0, 20, 300).astype(np.float32)
-    rows, cols = np.nonzero(np.isfinite(sparse))
+    sparse.flat[rng.choice(2000, n, replace=False)] = rng.uniform(0, 20, n).astype(np.float32)
+    return sparse, *np.nonzero(np.isfinite(sparse))
+
+
+def test_the_neighbour_kernel_is_its_plain_statement():
+    sparse, rows, cols = scattered(2, 300)
     around, supported = lidar_check.neighbour_stats(sparse, rows, cols, 3)
     for i in range(rows.size):
         win = sparse[max(0, rows[i] - 3):rows[i] + 4, max(0, cols[i] - 3):cols[i] + 4].copy()
@@ -132,11 +136,7 @@ def test_the_neighbour_kernel_is_its_plain_statement():
 
 
 def test_the_plane_kernel_is_its_plain_statement():
-    rng = np.random.default_rng(3)
-    sparse = np.full((40, 50), np.nan, np.float32)
-    idx = rng.choice(2000, 150, replace=False)
-    sparse.flat[idx] = rng.uniform(0, 20, 150).astype(np.float32)
-    rows, cols = np.nonzero(np.isfinite(sparse))
+    sparse, rows, cols = scattered(3, 150)
     plane = lidar_check.plane_at(sparse, rows, cols, 4)
     for i in range(rows.size):
         y, x = np.mgrid[max(0, rows[i] - 4):min(40, rows[i] + 5), max(0, cols[i] - 4):min(50, cols[i] + 5)]
