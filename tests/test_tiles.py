@@ -65,6 +65,7 @@ def test_tile_size_is_checked():
         tile_grid(100, 100, 8)
     with pytest.raises(RiverbedError, match="--tile: a tile grid needs a side in px, not 0"):
         tile_grid(100, 100, 0)
+    assert len(tile_grid(100, 100, np.int64(32))) == 16  # a side numpy computed is a side
     assert check_tiling("96", 0) == 96 and check_tiling("auto", 8) == "auto" and check_tiling(0, 8) == 0
 
 

@@ -113,7 +113,7 @@ def tile_grid(height, width, tile):
     """Tiles of at most ``tile x tile`` pixels covering the image, row by row; ``tile`` a side in px, checked by
     the ``tile`` setting's validator (:func:`~riverbed_cli.matching.config.tile_size`: at least 16)."""
     try:
-        tile = tile_size(tile)
+        tile = tile_size(int(tile) if isinstance(tile, np.integer) else tile)
     except SettingError as e:
         raise RiverbedError(f"--tile: {e}") from None
     if tile in ("auto", 0):  # plan_tiles' to resolve, not a side
