@@ -196,7 +196,8 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
             raise RiverbedError(f"--lidar-mask is written for a whole match: this {W}x{H} pair is matched in tiles; "
                                 "give --tile 0", lidar_mask)
         return _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, plan.size, overlap,
-                            lidar_range, output, color_png, overwrite, progress, rmap, confidence, scan, valid)
+                            lidar_range, output, color_png, overwrite, progress, rmap, confidence, scan, valid,
+                            points)
 
     step = progress(3) if progress else None
     left_img, right_img = (np.asarray(s[:, :]) if isinstance(s, WindowedRaster) else s for s in (left_src, right_src))
@@ -237,7 +238,8 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
 
 
 def _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, size, overlap, lidar_range, output,
-                 color_png, overwrite, progress, range_map=None, confidence=None, range_scan=None, valid=None):
+                 color_png, overwrite, progress, range_map=None, confidence=None, range_scan=None, valid=None,
+                 points=None):
     H, W = left_src.shape[:2]
     n_tiles = -(-H // size) * -(-W // size)
     step = progress(n_tiles) if progress else None
@@ -253,14 +255,14 @@ def _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, si
                 result = match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, params=config, tile=size,
                                      overlap=overlap, lidar_range=lidar_range, progress=advance, out=sink,
                                      range_map=range_map, confidence_out=conf_sink, range_scan=range_scan,
-                                     valid_areas=valid)
+                                     valid_areas=valid, points=points)
                 sink.update_tags(riverbed_guide=config.guide, riverbed_window=result.info["window"],
                                  riverbed_tiles=result.info["tiles"])
             disp = None
         else:
             result = match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, params=config, tile=size,
                                  overlap=overlap, lidar_range=lidar_range, progress=advance, range_map=range_map,
-                                 confidence_out=conf_sink, range_scan=range_scan, valid_areas=valid)
+                                 confidence_out=conf_sink, range_scan=range_scan, valid_areas=valid, points=points)
             disp = result.disparity
             write_disparity(output, disp, overwrite=overwrite, tags={"riverbed_guide": config.guide})
     if color_png:

@@ -442,11 +442,12 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
 
 def match_tiled(left, right, sparse=None, d_min=None, d_max=None, *, params=None, tile=TILE_DEFAULT,
                 overlap=OVERLAP_DEFAULT, lidar_range=True, progress=None, out=None, range_map=None,
-                confidence_out=None, range_scan=None, valid_areas=None, **overrides):
+                confidence_out=None, range_scan=None, valid_areas=None, points=None, **overrides):
     """:func:`match_pair` tile by tile; same arguments plus ``tile`` (px, ``"auto"`` or 0), ``overlap`` (px) and
     ``lidar_range``; ``range_map`` (per-pixel ``(lo, hi)``, NaN: the nominal range) as :func:`match_pair`'s: each
     tile searches the range the map spans there and its pixels their own intervals (``range_scan``: its
-    :func:`scan_range_map`, when the caller has read it already). ``confidence_out`` receives the
+    :func:`scan_range_map`, when the caller has read it already; ``points`` likewise ``sparse``'s points, ``(rows,
+    cols, values)``). ``confidence_out`` receives the
     fusion's confidence tile by tile as ``out`` the disparities (NaN in tiles that were not fused).
 
     ``valid_areas`` (the images' valid areas, :func:`match_tile`'s) as :func:`match_pair`'s.
@@ -471,7 +472,7 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, *, params=None
         t_all = time.perf_counter()
         share = 0.0
         if sparse is not None:
-            pr, pc, pv = sparse_points_any(sparse)
+            pr, pc, pv = sparse_points_any(sparse) if points is None else points
             if pv.size == 0:
                 raise RiverbedError("sparse map has no valid disparities")
             share = lidar_share_of_points(pr, pc, (H, W))
