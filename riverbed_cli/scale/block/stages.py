@@ -343,7 +343,7 @@ def tile_stage(job, plan, index):
     H, W = plan.shape
     at = folder / WORK / "changed.npy"
     changed = np.load(at, mmap_mode="r") if at.exists() else None
-    if not plan.tiles:
+    if not plan.tiled:
         pair = load_pairfile(job.pair, accept_rpc=True)
         left = read_image(pair.left, s["max_pixels"])
         right = read_image(pair.right, s["max_pixels"])
@@ -395,7 +395,7 @@ def finish_stage(job, plan, tiles):
     clean_temps(folder, (*OUTPUTS, DONE))
     (folder / "change.tif").unlink(missing_ok=True)  # a previous run's: this one writes its own, if any
     H, W = plan.shape
-    tiled = bool(plan.tiles)
+    tiled = plan.tiled
     if tiled:
         disp = np.full((H, W), np.nan, np.float32)
         for t in tiles:
