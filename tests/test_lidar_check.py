@@ -155,6 +155,28 @@ def test_the_plane_kernel_is_its_plain_statement():
     assert lidar_check.plane_at(ramp, [20], [20], 4)[0] == pytest.approx(30.0)
 
 
+def test_the_changed_area_drawn_in_its_box_is_the_whole_images():
+    # _changed_area closes the changed points' discs inside their bounding box with a margin: the same area as the
+    # plain statement, the closing over the whole image (points near the edges and far apart included)
+    import cv2
+
+    rng = np.random.default_rng(7)
+    for _ in range(60):
+        H, W = (int(v) for v in rng.integers(40, 300, 2))
+        n = int(rng.integers(1, 40))
+        cy, cx = int(rng.integers(0, H)), int(rng.integers(0, W))
+        rows = np.clip(cy + rng.integers(-60, 60, n), 0, H - 1)
+        cols = np.clip(cx + rng.integers(-60, 60, n), 0, W - 1)
+        spacing = float(rng.uniform(1, 12))
+        r = max(1, int(round(spacing)))
+        whole = np.zeros((H, W), np.uint8)
+        whole[rows, cols] = 1
+        whole = cv2.dilate(whole, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+        whole = cv2.morphologyEx(whole, cv2.MORPH_CLOSE,
+                                 cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (4 * r + 1, 4 * r + 1))).astype(bool)
+        assert np.array_equal(lidar_check._changed_area(rows, cols, (H, W), spacing), whole)
+
+
 def test_the_setting_and_its_message():
     assert validate_setting("lidar_check", "off") == "off"
     with pytest.raises(SettingError, match="'maybe'"):
