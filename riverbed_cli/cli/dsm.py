@@ -139,7 +139,7 @@ def dsm_cmd(disp_pair, output, points_out, resolution, agg, bounds, nodata, fill
     co = parse_creation_options(creation)
     check_creation_options(co, bands=2 if fill_holes else 1, nodata=nodata)
 
-    sources, confs, changes = read_couples(disp_pair, confidences, sparses if change_out else (), masks)
+    sources, confs, changes = read_couples(disp_pair, confidences, sparses, masks)
     reg = load_registration(registration) if registration else None
     crs, rpc = dsm_crs(sources, crs, clouds)
     total = sum(d.shape[0] for d, _, _ in sources)

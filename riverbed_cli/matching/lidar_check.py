@@ -59,6 +59,7 @@ from numba import njit, prange
 from ..io.images import effective_bits, to_grey
 from ..records import RecordMapping
 from .lidar_offset import RADIUS, patch_costs
+from .range_maps import coarse_match
 
 #: the coarse reference's scale: 1 / FACTOR of the image's resolution
 FACTOR = 2
@@ -491,14 +492,8 @@ def coarse_reference(left, right, d_min, d_max, config, match, factor=FACTOR):
     """The check's reference: ``match`` (:func:`~riverbed_cli.matching.pipeline.match_pair`) of the pair at
     ``1 / factor`` resolution, unguided census SGM over ``[d_min, d_max] / factor`` with its left-right check and
     ``config``'s other settings; (h, w) float32 in coarse px, NaN where it failed. None for a pair smaller than
-    16 px at that scale."""
-    H, W = left.shape[:2]
-    h, w = H // factor, W // factor
-    if min(h, w) < 16:
-        return None
-    small = [cv2.resize(np.ascontiguousarray(im), (w, h), interpolation=cv2.INTER_AREA) for im in (left, right)]
-    return match(small[0], small[1], None, int(math.floor(d_min / factor)), int(math.ceil(d_max / factor)),
-                 params=config, **REFERENCE_MATCH).disparity
+    16 px at that scale (:func:`~riverbed_cli.matching.range_maps.coarse_match`)."""
+    return coarse_match(left, right, d_min, d_max, factor, config, match, REFERENCE_MATCH)
 
 
 def check_pair(left, right, sparse, d_min, d_max, config, match):

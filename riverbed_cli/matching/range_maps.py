@@ -13,6 +13,7 @@ import numpy as np
 from ..errors import RiverbedError
 from .tubes import HOLE_FACTOR, hole_bounds, range_map_summary
 
+
 def check_range_map_shape(lo, hi, shape):
     """:class:`RiverbedError` unless both bands of a range map are of ``shape``."""
     if tuple(lo.shape) != tuple(shape) or tuple(hi.shape) != tuple(shape):
@@ -56,24 +57,34 @@ def range_map_ends(lo, hi, d_min, d_max):
 COARSE_MATCH = {"matcher": "sgm", "guide": "none", "range": "full", "fusion": "none", "lr_check": False}
 
 
+def coarse_match(left, right, d_min, d_max, factor, config, match, settings):
+    """``match`` (:func:`~riverbed_cli.matching.pipeline.match_pair`) of the pair shrunk ``factor`` times (area
+    averaging) over ``[d_min, d_max] / factor``, with ``settings`` over ``config``'s: its disparity, (h, w) float32
+    in coarse px; None for a pair smaller than 16 px at that scale. The coarse matches of the tube holes and of the
+    LiDAR check."""
+    H, W = left.shape[:2]
+    h, w = H // factor, W // factor
+    if min(h, w) < 16:
+        return None
+    small = [cv2.resize(np.ascontiguousarray(im), (w, h), interpolation=cv2.INTER_AREA) for im in (left, right)]
+    return match(small[0], small[1], None, int(math.floor(d_min / factor)), int(math.ceil(d_max / factor)),
+                 params=config, **settings).disparity
+
+
 def coarse_hole_ranges(left, right, d_min, d_max, config, match):
     """Per-pixel ranges ``(lo, hi)`` (inclusive int32, full resolution) from an unguided match of the pair at
     ``1 / HOLE_FACTOR`` resolution, for the tube rule's holes (:func:`~riverbed_cli.matching.tubes.hole_bounds`).
 
-    The coarse match is census SGM over the nominal range divided by the factor, with no left-right check,
-    guidance, tubes or fusion; the other settings are ``config``'s; ``match`` is
+    The coarse match (:func:`coarse_match`) is census SGM over the nominal range divided by the factor, with no
+    left-right check, guidance, tubes or fusion; the other settings are ``config``'s; ``match`` is
     :func:`~riverbed_cli.matching.pipeline.match_pair`. A pair smaller than 16 px at that scale gets the nominal
     range.
     """
-    f = HOLE_FACTOR
     H, W = left.shape[:2]
-    h, w = H // f, W // f
-    if min(h, w) < 16:
+    disparity = coarse_match(left, right, d_min, d_max, HOLE_FACTOR, config, match, COARSE_MATCH)
+    if disparity is None:
         return np.full((H, W), d_min, np.int32), np.full((H, W), d_max, np.int32)
-    small = [cv2.resize(np.ascontiguousarray(im), (w, h), interpolation=cv2.INTER_AREA) for im in (left, right)]
-    res = match(small[0], small[1], None, int(math.floor(d_min / f)), int(math.ceil(d_max / f)),
-                     params=config, **COARSE_MATCH)
-    return hole_bounds(res.disparity, (H, W), d_min, d_max, f)
+    return hole_bounds(disparity, (H, W), d_min, d_max, HOLE_FACTOR)
 
 
 def fill_tube_holes(left, right, lo, hi, hole, d_min, d_max, config, match):
