@@ -37,8 +37,9 @@ Stage: ``(left, right, LiDAR disparities, a coarse unguided match of the pair) -
   (none lies within ``TAU`` px of it) is dropped when the images contradict it, or when it lies more than
   ``2 TAU`` px off both the median of those points and their least-squares plane (:func:`plane_at`: a point on
   a steep slope lies off the median, not off the plane; with no plane the neighbours are too few to outvote it)
-  and the images do not vouch for it: the reference does not confirm it and its patch cost is not at least
-  :data:`MARGIN` below the best near the neighbours' median (a flat patch vouches for nothing).
+  and the images do not vouch for it: the reference does not confirm it, and its patch does not both correlate
+  (cost at most :data:`VOUCH`) and cost at least :data:`MARGIN` less than the best near the neighbours' median
+  (a flat patch vouches for nothing).
 * **Downstream** (:func:`~riverbed_cli.matching.pipeline.match_pair`). The points dropped guide nothing, bound no
   tube and are not interpolated by the fusion. The changed area (a disc of one spacing round each changed point,
   closed over two) searches the whole range instead of the tubes of the LiDAR around it, and there the fusion keeps
@@ -96,6 +97,8 @@ MIN_COMPARED = 8
 SEEN_SHARE = 0.3
 #: a change spreads through at most this many LiDAR points in a row the images cannot judge
 UNKNOWN_HOPS = 2
+#: a point's own patch vouches for it only when it correlates: 1 - ZNCC at most this
+VOUCH = 0.5
 
 
 @dataclass
@@ -225,7 +228,7 @@ def _explained_kernel(sparse, rows, cols, values, alt, band, edge, tau, out):
 
 
 @njit(cache=True, parallel=True)
-def _neighbour_kernel(sparse, rows, cols, radius, tau, around, supported):
+def _neighbour_kernel(sparse, rows, cols, radius, tau, around, support):
     H, W = sparse.shape
     side = 2 * radius + 1
     for j in prange(rows.size):
@@ -233,7 +236,7 @@ def _neighbour_kernel(sparse, rows, cols, radius, tau, around, supported):
         v = sparse[r, c]
         vals = np.empty(side * side, np.float32)
         k = 0
-        ok = False
+        count = 0
         for y in range(max(0, r - radius), min(H, r + radius + 1)):
             for x in range(max(0, c - radius), min(W, c + radius + 1)):
                 s = sparse[y, x]
@@ -245,25 +248,25 @@ def _neighbour_kernel(sparse, rows, cols, radius, tau, around, supported):
                     vals[i] = s
                     k += 1
                     if abs(s - v) <= tau:
-                        ok = True
+                        count += 1
         if k == 0:
             around[j] = np.nan
         elif k % 2:
             around[j] = vals[k // 2]
         else:
             around[j] = 0.5 * (np.float64(vals[k // 2 - 1]) + np.float64(vals[k // 2]))
-        supported[j] = ok
+        support[j] = count
 
 
 def neighbour_stats(sparse, rows, cols, radius):
     """Per LiDAR point ``(rows, cols)`` of ``sparse``: the median of the other points within a square of ``radius``
-    px (float64, NaN with none) and whether one of them lies within :data:`TAU` px of it (bool: a point no
-    neighbour supports may be an outlier)."""
+    px (float64, NaN with none) and how many of them lie within :data:`TAU` px of it (int32, its support: a point
+    no neighbour supports, or only one, may be an outlier)."""
     around = np.empty(rows.size, np.float64)
-    supported = np.empty(rows.size, np.bool_)
+    support = np.empty(rows.size, np.int32)
     _neighbour_kernel(np.ascontiguousarray(sparse, np.float32), np.asarray(rows, np.int64),
-                      np.asarray(cols, np.int64), int(radius), np.float32(TAU), around, supported)
-    return around, supported
+                      np.asarray(cols, np.int64), int(radius), np.float32(TAU), around, support)
+    return around, support
 
 
 @njit(cache=True, parallel=True)
@@ -399,7 +402,8 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
     gl, gr = to_grey(left, bits), to_grey(right, bits)
     spacing = math.sqrt(shape[0] * shape[1] / n)
     near = max(1, int(math.ceil(NEAR * spacing)))
-    around, supported = neighbour_stats(sparse, rows, cols, near)
+    around, support = neighbour_stats(sparse, rows, cols, near)
+    supported = support > 0
     alt = reference_at(reference, rows, cols, factor)
     if searched is not None:  # the reference cannot see a point outside its range: nothing judges it
         outside = (values < searched[0]) | (values > searched[1])
@@ -468,8 +472,7 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
         i = i[np.abs(values[i] - plane) > 2 * TAU]
     if i.size:  # the images do not vouch for it: its patch is not clearly better than the neighbours'
         own, best = _costs(gl, gr, rows[i], cols[i], values[i], around[i], factor)
-        outlier[i] = ~((own < NO_INFO) & (own + MARGIN <= best))
-
+        outlier[i] = ~((own <= VOUCH) & (own + MARGIN <= best))
     dropped = np.zeros(shape, np.uint8)
     dropped[rows[outlier], cols[outlier]] = 1
     dropped[rows[in_region], cols[in_region]] = 2
