@@ -20,6 +20,7 @@ ALLOWED_LOCAL_IMPORTS = {
     "riverbed_cli.products.visualize": "matplotlib loads only when a picture is drawn: commands writing none skip it",
     "riverbed_cli.geometry.rpc": "shareloc (numba, 1.3 s) loads only to read OSSIM .geom and DIMAP v1 RPC files",
     "riverbed_cli.runtime.numba_cache": "Numba loads when a command runs, not for `riverbed match --help`",
+    "riverbed_cli.runtime.threads": "Numba and OpenCV load when a command runs with --threads, not for --help",
     "riverbed_cli.__main__": "the program's Env is entered before NumPy is imported (it reads its settings then)",
     "riverbed_cli.cli.options": "tqdm (22-34 ms after Numba) loads only for a progress bar that shows on a terminal",
     # the AD-Census, riverbed+ and diffusion kernels' modules load only in the runs that use them: a default

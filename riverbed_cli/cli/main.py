@@ -2,6 +2,7 @@
 only when they run (or their ``--help`` is asked for): ``riverbed --help`` loads no subcommand, as rasterio's
 ``rio`` loads its commands from entry points."""
 
+import contextlib
 import functools
 import importlib
 import sys
@@ -11,6 +12,7 @@ import click
 from ..errors import RiverbedError, one_line
 from ..io.atomic import release_claims
 from .. import runtime
+from ..runtime.threads import threads as kernel_threads
 from .options import setup_logging
 
 
@@ -79,8 +81,11 @@ def _before_kernels(callback):
 
     @functools.wraps(callback)
     def run(*args, **kwargs):
-        runtime.before_kernels()
-        return callback(*args, **kwargs)
+        ctx = click.get_current_context(silent=True)
+        threads = (ctx.find_root().obj or {}).get("threads") if ctx is not None else None
+        with kernel_threads(threads) if threads is not None else contextlib.nullcontext():
+            runtime.before_kernels()
+            return callback(*args, **kwargs)
 
     run.riverbed_runtime = True
     return run
@@ -148,12 +153,17 @@ class RiverbedGroup(click.Group):
 @click.version_option(package_name="riverbed")
 @click.option("-v", "--verbose", count=True, help="More log output (repeatable).")
 @click.option("-q", "--quiet", is_flag=True, help="Only errors.")
-def cli(verbose, quiet):
+@click.option("--threads", type=int, default=None, metavar="N",
+              help="Threads of the kernels (Numba and OpenCV) [default: all, NUMBA_NUM_THREADS]. The outputs are the "
+                   "same for any count.")
+@click.pass_context
+def cli(ctx, verbose, quiet, threads):
     """riverbed: LiDAR-guided stereo matching, point clouds and DSMs.
 
     Reference image is the left one; disparity d = x_left - x_right >= 0.
     """
     setup_logging(-1 if quiet else verbose)
+    ctx.obj = {"threads": threads}
 
 
 def main(args=None):

@@ -29,6 +29,10 @@ the kernels cached per sources' digest  ``NUMBA_CACHE_DIR`` in the user's cache 
                                         other versions' folders removed (:func:`.numba_cache.cache_dir`)
 the garbage collector (program only)    off while a command starts up, everything alive frozen for the exit
                                         (``RIVERBED_GC=default``; :mod:`.collector`)
+the kernels' threads (when asked)       ``riverbed --threads N``: Numba's parallel loops and OpenCV run on ``N``
+                                        threads instead of all ``NUMBA_NUM_THREADS`` while the command runs
+                                        (:func:`.threads.threads`); the outputs are the same for any count
+                                        (``tests/test_threads.py``)
 ======================================  ==============================================================================
 
 The environment variables :class:`Env` set are restored when it exits; the child processes started inside it (dask
