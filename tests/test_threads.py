@@ -84,3 +84,22 @@ def test_threads_out_of_range_is_one_line(tmp_path, count):
                                 "threads Numba starts with: NUMBA_NUM_THREADS, the machine's cores unless set), got "
                                 f"{count}")
     assert not out.exists()
+
+
+def test_the_thread_figures_are_the_committed_ones_and_the_structure_they_show():
+    import sys
+
+    from conftest import REPO
+
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    import bench_threads
+
+    rows = json.loads((REPO / "benchmarks" / "results_threads.json").read_text())
+    doc = (REPO / "docs" / "architecture.md").read_text()
+    assert doc.split(bench_threads.BEGIN)[1].split(bench_threads.END)[0].strip() == bench_threads.tables(rows).strip()
+    assert {(r["scene"], r["run"].split(" ")[0]) for r in rows} == {("Cones", "default"), ("Dublin aerial", "default"),
+                                                                     ("Dublin aerial", "unguided")}
+    for r in rows:  # two threads are faster, by less than two; the 2-thread-bound stages cap the projection
+        assert 1.05 < r["seconds_1"] / r["seconds_2"] < 2.0
+        assert 0.3 < r["bound_2"] / r["seconds_2"] < 0.95
+        assert bench_threads.projected(r, 8) < bench_threads.projected(r, 16) < 2.5
