@@ -27,7 +27,8 @@ from riverbed_cli.scale.tiles import match_tiled
 data = sys.argv[1]
 left, right = read_image(data + "/im2.png"), read_image(data + "/im6.png")
 sparse = simulate_lidar(read_disparity(data + "/disp2.png", scale=4), 0.05, seed=0)
-cases = [(m, g) for m in ("sgm", "adcensus") for g in ("none", "gauss", "riverbed", "diffusion")] + [("sgm", "riverbed+")]
+guides = ("none", "gauss", "riverbed", "diffusion")
+cases = [(m, g) for m in ("sgm", "adcensus") for g in guides] + [("sgm", "riverbed+")]
 out = {}
 for n in (1, 2, 3, 4):
     numba.set_num_threads(n)
