@@ -202,6 +202,14 @@ def test_the_cli_writes_the_mask_and_refuses_bad_values(tmp_path):
     have = np.isfinite(sparse)
     assert (mask[region & have] == 3).mean() >= 0.95 and (mask[~region & have] == 1).mean() > 0.99
     assert (mask == 4).sum() > 0 and not (mask[~np.isfinite(sparse)] == 1).any()
+    # a pair matched in tiles: the check ran once for the whole pair, its mask is written as a whole match's
+    r = CliRunner().invoke(cli, [*args, "--tile", "96", "--overlap", "24", "--lidar-mask", str(tmp_path / "t.png"),
+                                 "--json", "--overwrite"])
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.output)["tiles"] == 6 and json.loads(r.output)["lidar_check"]["regions"] == 1
+    tiled = read_image(tmp_path / "t.png")
+    assert (tiled[region & have] == 3).mean() >= 0.95 and (tiled[~region & have] == 1).mean() > 0.99
+    assert (tiled == 4).sum() > 0 and not (tiled[~have] == 1).any()
     r = CliRunner().invoke(cli, [*args, "--lidar-check", "maybe", "--overwrite"])
     assert r.exit_code == 1 and "--lidar-check" in r.output and "'maybe'" in r.output
     r = CliRunner().invoke(cli, [*args, "--lidar-mask", str(tmp_path / "m.tif"), "--overwrite"])

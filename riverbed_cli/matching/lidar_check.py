@@ -544,8 +544,10 @@ def warm_up():
 
 def lidar_mask(sparse, check):
     """Per pixel what the LiDAR did, uint8: 0 no LiDAR, 1 a point used, 2 a point dropped as an outlier, 3 a point
-    dropped in a changed region, 4 a pixel of a changed area without a point (:data:`MASK_LABELS`)."""
-    have = np.isfinite(np.asarray(sparse))
+    dropped in a changed region, 4 a pixel of a changed area without a point (:data:`MASK_LABELS`). ``sparse``: the
+    LiDAR's disparities (NaN: none), or where it has points (bool)."""
+    sparse = np.asarray(sparse)
+    have = sparse if sparse.dtype == bool else np.isfinite(sparse)
     out = have.astype(np.uint8)
     if check is not None and check.dropped is not None:
         out[check.dropped == 1] = 2

@@ -192,12 +192,9 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
         warm_up(config=config, fusion_lidar=kind)
     runtime.start_up_done()  # the program's collector back on, start-up's objects frozen (runtime/collector.py)
     if plan is not None and plan.tiled:
-        if lidar_mask:
-            raise RiverbedError(f"--lidar-mask is written for a whole match: this {W}x{H} pair is matched in tiles; "
-                                "give --tile 0", lidar_mask)
         return _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, plan.size, overlap,
                             lidar_range, output, color_png, overwrite, progress, rmap, confidence, scan, valid,
-                            points)
+                            points, lidar_mask)
 
     step = progress(3) if progress else None
     left_img, right_img = (np.asarray(s[:, :]) if isinstance(s, WindowedRaster) else s for s in (left_src, right_src))
@@ -239,7 +236,7 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
 
 def _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, size, overlap, lidar_range, output,
                  color_png, overwrite, progress, range_map=None, confidence=None, range_scan=None, valid=None,
-                 points=None):
+                 points=None, lidar_mask=None):
     H, W = left_src.shape[:2]
     n_tiles = -(-H // size) * -(-W // size)
     step = progress(n_tiles) if progress else None
@@ -270,6 +267,10 @@ def _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, si
             step_px = max(1, max(H, W) // 4096)  # a preview: read the written map back decimated
             disp = read_disparity(output)[::step_px, ::step_px]
         write_picture(color_png, disparity_picture(disp), overwrite=overwrite)
+    if lidar_mask:  # the check ran once for the whole pair: its mask too, where the given LiDAR has points
+        have = np.zeros((H, W), bool)
+        have[points[0], points[1]] = True
+        write_png(lidar_mask, lidar_mask_of(have, result.lidar_check), overwrite=overwrite)
     info = result.info.to_dict()
     log.info("%s: %dx%d in %d tiles of %d px, %.1f s", output, W, H, info["tiles"], size, info["seconds"])
     return {"output": str(output), **info}

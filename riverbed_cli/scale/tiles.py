@@ -499,7 +499,7 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, *, params=None
                 pr, pc, pv = sparse_points_any(sparse)
             offset_seconds = round(time.perf_counter() - t0, 4)
         d_min, d_max = resolve_disparity_range(d_min, d_max, pv if sparse is not None else None, width=W)
-        check, changed = None, None
+        check, changed, lidar_check = None, None, None
         if sparse is not None and p.lidar_check == "auto":  # once for every tile, as the offset
             t0 = time.perf_counter()
             sparse, lidar_check = check_whole(left, right, sparse, d_min, d_max, p)
@@ -553,4 +553,4 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, *, params=None
                           plan.size, overlap, int(evaluations), plan.to_dict()["tile_ranges"], mode, tubes,
                           offset.to_dict() if offset is not None else None,
                           check.to_dict() if check is not None else None)
-    return MatchResult(out, info)
+    return MatchResult(out, info, lidar_check=lidar_check)
