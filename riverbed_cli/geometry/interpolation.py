@@ -32,8 +32,9 @@ def checked_points(sparse):
 def first_at_least(sorted_values, v):
     # np.searchsorted(sorted_values, v) (side left) by bisection: Numba's searchsorted lives in numba.np.arraymath,
     # whose import (scipy.linalg with it) a cached kernel calling it costs at start-up (runtime/numba_cache.py).
-    # Numba's cache keys a kernel on its own source file: after editing this, delete the cached kernels of
-    # matching/guidance.py and matching/diffusion.py (their __pycache__/*.nb[ic]), which compile it in.
+    # Inside riverbed's runtime Env its callers recompile when this changes (runtime/numba_cache.py); without it
+    # Numba keys a kernel on its own file: after editing this, delete the cached kernels of matching/guidance.py
+    # and matching/diffusion.py (their __pycache__/*.nb[ic]), which compile it in.
     lo = 0
     hi = sorted_values.shape[0]
     while lo < hi:

@@ -29,9 +29,12 @@ per pixel: kept in an array between one call per chunk (:func:`lanes_step_min`, 
 different places), each chunk's load waited for the last one's store. Votes of a tube of at most ``LANES // 2``
 disparities take half the lanes (:func:`lanes_vote_half`, 32-bit lanes).
 
-Numba's cache keys a kernel on its own source file only: after editing this module, delete the cached kernels of the
-modules that use it (``riverbed_cli/matching/__pycache__/{sgm,disparity,guidance,census}.*.nb[ic]``), or they keep
-the old steps (after editing :mod:`.vector_ir`, those of every module using it or :mod:`.lanes_guidance`).
+Inside riverbed's runtime ``Env`` (the program, the tests) kernels are cached per digest of the kernel sources
+(:mod:`riverbed_cli.runtime.numba_cache`): editing this module recompiles the kernels that use it. A program that
+imports riverbed without the ``Env`` has Numba's own cache, which keys a kernel on its own file: after editing this
+module, delete the cached kernels of the modules that use it
+(``riverbed_cli/matching/__pycache__/{sgm,disparity,guidance,census}.*.nb[ic]``), or they keep the old steps (after
+editing :mod:`.vector_ir`, those of every module using it or :mod:`.lanes_guidance`).
 """
 
 from llvmlite import ir

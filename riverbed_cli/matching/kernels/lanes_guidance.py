@@ -13,8 +13,10 @@ the comparisons of the scalar code lane by lane: 0.64-0.70x of its time on the d
 Inside a row they load and store whole vectors (the lanes past the window written back unchanged: only the thread
 of that band writes the row); masked loads and stores, about 1.3x slower on this VM's CPU, serve the rows' ends.
 
-Numba's cache keys a kernel on its own source file only: after editing this module, delete the cached kernels of
-``riverbed_cli/matching/__pycache__/guidance.*.nb[ic]``.
+Inside riverbed's runtime ``Env`` (the program, the tests) kernels are cached per digest of the kernel sources
+(:mod:`riverbed_cli.runtime.numba_cache`): editing this module recompiles the kernels that use it. A program that
+imports riverbed without the ``Env`` has Numba's own cache, which keys a kernel on its own file: after editing this
+module, delete the cached kernels of ``riverbed_cli/matching/__pycache__/guidance.*.nb[ic]``.
 """
 
 from llvmlite import ir

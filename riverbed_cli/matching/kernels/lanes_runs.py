@@ -2,8 +2,10 @@
 of :mod:`.lanes`) that steps a run of pixels whose tubes start at the same disparity as their row neighbour's, the
 row's path costs carried from pixel to pixel in registers (:func:`.sgm._pair_steps`, :func:`.sgm._wide_pair_steps`).
 
-Numba's cache keys a kernel on its own source file only: after editing this module, delete the cached kernels of
-``riverbed_cli/matching/__pycache__/sgm.*.nb[ic]``.
+Inside riverbed's runtime ``Env`` (the program, the tests) kernels are cached per digest of the kernel sources
+(:mod:`riverbed_cli.runtime.numba_cache`): editing this module recompiles the kernels that use it. A program that
+imports riverbed without the ``Env`` has Numba's own cache, which keys a kernel on its own file: after editing this
+module, delete the cached kernels of ``riverbed_cli/matching/__pycache__/sgm.*.nb[ic]``.
 """
 
 from llvmlite import ir
