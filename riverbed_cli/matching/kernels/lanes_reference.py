@@ -1,0 +1,116 @@
+"""The vector steps of :mod:`.lanes` as plain loops: what each computes, lane by lane, for a reader and for the tests
+(``tests/test_lanes.py`` runs every step against its statement here on random data).
+
+The same arguments as the steps, the same arrays modified in place, the same value returned. Lanes run ``d = 0 ..
+LANES - 1``; ``lanes`` of them are valid (``<= 0``: none); path costs are int16 (their sums wrap as int16 does),
+costs are widened to int16, the selection's sums are uint16.
+"""
+
+import numpy as np
+
+from .lanes import SENTINEL
+from .vector_ir import LANES
+
+
+def _i16(v):
+    # an int16 result as the vector code's wraps it
+    return np.int16(((int(v) + 0x8000) & 0xFFFF) - 0x8000)
+
+
+def _step_values(L, cost, ci, lanes, prev, p1, jump, mp):
+    # cost + min(a, min(b, e) + p1, jump) - mp per lane, the sentinel past the valid lanes
+    out = []
+    for d in range(LANES):
+        if d < lanes:
+            b, a, e = int(L[prev + d]), int(L[prev + d + 1]), int(L[prev + d + 2])
+            out.append(_i16(int(cost[ci + d]) + min(a, min(b, e) + int(p1), int(jump)) - int(mp)))
+        else:
+            out.append(np.int16(SENTINEL))
+    return out
+
+
+def _store(L, acc, cur, ai, keep, values):
+    # the path costs to L, and joined to the half-sum acc (keep -1: added, 0: started), every lane
+    for d, v in enumerate(values):
+        L[cur + d] = v
+        acc[ai + d] = _i16((int(acc[ai + d]) & int(keep)) + int(v))
+
+
+def lanes_first(L, acc, cur, cost, ci, ai, lanes, keep):
+    """:func:`.lanes.lanes_first`: a path's first pixel, its path costs its costs."""
+    values = [_i16(int(cost[ci + d])) if d < lanes else np.int16(SENTINEL) for d in range(LANES)]
+    _store(L, acc, cur, ai, keep, values)
+    return min(values)
+
+
+def lanes_step(L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, keep):
+    """:func:`.lanes.lanes_step`: one SGM step on ``LANES`` disparities."""
+    values = _step_values(L, cost, ci, lanes, prev, p1, jump, mp)
+    _store(L, acc, cur, ai, keep, values)
+    return min(values)
+
+
+def lanes_step_out(L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, out, oi):
+    """:func:`.lanes.lanes_step_out`: the step in a pass's last direction, the half-sums to ``out`` (valid lanes)."""
+    values = _step_values(L, cost, ci, lanes, prev, p1, jump, mp)
+    for d, v in enumerate(values):
+        L[cur + d] = v
+        if d < lanes:
+            out[oi + d] = _i16(int(acc[ai + d]) + int(v))
+    return min(values)
+
+
+def lanes_step_min(L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, keep, mv, first):
+    """:func:`.lanes.lanes_step_min`: the step of one chunk, its lanes joined to the running minimum ``mv``."""
+    values = _step_values(L, cost, ci, lanes, prev, p1, jump, mp)
+    _store(L, acc, cur, ai, keep, values)
+    for d, v in enumerate(values):
+        mv[d] = v if first else min(mv[d], v)
+
+
+def lanes_step_wide(L, acc, cur, cost, ci, ai, lanes, span, prev, p1, jump, mp, keep):
+    """:func:`.lanes.lanes_step_wide`: the step over ``span`` disparities, a chunk at a time."""
+    return min(lanes_step(L, acc, cur + i, cost, ci + i, ai + i, lanes - i, prev + i, p1, jump, mp, keep)
+               for i in range(0, span, LANES))
+
+
+def lanes_step_wide_out(L, acc, cur, cost, ci, ai, lanes, span, prev, p1, jump, mp, out, oi):
+    """:func:`.lanes.lanes_step_wide_out`: :func:`lanes_step_wide` in a pass's last direction."""
+    return min(lanes_step_out(L, acc, cur + i, cost, ci + i, ai + i, lanes - i, prev + i, p1, jump, mp, out, oi + i)
+               for i in range(0, span, LANES))
+
+
+def lanes_reduce(mv):
+    """:func:`.lanes.lanes_reduce`: the minimum of ``mv[0:LANES]``."""
+    return min(mv[:LANES])
+
+
+def lanes_fill(arr, index, value):
+    """:func:`.lanes.lanes_fill`."""
+    arr[index:index + LANES] = value
+
+
+def lanes_copy(src, si, dst, di, lanes):
+    """:func:`.lanes.lanes_copy`: the valid lanes copied, the others left as they are."""
+    for d in range(min(max(lanes, 0), LANES)):
+        dst[di + d] = src[si + d]
+
+
+def lanes_sum(a, b, ai, out, oi, lanes):
+    """:func:`.lanes.lanes_sum`: the selection's sums of the valid lanes, 65535 past them; their minimum."""
+    sums = [np.uint16((int(a[ai + d]) + int(b[ai + d])) & 0xFFFF) if d < lanes else np.uint16(65535)
+            for d in range(LANES)]
+    out[oi:oi + LANES] = sums
+    return min(sums)
+
+
+def lanes_sum_wide(a, b, ai, out, oi, lanes, span):
+    """:func:`.lanes.lanes_sum_wide`: the sums over ``span`` disparities; ``minimum << 32 | index`` of the first
+    disparity holding the minimum."""
+    best, at = 65536, 0
+    for i in range(0, span, LANES):
+        lanes_sum(a, b, ai + i, out, oi + i, lanes - i)
+        for d in range(LANES):
+            if int(out[oi + i + d]) < best:
+                best, at = int(out[oi + i + d]), i + d
+    return (best << 32) | at
