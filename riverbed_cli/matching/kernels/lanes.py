@@ -8,8 +8,8 @@ LLVM guards each vectorised loop with run-time aliasing checks. These intrinsics
 disparities at once, as a handful of vector instructions with no branch: disparities past a tube's end are masked
 to the sentinel. Measured on the tube volumes of the dev pairs (docs/tubes.md): one SGM pass 2x faster.
 
-Each SGM and selection step's plain statement, lane by lane, is in :mod:`.lanes_reference` (``tests/test_lanes.py``
-runs every step against it). Conventions shared by all steps: arrays are 1-D, indices are element indices (int64),
+Each step's plain statement, lane by lane, is in :mod:`.lanes_reference` (``tests/test_lanes.py`` runs every step
+against it). Conventions shared by all steps: arrays are 1-D, indices are element indices (int64),
 ``lanes`` is the number of valid lanes (``<= 0``: none; ``>= LANES``: all), and every access touches ``LANES``
 consecutive elements from the index (+2 for the previous path costs), which the caller keeps inside the arrays. Path
 costs are int16; costs (uint8 or uint16) are widened to int16. The vector type is generic: LLVM lowers it to

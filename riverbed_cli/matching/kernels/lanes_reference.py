@@ -1,5 +1,6 @@
 """The vector steps of :mod:`.lanes` as plain loops: what each computes, lane by lane, for a reader and for the tests
-(``tests/test_lanes.py`` runs every step against its statement here on random data).
+(``tests/test_lanes.py`` runs every step against its statement here on random data): the SGM steps, the paired
+steps of 4-path passes, the selection's sums, its search and the right image's votes, the census cost and transform.
 
 The same arguments as the steps, the same arrays modified in place, the same value returned. Lanes run ``d = 0 ..
 LANES - 1``; ``lanes`` of them are valid (``<= 0``: none); path costs are int16 (their sums wrap as int16 does),
@@ -114,3 +115,74 @@ def lanes_sum_wide(a, b, ai, out, oi, lanes, span):
             if int(out[oi + i + d]) < best:
                 best, at = int(out[oi + i + d]), i + d
     return (best << 32) | at
+
+
+def _pair_chunk(L, cur, cost, ci, lanes, prev, p1, jump, mp, cur2, prev2, jump2, mp2, out, oi):
+    # the two directions one after the other (the second reads L after the first has stored), their sum to out
+    mins = []
+    both = []
+    for c, p, j, m in ((cur, prev, jump, mp), (cur2, prev2, jump2, mp2)):
+        values = _step_values(L, cost, ci, lanes, p, p1, j, m)
+        L[c:c + LANES] = values
+        both.append(values)
+        mins.append(min(values))
+    for d in range(min(max(lanes, 0), LANES)):
+        out[oi + d] = _i16(int(both[0][d]) + int(both[1][d]))
+    return mins
+
+
+def _pair_minima(m1, m2):
+    # the first minimum in the low 16 bits of an int32, the second in the high ones
+    return np.int32(((int(m1) & 0xFFFF) | ((int(m2) & 0xFFFF) << 16)) - ((int(m2) & 0x8000) << 17))
+
+
+def lanes_step_pair(L, cur, cost, ci, lanes, prev, p1, jump, mp, cur2, prev2, jump2, mp2, out, oi):
+    """:func:`.lanes.lanes_step_pair`: one pixel's steps in two directions, the sum of their path costs to ``out``."""
+    return _pair_minima(*_pair_chunk(L, cur, cost, ci, lanes, prev, p1, jump, mp, cur2, prev2, jump2, mp2, out, oi))
+
+
+def lanes_step_wide_pair(L, cur, cost, ci, lanes, span, prev, p1, jump, mp, cur2, prev2, jump2, mp2, out, oi):
+    """:func:`.lanes.lanes_step_wide_pair`: :func:`lanes_step_pair` over ``span`` disparities, a chunk at a time."""
+    m1 = m2 = np.int16(SENTINEL)
+    for i in range(0, span, LANES):
+        a, b = _pair_chunk(L, cur + i, cost, ci + i, lanes - i, prev + i, p1, jump, mp, cur2 + i, prev2 + i, jump2,
+                           mp2, out, oi + i)
+        m1, m2 = min(m1, a), min(m2, b)
+    return _pair_minima(m1, m2)
+
+
+def lanes_find(arr, index, value):
+    """:func:`.lanes.lanes_find`: the first lane holding ``value``, ``LANES`` if none."""
+    for d in range(LANES):
+        if arr[index + d] == value:
+            return d
+    return LANES
+
+
+def lanes_vote(sums, si, lanes, cost, best, top, xr0, W, d0, n=LANES):
+    """:func:`.lanes.lanes_vote` (``n`` lanes; ``LANES // 2``: :func:`.lanes.lanes_vote_half`): each candidate
+    replaces the right pixel's best where lower, or equal with a lower index."""
+    for lane in range(min(lanes, n)):
+        xr = xr0 - lane
+        if not 0 <= xr < W:
+            continue
+        s, d = int(sums[si + lane]), d0 + lane
+        if s < cost[top - lane] or (s == cost[top - lane] and d < best[top - lane]):
+            cost[top - lane], best[top - lane] = s, d
+
+
+def lanes_census(flat, fi, a, row, top, scale, n=LANES):
+    """:func:`.lanes.lanes_census` (``n`` lanes; ``LANES // 2``: :func:`.lanes.lanes_census_half`): Hamming
+    distances to the right image's census row, scaled, every lane."""
+    for i in range(n):
+        flat[fi + i] = np.uint16((bin(int(a) ^ int(row[top - i])).count("1") * int(scale)) & 0xFFFF)
+
+
+def lanes_census_bits(pad, ci, offsets, out, oi):
+    """:func:`.lanes.lanes_census_bits`: each pixel's word, one bit per neighbour (darker than the centre), in the
+    window's order."""
+    for i in range(LANES):
+        word = 0
+        for k in offsets:
+            word = ((word << 1) | int(pad[ci + i + k] < pad[ci + i])) & 0xFFFFFFFFFFFFFFFF
+        out[oi + i] = np.uint64(word)
