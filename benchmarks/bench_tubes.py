@@ -292,7 +292,7 @@ def beside(data_dir, repeat):
         outs = {}
         for k in range(repeat + 1):
             for name, beside_matcher in (("after", False), ("beside", True)):
-                res = match_pair(left, right, sparse, 0, d_max, beside=beside_matcher)
+                res = match_pair(left, right, sparse, 0, d_max, lidar_thread=beside_matcher)
                 if k:  # the first round loads
                     times[name].append(res.info["seconds"])
                 outs[name] = res.disparity

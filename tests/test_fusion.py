@@ -125,13 +125,13 @@ def test_fusion_is_the_default_with_lidar_and_none_reproduces_the_paper(cones):
 
 
 def test_lidar_side_beside_the_matcher_gives_the_bits_of_after_it(cones):
-    # match_pair runs the fusion's LiDAR side in a thread beside the matcher (images up to BESIDE_MAX_PIXELS); run
+    # match_pair runs the fusion's LiDAR side in a thread beside the matcher (images up to LIDAR_THREAD_MAX_PIXELS); run
     # after the matcher instead, in the calling thread (what tiles ask for), it gives the same output
     left, right, gt = cones
-    assert gt.size <= pipeline.BESIDE_MAX_PIXELS
+    assert gt.size <= pipeline.LIDAR_THREAD_MAX_PIXELS
     sparse = simulate_lidar(gt, 0.05, seed=0)
     beside = match_pair(left, right, sparse, 0, 63)
-    after = match_pair(left, right, sparse, 0, 63, beside=False)
+    after = match_pair(left, right, sparse, 0, 63, lidar_thread=False)
     assert np.array_equal(beside.disparity, after.disparity, equal_nan=True)
     assert np.array_equal(beside.confidence, after.confidence)
     assert beside.info["fusion_stats"] == after.info["fusion_stats"]

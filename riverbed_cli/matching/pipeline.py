@@ -11,7 +11,7 @@ from dataclasses import asdict
 import numpy as np
 
 from ..errors import RiverbedError
-from ..runtime.beside import After, Beside
+from ..runtime.helper_thread import InThread, OnDemand
 from . import fusions, guides, matchers  # noqa: F401  (importing them fills the registries)
 from .config import MatchConfig
 from .overlap import keep_fusion_to_lidar, keep_to_overlap, lidar_coverage
@@ -25,10 +25,10 @@ from .results import MatchInfo, MatchResult
 from .tubes import lidar_tube_layout, lidar_tubes, tube_stats
 from .volume import TubeLayout
 
-#: largest image (pixels) whose fusion's LiDAR side runs beside the matcher (``beside="auto"``): its arrays (about
+#: largest image (pixels) whose fusion's LiDAR side runs beside the matcher (``lidar_thread="auto"``): its arrays (about
 #: 30 bytes a pixel) would add to the matcher's peak memory; a 40 MP pair's 4 MP tiles peaked at 1526 MiB beside,
 #: 1297 MiB after
-BESIDE_MAX_PIXELS = 2_000_000
+LIDAR_THREAD_MAX_PIXELS = 2_000_000
 
 
 #: fewest LiDAR points a LiDAR-guided match takes: fewer cannot give the scene a slope, and a single point made a
@@ -92,7 +92,7 @@ def resolve_fusion(config, guide, have_lidar):
     return name
 
 
-def match_pair(left, right, sparse=None, d_min=None, d_max=None, *, params=None, range_map=None, beside="auto",
+def match_pair(left, right, sparse=None, d_min=None, d_max=None, *, params=None, range_map=None, lidar_thread="auto",
                valid_areas=None, changed_area=None, **overrides):
     """Dense disparity of a rectified pair, optionally guided by sparse LiDAR disparities.
 
@@ -113,9 +113,9 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, *, params=None,
     range_map : (lo, hi) of (H, W) float, optional
         Per-pixel disparity ranges from elsewhere (a coarse DSM, a previous run; NaN: the nominal range), used as
         the tubes instead of the LiDAR's.
-    beside : "auto" or bool
+    lidar_thread : "auto" or bool
         Run the fusion's LiDAR side (``Fusion.prepare``) in a thread beside the matcher; ``auto``: for images up to
-        ``BESIDE_MAX_PIXELS``. The output is the same either way. Tiled matches pass False: a second thread's
+        ``LIDAR_THREAD_MAX_PIXELS``. The output is the same either way. Tiled matches pass False: a second thread's
         allocator arena keeps its freed memory beside the main one's, from tile to tile.
     valid_areas : (left_valid, right_valid), optional
         The images' valid areas ((H, W) bool or None each; e.g. a rectified frame's alpha): left pixels outside the
@@ -176,9 +176,9 @@ def match_pair(left, right, sparse=None, d_min=None, d_max=None, *, params=None,
     # after it, as before, so that its arrays do not add to the matcher's peak memory
     lidar_side = None
     if fuser.name != "none":
-        if beside == "auto":
-            beside = shape[0] * shape[1] <= BESIDE_MAX_PIXELS
-        lidar_side = (Beside if beside else After)(fuser.prepare, sparse, config, points)
+        if lidar_thread == "auto":
+            lidar_thread = shape[0] * shape[1] <= LIDAR_THREAD_MAX_PIXELS
+        lidar_side = (InThread if lidar_thread else OnDemand)(fuser.prepare, sparse, config, points)
     try:
         out, mode, stats, tubes = _match_stages(left, right, sparse, lidar, d_min, d_max, config, guide, matcher,
                                                 share, range_map, stages, fuser.needs_status, points, share_all,

@@ -1,7 +1,7 @@
 """How Numba's OpenMP workers wait between parallel regions: they sleep (the default under :class:`~.Env`), or spin
 a while in a run that has no thread beside the matcher.
 
-The fusion's LiDAR side runs in a thread beside the matcher (:mod:`.beside`); workers that spin between parallel
+The fusion's LiDAR side runs in a thread beside the matcher (:mod:`.helper_thread`); workers that spin between parallel
 regions took its core (the default fused match 16 % slower than with sleeping ones). :func:`sleep_between_regions`
 sets ``OMP_WAIT_POLICY=PASSIVE``. Waking a sleeping worker costs about 0.12 ms per region, and a match runs some
 twenty regions: without the fusion (``--fusion none``) nothing needs the core, and workers that spin 30 000 times

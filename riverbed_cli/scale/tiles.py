@@ -421,7 +421,7 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
     lv, rv = valid_areas if valid_areas is not None else (None, None)
     crops = (None if lv is None else np.asarray(lv[ya:yb, a:b]),
              None if rv is None else np.asarray(rv[ya:yb, a - off:b - off]))
-    res = match_pair(lc, rc, sc, lo_c, hi_c, params=p, range_map=range_map, beside=False, valid_areas=crops,
+    res = match_pair(lc, rc, sc, lo_c, hi_c, params=p, range_map=range_map, lidar_thread=False, valid_areas=crops,
                      changed_area=ch)
     block = res.disparity[t.y0 - ya:t.y1 - ya, t.x0 - a:t.x1 - a] + np.float32(off)
     tubes = res.info.get("tubes")

@@ -1,5 +1,5 @@
-"""The fusion's helper thread: a function run beside the matcher (:class:`Beside`) or, where a thread would not pay,
-when its result is asked for (:class:`After`), behind one interface.
+"""The fusion's helper thread: a function run in a thread beside the matcher (:class:`InThread`) or, where a thread
+would not pay, when its result is asked for (:class:`OnDemand`), behind one interface.
 
 The matcher's kernels use Numba's OpenMP workers; the thread runs NumPy/OpenCV work (the fusion's LiDAR side) that
 releases the GIL. For it to find a core, the workers sleep between parallel regions (:mod:`.openmp`).
@@ -8,12 +8,12 @@ releases the GIL. For it to find a core, the workers sleep between parallel regi
 import threading
 
 
-class Beside(threading.Thread):
+class InThread(threading.Thread):
     """``fn(*args)`` in a thread, started at once; :meth:`result` waits for it and returns its value or raises its
     exception."""
 
     def __init__(self, fn, *args):
-        super().__init__(daemon=True, name="riverbed-beside")
+        super().__init__(daemon=True, name="riverbed-helper")
         self._call = (fn, args)
         self._value, self._error = None, None
         self.start()
@@ -32,8 +32,8 @@ class Beside(threading.Thread):
         return self._value
 
 
-class After:
-    """``fn(*args)`` run when :meth:`result` is called (the :class:`Beside` interface, no thread)."""
+class OnDemand:
+    """``fn(*args)`` run when :meth:`result` is called (the :class:`InThread` interface, no thread)."""
 
     def __init__(self, fn, *args):
         self._call = (fn, args)
