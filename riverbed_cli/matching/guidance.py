@@ -31,9 +31,9 @@ from .volume import band_pair_rows, band_pairs, volume_layout
 from ..geometry.coverage import lidar_points, lidar_share, lidar_share_of_points, pixels_where  # noqa: F401  (re-exported)
 from ..geometry.interpolation import first_at_least
 from .kernels.lanes import LANES
-from .kernels.lanes_guidance import (lanes_claim, lanes_claim_rgb, lanes_claim_rgb_whole, lanes_claim_whole, lanes_colour,
-                             lanes_colour_whole, lanes_flat, lanes_flat_whole, lanes_walls, lanes_walls_half_whole,
-                             lanes_walls_whole)
+from .kernels.lanes_guidance import (lanes_claim, lanes_claim_rgb, lanes_claim_rgb_whole, lanes_claim_whole,
+                                     lanes_colour, lanes_colour_whole, lanes_flat, lanes_flat_whole, lanes_walls,
+                                     lanes_walls_half_whole, lanes_walls_whole)
 
 FORMS = {"additive": 0, "product": 1}
 

@@ -228,7 +228,7 @@ def _explained_kernel(sparse, rows, cols, values, alt, band, edge, tau, out):
 
 
 @njit(cache=True, parallel=True)
-def _neighbour_kernel(sparse, rows, cols, radius, tau, around, support):
+def _neighbour_kernel(sparse, rows, cols, radius, tau, around, supported):
     H, W = sparse.shape
     side = 2 * radius + 1
     for j in prange(rows.size):
@@ -236,7 +236,7 @@ def _neighbour_kernel(sparse, rows, cols, radius, tau, around, support):
         v = sparse[r, c]
         vals = np.empty(side * side, np.float32)
         k = 0
-        count = 0
+        ok = False
         for y in range(max(0, r - radius), min(H, r + radius + 1)):
             for x in range(max(0, c - radius), min(W, c + radius + 1)):
                 s = sparse[y, x]
@@ -248,25 +248,25 @@ def _neighbour_kernel(sparse, rows, cols, radius, tau, around, support):
                     vals[i] = s
                     k += 1
                     if abs(s - v) <= tau:
-                        count += 1
+                        ok = True
         if k == 0:
             around[j] = np.nan
         elif k % 2:
             around[j] = vals[k // 2]
         else:
             around[j] = 0.5 * (np.float64(vals[k // 2 - 1]) + np.float64(vals[k // 2]))
-        support[j] = count
+        supported[j] = ok
 
 
 def neighbour_stats(sparse, rows, cols, radius):
     """Per LiDAR point ``(rows, cols)`` of ``sparse``: the median of the other points within a square of ``radius``
-    px (float64, NaN with none) and how many of them lie within :data:`TAU` px of it (int32, its support: a point
-    no neighbour supports, or only one, may be an outlier)."""
+    px (float64, NaN with none) and whether one of them lies within :data:`TAU` px of it (bool: a point no
+    neighbour supports may be an outlier)."""
     around = np.empty(rows.size, np.float64)
-    support = np.empty(rows.size, np.int32)
+    supported = np.empty(rows.size, np.bool_)
     _neighbour_kernel(np.ascontiguousarray(sparse, np.float32), np.asarray(rows, np.int64),
-                      np.asarray(cols, np.int64), int(radius), np.float32(TAU), around, support)
-    return around, support
+                      np.asarray(cols, np.int64), int(radius), np.float32(TAU), around, supported)
+    return around, supported
 
 
 @njit(cache=True, parallel=True)
@@ -402,8 +402,7 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
     gl, gr = to_grey(left, bits), to_grey(right, bits)
     spacing = math.sqrt(shape[0] * shape[1] / n)
     near = max(1, int(math.ceil(NEAR * spacing)))
-    around, support = neighbour_stats(sparse, rows, cols, near)
-    supported = support > 0
+    around, supported = neighbour_stats(sparse, rows, cols, near)
     alt = reference_at(reference, rows, cols, factor)
     if searched is not None:  # the reference cannot see a point outside its range: nothing judges it
         outside = (values < searched[0]) | (values > searched[1])

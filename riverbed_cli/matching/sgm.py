@@ -24,8 +24,9 @@ import numpy as np
 from numba import njit, prange
 
 from ..errors import RiverbedError
-from .kernels.lanes import (LANES, SENTINEL, lanes_copy, lanes_fill, lanes_first, lanes_reduce, lanes_step, lanes_step_min,
-                    lanes_step_out, lanes_step_pair, lanes_step_wide, lanes_step_wide_out, lanes_step_wide_pair)
+from .kernels.lanes import (LANES, SENTINEL, lanes_copy, lanes_fill, lanes_first, lanes_reduce, lanes_step,
+                            lanes_step_min, lanes_step_out, lanes_step_pair, lanes_step_wide, lanes_step_wide_out,
+                            lanes_step_wide_pair)
 from .kernels.atomics import exchange, load_acquire, store_release
 from .disparity import finish_selection, select_row
 from .kernels.lanes_runs import RUN_CHUNKS_MAX, lanes_run_pair

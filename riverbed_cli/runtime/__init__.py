@@ -14,9 +14,9 @@ What :class:`Env` does, each left as it is where the user set their own (the var
 fresh ``riverbed match`` processes of the 740 x 500 speed pair (docs/architecture.md, "The process"):
 
 ======================================  ==============================================================================
-OpenMP workers sleep between regions    ``OMP_WAIT_POLICY=PASSIVE``, so the fusion's helper thread (:mod:`.helper_thread`)
-                                        finds a core; a run with no thread beside the matcher lets them spin first
-                                        (:func:`spin_between_regions`; :mod:`.openmp`)
+OpenMP workers sleep between regions    ``OMP_WAIT_POLICY=PASSIVE``, so the fusion's helper thread
+                                        (:mod:`.helper_thread`) finds a core; a run with no thread beside the matcher
+                                        lets them spin first (:func:`spin_between_regions`; :mod:`.openmp`)
 no transparent huge pages for NumPy     ``NUMPY_MADVISE_HUGEPAGE=0``: first-touching the cost volumes was slower with
                                         them on a THP-madvise VM (:mod:`.heap`)
 freed arrays kept in the process        glibc's ``mallopt`` thresholds (unless ``MALLOC_*`` or ``GLIBC_TUNABLES`` is
