@@ -100,7 +100,9 @@ def test_the_thread_figures_are_the_committed_ones_and_the_structure_they_show()
     assert doc.split(bench_threads.BEGIN)[1].split(bench_threads.END)[0].strip() == bench_threads.tables(rows).strip()
     assert {(r["scene"], r["run"].split(" ")[0]) for r in rows} == {("Cones", "default"), ("Dublin aerial", "default"),
                                                                      ("Dublin aerial", "unguided")}
-    for r in rows:  # two threads are faster, by less than two; the 2-thread-bound stages cap the projection
+    for r in rows:  # two threads are faster, by less than two; the projection grows with the cores, within them
         assert 1.05 < r["seconds_1"] / r["seconds_2"] < 2.0
         assert 0.3 < r["bound_2"] / r["seconds_2"] < 0.95
-        assert bench_threads.projected(r, 8) < bench_threads.projected(r, 16) < 2.5
+        assert 1.0 < bench_threads.projected(rows, r, 8) < bench_threads.projected(rows, r, 16) < 8.0
+    passes = [r["pass_1"] / r["pass_2"] for r in rows if "pass_1" in r]
+    assert len(passes) == 2 and all(1.1 < x < 2.0 for x in passes)  # a pass's rows on two threads: faster

@@ -65,6 +65,24 @@ def test_tube_sgm_equals_the_brute_force_reference(paths, seed, D, most):
     np.testing.assert_array_equal(bwd, gather(ref_b, layout).astype(np.uint16))
 
 
+# One pass's rows swept by 1-4 threads (sgm.sgm_forward_pass: rows taken from a counter, each swept in blocks once the
+# rows before have done what it reads; 100 px wide rows are 1-4 blocks): the brute-force reference's bits, dense and
+# in tubes. More threads than this process runs (2 on the CI machine) take the rows no other took.
+@pytest.mark.parametrize("paths", [4, 8, 16])
+@pytest.mark.parametrize("tubes", [False, True])
+def test_a_pass_on_one_to_four_threads_equals_the_brute_force_reference(paths, tubes):
+    rng = np.random.default_rng(paths)
+    H, W, D = 14, 100, 11
+    cost = rng.integers(0, 60, (H, W, D)).astype(np.uint16)
+    lo, hi = random_tubes(rng, H, W, D, most=5) if tubes else (np.zeros((H, W), int), np.full((H, W), D - 1))
+    layout = TubeLayout.from_bounds(lo, hi, 0)
+    want = gather(sgm_reference(cost, lo, hi, 7, 40, sgm.path_directions(paths)[: paths // 2]), layout)
+    for threads in (1, 2, 3, 4):
+        got = sgm.sgm_forward_pass(gather(cost, layout) if tubes else cost, 7, 40, paths,
+                                   tubes=layout if tubes else None, threads=threads)
+        np.testing.assert_array_equal(got.reshape(-1), want.astype(np.uint16).reshape(-1), err_msg=f"{threads}")
+
+
 def assert_passes_equal_the_reference(cost, lo, hi, paths):
     """Both SGM passes over the tubes ``[lo, hi]`` of ``cost`` (P1 7, P2 40) equal the brute-force reference."""
     layout = TubeLayout.from_bounds(lo, hi, 0)

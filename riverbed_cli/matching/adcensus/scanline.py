@@ -11,7 +11,7 @@ import numpy as np
 from numba import njit, prange
 
 from ...errors import RiverbedError
-from ..sgm import path_start, tube_value
+from ..sgm_pass import path_start, tube_value
 from .cost import u8_image
 
 _SENTINEL = 16384

@@ -1,12 +1,15 @@
-"""Atomic loads, stores and exchanges on elements of int64 arrays, for Numba kernels whose threads hand work to each
-other (:func:`.sgm.sgm_aggregate_select`: a row goes to the disparity selection once both SGM passes have done it).
+"""Atomic loads, stores, exchanges and additions on elements of int64 arrays, for Numba kernels whose threads hand
+work to each other (:func:`.sgm.sgm_aggregate_select`: a row goes to the disparity selection once both SGM passes have
+done it; :func:`.sgm_pass.sgm_rows`: the threads of a pass take rows from a counter and wait for the rows before).
 
 Plain Numba loads may be hoisted out of a waiting loop and plain stores reordered before the data they announce;
 these are LLVM's atomic instructions (llvmlite), which neither the compiler nor the CPU reorders across: a
 :func:`store_release` after writing a row, a :func:`load_acquire` before reading it.
 """
 
-from numba import types
+import sys
+
+from numba import njit, types
 from numba.extending import intrinsic
 
 from .vector_ir import element_ptr
@@ -60,3 +63,30 @@ def exchange(typingctx, arr, index, value):
                                   "seq_cst")
 
     return sig, codegen
+
+
+@intrinsic
+def fetch_add(typingctx, arr, index, value):
+    """Atomically ``old = arr[index]; arr[index] += value`` (int64 array, sequentially consistent); returns ``old``:
+    threads taking rows from one counter each get a different row."""
+    _check(arr)
+    sig = types.int64(arr, index, value)
+
+    def codegen(context, builder, signature, args):
+        arr_, index_, value_ = args
+        value_ = context.cast(builder, value_, signature.args[2], types.int64)
+        return builder.atomic_rmw("add", element_ptr(context, builder, signature.args[0], arr_, index_), value_,
+                                  "seq_cst")
+
+    return sig, codegen
+
+
+if sys.platform == "win32":
+    @njit(cache=True)
+    def yield_cpu():
+        """(No yield on Windows: a waiting thread spins on.)"""
+        return 0
+else:
+    #: ``sched_yield()``: a thread that has waited a while gives its core to another (more threads than cores: the
+    #: one it waits for may be queued behind it)
+    yield_cpu = types.ExternalFunction("sched_yield", types.intc())
