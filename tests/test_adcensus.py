@@ -199,13 +199,16 @@ def test_fused_cost_and_aggregation_equal_the_two_stages():
 @pytest.mark.parametrize("d_min", [0, -2, 3])
 def test_scanline_optimisation_matches_reference(d_min):
     rng = np.random.default_rng(d_min + 7)
-    left, right = blocky(rng, 7, 11), blocky(rng, 7, 11)
-    cost = rng.integers(0, 500, (7, 11, 6)).astype(np.uint16)
-    fwd, bwd = A.scanline_optimize(cost, left, right, d_min, 1.0, 3.0, 15, 100)
+    left, right = blocky(rng, 7, 70), blocky(rng, 7, 70)
+    cost = rng.integers(0, 500, (7, 70, 6)).astype(np.uint16)
     p1, p2 = A.so_penalties(1.0, 3.0, 100)
     assert list(p1) == [100, 25, 10] and list(p2) == [300, 75, 30]
     ref = scanline_ref(cost, left, right, d_min, p1.astype(int), p2.astype(int), 15)
-    np.testing.assert_array_equal(fwd.astype(np.int64) + bwd, ref)
+    # each pass's rows on 1 or 2 threads (more than this process may run: a thread takes the rows no other took),
+    # 70 px rows in blocks of 32 on 2
+    for threads in (1, 2, 3, 4):
+        fwd, bwd = A.scanline_optimize(cost, left, right, d_min, 1.0, 3.0, 15, 100, threads=threads)
+        np.testing.assert_array_equal(fwd.astype(np.int64) + bwd, ref, err_msg=f"{threads}")
 
 
 @pytest.mark.parametrize("d_min", [0, -3])

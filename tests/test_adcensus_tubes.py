@@ -23,15 +23,17 @@ def narrow_tubes(rng, H, W, D, most=5):
 @pytest.mark.parametrize("d_min", [0, -2, 3])
 def test_tube_scanline_optimisation_equals_the_brute_force_reference(d_min):
     rng = np.random.default_rng(d_min + 21)
-    H, W, D = 8, 13, 9
+    H, W, D = 8, 70, 9
     left, right = blocky(rng, H, W), blocky(rng, H, W)
     cost = rng.integers(0, 500, (H, W, D)).astype(np.uint16)
     lo, hi = narrow_tubes(rng, H, W, D)
     layout = TubeLayout.from_bounds(lo + d_min, hi + d_min, d_min)
-    fwd, bwd = A.scanline_optimize(gather(cost, layout), left, right, d_min, 1.0, 3.0, 15, 100, tubes=layout)
     p1, p2 = A.so_penalties(1.0, 3.0, 100)
     ref = scanline_ref(cost, left, right, d_min, p1.astype(int), p2.astype(int), 15, lo, hi)
-    np.testing.assert_array_equal(fwd.astype(np.int64) + bwd, gather(ref, layout))
+    for threads in (1, 2, 3, 4):  # each pass's rows on 1 or 2 threads, 70 px rows in blocks of 32 on 2
+        fwd, bwd = A.scanline_optimize(gather(cost, layout), left, right, d_min, 1.0, 3.0, 15, 100, tubes=layout,
+                                       threads=threads)
+        np.testing.assert_array_equal(fwd.astype(np.int64) + bwd, gather(ref, layout), err_msg=f"{threads}")
     # the same inputs on tubes as wide as the range give the dense optimisation, bit for bit
     full = TubeLayout.from_bounds(np.full((H, W), d_min), np.full((H, W), d_min + D - 1), d_min)
     tf, tb = A.scanline_optimize(cost.reshape(-1), left, right, d_min, 1.0, 3.0, 15, 100, tubes=full)

@@ -27,7 +27,8 @@ from numba import get_num_threads, njit, prange
 from ..errors import RiverbedError
 from .disparity import finish_selection, select_row
 from .kernels.atomics import exchange, load_acquire
-from .sgm_pass import MAX_PASS_THREADS, pass_ring, sgm_rows
+from .kernels.row_handover import MAX_PASS_THREADS, pass_threads
+from .sgm_pass import pass_ring, sgm_rows
 from .volume import band_pair_rows, band_pairs, volume_layout
 
 # Directions (dx, dy) swept in the forward raster pass; the reverse pass sweeps their opposites.
@@ -44,14 +45,6 @@ def path_directions(paths):
     fwd = _FORWARD_DIRS[paths]
     return fwd + [(-dx, -dy) for dx, dy in fwd]
 
-
-
-@njit(cache=True)
-def _pass_threads(H, threads):
-    # how many threads each pass runs on: half of the run's (at least one each, at most MAX_PASS_THREADS, at most a
-    # thread per row); the forward pass takes the odd one
-    n = min(max(2, threads), 2 * MAX_PASS_THREADS)
-    return max(1, min((n + 1) // 2, H)), max(1, min(n // 2, H))
 
 
 @njit(cache=True)
@@ -78,7 +71,7 @@ def _rings(H, W, nd, wmax, nf, nb):
 
 @njit(cache=True, parallel=True)
 def _sgm_two_passes(flat, fwd, bwd, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, threads):
-    nf, nb = _pass_threads(H, threads)
+    nf, nb = pass_threads(H, threads)
     ring_f, ring_b = _rings(H, W, dxs.shape[0], wmax, nf, nb)
     rows_done = np.zeros(2 * H, np.int64)
     for t in prange(nf + nb):
@@ -98,7 +91,7 @@ def _sgm_select_kernel(flat, fwd, bwd, H, W, D, start, width, offset, wmax, dxs,
     disp = np.empty((H, W), dtype=np.float32)
     status = np.zeros((H, W if keep else 1), dtype=np.int8)  # keep: 1 where the check fails
     taken = np.zeros(H, np.int64)  # 1: a thread has selected (or is selecting) the row
-    nf, nb = _pass_threads(H, threads)
+    nf, nb = pass_threads(H, threads)
     ring_f, ring_b = _rings(H, W, dxs.shape[0], wmax, nf, nb)
     rows_done = np.zeros(2 * H, np.int64)  # 1: the pass (forward at y, reverse at H + y) has done image row y
     for t in prange(nf + nb):
@@ -188,9 +181,9 @@ def _forward_kernel(flat, fwd, H, W, D, start, width, offset, wmax, dxs, dys, P1
 
 def sgm_forward_pass(cost, p1, p2, paths=8, *, max_cost=None, tubes=None, threads=None):
     """The forward half-sum alone (``S_forward`` of :func:`sgm_aggregate_passes`, the same bits), its rows swept by
-    ``threads`` threads (default: Numba's; at most :data:`~.sgm_pass.MAX_PASS_THREADS`): how one pass scales with
-    the threads it is given (``benchmarks/bench_threads.py``). More threads than Numba runs give the same result
-    (a thread takes the rows no other has taken)."""
+    ``threads`` threads (default: Numba's; at most :data:`~.kernels.row_handover.MAX_PASS_THREADS`): how one pass
+    scales with the threads it is given (``benchmarks/bench_threads.py``). More threads than Numba runs give the same
+    result (a thread takes the rows no other has taken)."""
     fwd, _, args = _passes_setup(cost, p1, p2, paths, max_cost, tubes)
     _forward_kernel(args[0], args[1], *args[3:], int(threads or get_num_threads()))
     return fwd

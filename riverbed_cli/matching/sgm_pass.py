@@ -2,23 +2,22 @@
 
 A row is swept one direction at a time (the lean loops below take the common steps; module :mod:`.sgm` tells how).
 Its path costs go to a ring buffer of the last rows, shared by the threads of the pass: each thread takes the next
-row (an atomic counter) and sweeps it in blocks (two per thread of the pass, at least :data:`BLOCK_MIN` pixels),
-every direction over a block before the next, as soon as the rows before it have done the pixels the block's steps
-read (their progress, published after each block). Every path cost is the same whichever thread computes it: the
-result does not depend on the count. A thread waits only for rows taken before it by threads that are running, so
-fewer running threads than the pass was given (a busy worker) still finish, and a thread that has waited a while
-yields its core (more threads than cores). On one thread per pass a row is one block and nothing is published (the
-two-core layout: one pass per core).
+row and sweeps it in blocks, every direction over a block before the next, as soon as the rows before it have done
+the pixels the block's steps read (:mod:`.kernels.row_handover`). Every path cost is the same whichever thread
+computes it: the result does not depend on the count. On one thread per pass a row is one block and nothing is
+published (the two-core layout: one pass per core).
 """
 
 import numpy as np
 from numba import njit
 
-from .kernels.atomics import fetch_add, load_acquire, store_release, yield_cpu
+from .kernels.atomics import store_release
 from .kernels.lanes import (LANES, SENTINEL, lanes_copy, lanes_fill, lanes_first, lanes_reduce, lanes_step,
                             lanes_step_min, lanes_step_out, lanes_step_pair, lanes_step_wide, lanes_step_wide_out,
                             lanes_step_wide_pair)
 from .kernels.lanes_runs import RUN_CHUNKS_MAX, lanes_run_pair
+from .kernels.row_handover import (block_end, block_size, new_progress, publish, take_row,
+                                   wait_row_done)
 
 # Path costs live in int16: every path cost is at most max_cost + P2, and check_sgm_bounds keeps
 # paths * (max_cost + P2) <= 65535, so a path cost is <= 16383 and each half-sum (half the paths) <= 32767.
@@ -27,14 +26,6 @@ _SENTINEL = SENTINEL  # above any path cost; sentinel + P1 still fits int16
 # the tube), then one chunk of sentinels. A step reads its neighbour's entry shifted by the difference of their tube
 # offsets; within these bounds every disparity outside the neighbour's tube reads the sentinel, with no test.
 _GUARD = LANES
-#: on several threads per pass a row is swept (every direction) in blocks of at least this many pixels, after each
-#: of which the rows after it hear how far it is; a row is two blocks per thread of its pass (fewer blocks, fewer
-#: waits; enough of them to keep every thread's row in flight)
-BLOCK_MIN = 32
-#: the most threads one pass runs on (twice this for the two passes)
-MAX_PASS_THREADS = 8
-#: turns of a waiting loop before the thread yields its core at every turn
-SPINS = 200
 
 
 @njit(cache=True, boundscheck=False)
@@ -266,43 +257,9 @@ def pass_ring(H, W, nd, wmax, threads):
     Lmin = np.zeros(nd * per * W, dtype=np.int16)
     rw = np.empty((slots, W), np.int64)
     ro = np.empty((slots, W), np.int64)
-    progress = np.zeros(H * _PAD if threads > 1 else 0, np.int64)
+    progress = new_progress(H, threads)
     claim = np.zeros(1, np.int64)
     return L, Lmin, rw, ro, progress, claim
-
-
-# progress per row _PAD elements apart (a cache line): one row's thread writes it, the next row's reads it
-_PAD = 8
-
-
-@njit(cache=True, inline="always")
-def _ready(progress, yy, b0, W, block, back1, back2):
-    # the end of row yy's next block from pixel b0 on (several threads per pass): once the rows one and two before
-    # have done the pixels its steps read there (back1, back2: the least dx of the directions reaching them, W for
-    # none), waiting until they have done at least one
-    spins = 0
-    while True:
-        end = min(W, b0 + block)
-        if yy >= 1 and back1 < W:
-            a = load_acquire(progress, (yy - 1) * _PAD)
-            if a < W:
-                end = min(end, a + back1)
-        if yy >= 2 and back2 < W:
-            a = load_acquire(progress, (yy - 2) * _PAD)
-            if a < W:
-                end = min(end, a + back2)
-        if end > b0:
-            return end
-        spins = _spin(spins)
-
-
-@njit(cache=True, inline="always")
-def _spin(spins):
-    # one more turn of a waiting loop: after SPINS turns the thread yields its core at every turn
-    if spins >= SPINS:
-        yield_cpu()
-        return spins
-    return spins + 1
 
 
 @njit(cache=True, boundscheck=False)
@@ -336,7 +293,7 @@ def sgm_rows(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, f
     paired = nd == 2 and D == 0 and dxs[0] == 1 and dys[0] == 0 and dxs[1] == 0 and dys[1] == 1
     done = np.zeros(W, np.uint8)  # pixels whose directions went paired (_pair_steps)
     several = threads > 1
-    block = max(BLOCK_MIN, W // (2 * threads))
+    block = block_size(W, threads)
     back1 = W  # the least dx of the directions reaching one row back, and two (W: none)
     back2 = W
     for k in range(nd):
@@ -345,16 +302,14 @@ def sgm_rows(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, f
         elif dys[k] == 2:
             back2 = min(back2, dxs[k])
     while True:
-        yy = fetch_add(claim, 0, 1)
+        yy = take_row(claim)
         if yy >= H:
             break
         y = H - 1 - yy if flip else yy
         slot = yy % slots
         if several:  # the slot's last row is read by the two rows after it: they are done with it
-            for r in range(yy - slots + 1, yy - slots + 3):
-                spins = 0
-                while r >= 0 and load_acquire(progress, r * _PAD) < W:
-                    spins = _spin(spins)
+            wait_row_done(progress, yy - slots + 1, W)
+            wait_row_done(progress, yy - slots + 2, W)
         for xx in range(W):
             x = W - 1 - xx if flip else xx
             if D > 0:
@@ -374,7 +329,7 @@ def sgm_rows(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, f
         ps = (yy - 1) % slots  # the row before's slot: the column's neighbours in a paired step
         b0 = 0
         while b0 < W:  # one block (the whole row on one thread)
-            end = _ready(progress, yy, b0, W, block, back1, back2) if several else W
+            end = block_end(progress, yy, b0, W, block, back1, back2) if several else W
             for k in range(nd):
                 keep = zero if k == 0 else every
                 last = k == nd - 1
@@ -425,7 +380,7 @@ def sgm_rows(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, f
                     xx += 1
             b0 = end
             if several:
-                store_release(progress, yy * _PAD, end)
+                publish(progress, yy, end)
         store_release(rows_done, done_base + y, 1)
 
 

@@ -8,9 +8,10 @@ times 4: same minimum, same sub-pixel vertex).
 """
 
 import numpy as np
-from numba import njit, prange
+from numba import get_num_threads, njit, prange
 
 from ...errors import RiverbedError
+from ..kernels.row_handover import block_end, block_size, new_progress, pass_threads, publish, take_row, wait_row_done
 from ..sgm_pass import path_start, tube_value
 from .cost import u8_image
 
@@ -83,14 +84,15 @@ def _row_edges(left, right, y, py, first, step, tau, p1tab, p2tab, P1, P2, pad, 
 
 
 @njit(cache=True)
-def _so_pass(cost, out, left, right, d_min, p1tab, p2tab, tau, flip):
+def _so_pass(cost, out, left, right, d_min, p1tab, p2tab, tau, flip, Lv, mv, progress, claim, threads):
     # Two of the four paths in one raster pass: forward (flip False) runs left->right and top->bottom, the reverse
-    # pass right->left and bottom->top.
+    # pass right->left and bottom->top. This thread takes rows from claim; the vertical paths' rows (Lv, mv: a slot
+    # per row in flight and the one before) are shared by the pass's threads, which hand rows over as SGM's do
+    # (kernels.row_handover: a block of a row once the row before has done its columns).
     H, W, D = cost.shape
     step = -1 if flip else 1
+    slots = Lv.shape[0]
     Lh = np.full((2, D + 2), np.int16(_SENTINEL), dtype=np.int16)
-    Lv = np.full((2, W, D + 2), np.int16(_SENTINEL), dtype=np.int16)
-    mv = np.zeros((2, W), dtype=np.int16)
     acc = np.empty(D, dtype=np.int16)
     pad = D + abs(d_min) + 1
     n = W + 2 * pad
@@ -101,43 +103,71 @@ def _so_pass(cost, out, left, right, d_min, p1tab, p2tab, tau, flip):
     fv = np.empty(W, dtype=np.int8)
     bh = np.empty(W, dtype=np.int8)
     bv = np.empty(W, dtype=np.int8)
-    for yy in range(H):
+    block = block_size(W, threads)
+    while True:
+        yy = take_row(claim)
+        if yy >= H:
+            break
+        if threads > 1:  # the slot's last row is read by the row after it: it is done with it
+            wait_row_done(progress, yy - slots + 1, W)
         y = H - 1 - yy if flip else yy
         py = y - step
-        vs = yy % 2
-        vp = 1 - vs
+        vs = yy % slots
+        vp = (yy - 1) % slots
         _row_edges(left, right, y, py, yy == 0, step, tau, p1tab, p2tab, P1, P2, pad, fh, fv, bh, bv)
         hs = 0
         mh = np.int16(0)
-        for xx in range(W):
-            x = W - 1 - xx if flip else xx
-            c = cost[y, x]
-            j0 = W - 1 - (x - d_min) + pad  # reversed index of x_r = x - d_min (disparity index 0)
-            acc[:] = 0
-            if xx == 0:
-                mh = _so_start(Lh[hs], c, acc)
-            else:
-                b = bh[x]
-                mh = _so_step(Lh[1 - hs], Lh[hs], c, acc, P1[0, b, j0:j0 + D], P2[0, b, j0:j0 + D], mh)
-            hs = 1 - hs
-            if yy == 0:
-                mv[vs, x] = _so_start(Lv[vs, x], c, acc)
-            else:
-                b = bv[x]
-                mv[vs, x] = _so_step(Lv[vp, x], Lv[vs, x], c, acc, P1[1, b, j0:j0 + D], P2[1, b, j0:j0 + D],
-                                     mv[vp, x])
-            o = out[y, x]
-            for d in range(D):
-                o[d] = np.uint16(acc[d])
+        b0 = 0
+        while b0 < W:  # one block (the whole row on one thread)
+            end = block_end(progress, yy, b0, W, block, 0, W) if threads > 1 else W
+            for xx in range(b0, end):
+                x = W - 1 - xx if flip else xx
+                c = cost[y, x]
+                j0 = W - 1 - (x - d_min) + pad  # reversed index of x_r = x - d_min (disparity index 0)
+                acc[:] = 0
+                if xx == 0:
+                    mh = _so_start(Lh[hs], c, acc)
+                else:
+                    b = bh[x]
+                    mh = _so_step(Lh[1 - hs], Lh[hs], c, acc, P1[0, b, j0:j0 + D], P2[0, b, j0:j0 + D], mh)
+                hs = 1 - hs
+                if yy == 0:
+                    mv[vs, x] = _so_start(Lv[vs, x], c, acc)
+                else:
+                    b = bv[x]
+                    mv[vs, x] = _so_step(Lv[vp, x], Lv[vs, x], c, acc, P1[1, b, j0:j0 + D], P2[1, b, j0:j0 + D],
+                                         mv[vp, x])
+                o = out[y, x]
+                for d in range(D):
+                    o[d] = np.uint16(acc[d])
+            b0 = end
+            if threads > 1:
+                publish(progress, yy, end)
+
+
+@njit(cache=True)
+def _vertical_rows(H, W, width, threads):
+    # a pass's shared buffers: the vertical paths' rows (a slot per row in flight and the one before), their minima,
+    # its progress and its row counter
+    slots = 2 if threads == 1 else threads + 2
+    return (np.full((slots, W, width), np.int16(_SENTINEL), dtype=np.int16), np.zeros((slots, W), dtype=np.int16),
+            new_progress(H, threads), np.zeros(1, np.int64))
 
 
 @njit(cache=True, parallel=True)
-def _so_two_passes(cost, fwd, bwd, left, right, d_min, p1tab, p2tab, tau):
-    for t in prange(2):
-        if t == 0:
-            _so_pass(cost, fwd, left, right, d_min, p1tab, p2tab, tau, False)
-        else:
-            _so_pass(cost, bwd, left, right, d_min, p1tab, p2tab, tau, True)
+def _so_two_passes(cost, fwd, bwd, left, right, d_min, p1tab, p2tab, tau, threads):
+    H, W, D = cost.shape
+    nf, nb = pass_threads(H, threads)
+    # the buffers of a pass on several threads, shared by them (tiny stand-ins for a pass on one thread)
+    shared_f = _vertical_rows(H, W, D + 2, nf) if nf > 1 else _vertical_rows(0, 0, 1, 1)
+    shared_b = _vertical_rows(H, W, D + 2, nb) if nb > 1 else _vertical_rows(0, 0, 1, 1)
+    for t in prange(nf + nb):
+        p = 0 if t < nf else 1
+        n = nf if p == 0 else nb
+        # a pass on one thread makes its rows itself (in its core's cache)
+        Lv, mv, progress, claim = (shared_f if p == 0 else shared_b) if n > 1 else _vertical_rows(H, W, D + 2, 1)
+        _so_pass(cost, fwd if p == 0 else bwd, left, right, d_min, p1tab, p2tab, tau, p == 1, Lv, mv, progress, claim,
+                 n)
 
 
 @njit(cache=True, inline="always")
@@ -176,15 +206,15 @@ def _so_tube_step(prev, wq, cur, c, acc, p1, p2, mp, s):
 
 
 @njit(cache=True)
-def _so_pass_tube(flat, out, start, width, offset, dmax, n_disp, left, right, d_min, p1tab, p2tab, tau, flip):
+def _so_pass_tube(flat, out, start, width, offset, dmax, n_disp, left, right, d_min, p1tab, p2tab, tau, flip, Lv, mv,
+                  progress, claim, threads):
     # _so_pass on a tube volume: pixel (y, x) holds width[y, x] disparities from d_min + offset[y, x] at
     # flat[start[y, x]:]; path rows are dmax + 2 wide, a pixel uses its first width + 2 (the last one the sentinel).
     H, W = start.shape
     step = -1 if flip else 1
     sent = np.int16(_SENTINEL)
+    slots = Lv.shape[0]
     Lh = np.full((2, dmax + 2), sent, dtype=np.int16)
-    Lv = np.full((2, W, dmax + 2), sent, dtype=np.int16)
-    mv = np.zeros((2, W), dtype=np.int16)
     acc_all = np.empty(dmax, dtype=np.int16)
     pad = n_disp + abs(d_min) + 1
     n = W + 2 * pad
@@ -194,51 +224,71 @@ def _so_pass_tube(flat, out, start, width, offset, dmax, n_disp, left, right, d_
     fv = np.empty(W, dtype=np.int8)
     bh = np.empty(W, dtype=np.int8)
     bv = np.empty(W, dtype=np.int8)
-    for yy in range(H):
+    block = block_size(W, threads)
+    while True:
+        yy = take_row(claim)
+        if yy >= H:
+            break
+        if threads > 1:  # the slot's last row is read by the row after it: it is done with it
+            wait_row_done(progress, yy - slots + 1, W)
         y = H - 1 - yy if flip else yy
         py = y - step
-        vs = yy % 2
-        vp = 1 - vs
+        vs = yy % slots
+        vp = (yy - 1) % slots
         _row_edges(left, right, y, py, yy == 0, step, tau, p1tab, p2tab, P1, P2, pad, fh, fv, bh, bv)
         hs = 0
         mh = np.int16(0)
-        for xx in range(W):
-            x = W - 1 - xx if flip else xx
-            b0 = start[y, x]
-            w = np.int64(width[y, x])
-            o = np.int64(offset[y, x])
-            c = flat[b0:b0 + w]
-            acc = acc_all[:w]
-            acc[:] = 0
-            j0 = W - 1 - (x - d_min) + pad + o  # reversed index of the tube's first disparity
-            if xx == 0:
-                mh = _so_start(Lh[hs], c, acc)
-                Lh[hs, w + 1] = sent
-            else:
-                q = x - step
-                b = bh[x]
-                mh = _so_tube_step(Lh[1 - hs], np.int64(width[y, q]), Lh[hs], c, acc, P1[0, b, j0:j0 + w],
-                                   P2[0, b, j0:j0 + w], mh, o - np.int64(offset[y, q]))
-            hs = 1 - hs
-            if yy == 0:
-                mv[vs, x] = _so_start(Lv[vs, x], c, acc)
-                Lv[vs, x, w + 1] = sent
-            else:
-                b = bv[x]
-                mv[vs, x] = _so_tube_step(Lv[vp, x], np.int64(width[py, x]), Lv[vs, x], c, acc, P1[1, b, j0:j0 + w],
-                                          P2[1, b, j0:j0 + w], mv[vp, x], o - np.int64(offset[py, x]))
-            ob = out[b0:b0 + w]
-            for d in range(w):
-                ob[d] = np.uint16(acc[d])
+        c0 = 0
+        while c0 < W:  # one block (the whole row on one thread)
+            end = block_end(progress, yy, c0, W, block, 0, W) if threads > 1 else W
+            for xx in range(c0, end):
+                x = W - 1 - xx if flip else xx
+                b0 = start[y, x]
+                w = np.int64(width[y, x])
+                o = np.int64(offset[y, x])
+                c = flat[b0:b0 + w]
+                acc = acc_all[:w]
+                acc[:] = 0
+                j0 = W - 1 - (x - d_min) + pad + o  # reversed index of the tube's first disparity
+                if xx == 0:
+                    mh = _so_start(Lh[hs], c, acc)
+                    Lh[hs, w + 1] = sent
+                else:
+                    q = x - step
+                    b = bh[x]
+                    mh = _so_tube_step(Lh[1 - hs], np.int64(width[y, q]), Lh[hs], c, acc, P1[0, b, j0:j0 + w],
+                                       P2[0, b, j0:j0 + w], mh, o - np.int64(offset[y, q]))
+                hs = 1 - hs
+                if yy == 0:
+                    mv[vs, x] = _so_start(Lv[vs, x], c, acc)
+                    Lv[vs, x, w + 1] = sent
+                else:
+                    b = bv[x]
+                    mv[vs, x] = _so_tube_step(Lv[vp, x], np.int64(width[py, x]), Lv[vs, x], c, acc,
+                                              P1[1, b, j0:j0 + w], P2[1, b, j0:j0 + w], mv[vp, x],
+                                              o - np.int64(offset[py, x]))
+                ob = out[b0:b0 + w]
+                for d in range(w):
+                    ob[d] = np.uint16(acc[d])
+            c0 = end
+            if threads > 1:
+                publish(progress, yy, end)
 
 
 @njit(cache=True, parallel=True)
-def _so_two_passes_tube(flat, fwd, bwd, start, width, offset, dmax, n_disp, left, right, d_min, p1tab, p2tab, tau):
-    for t in prange(2):
-        if t == 0:
-            _so_pass_tube(flat, fwd, start, width, offset, dmax, n_disp, left, right, d_min, p1tab, p2tab, tau, False)
-        else:
-            _so_pass_tube(flat, bwd, start, width, offset, dmax, n_disp, left, right, d_min, p1tab, p2tab, tau, True)
+def _so_two_passes_tube(flat, fwd, bwd, start, width, offset, dmax, n_disp, left, right, d_min, p1tab, p2tab, tau,
+                        threads):
+    H, W = start.shape
+    nf, nb = pass_threads(H, threads)
+    # the buffers of a pass on several threads, shared by them (tiny stand-ins for a pass on one thread)
+    shared_f = _vertical_rows(H, W, dmax + 2, nf) if nf > 1 else _vertical_rows(0, 0, 1, 1)
+    shared_b = _vertical_rows(H, W, dmax + 2, nb) if nb > 1 else _vertical_rows(0, 0, 1, 1)
+    for t in prange(nf + nb):
+        p = 0 if t < nf else 1
+        n = nf if p == 0 else nb
+        Lv, mv, progress, claim = (shared_f if p == 0 else shared_b) if n > 1 else _vertical_rows(H, W, dmax + 2, 1)
+        _so_pass_tube(flat, fwd if p == 0 else bwd, start, width, offset, dmax, n_disp, left, right, d_min, p1tab,
+                      p2tab, tau, p == 1, Lv, mv, progress, claim, n)
 
 
 def so_penalties(pi1, pi2, scale):
@@ -249,7 +299,7 @@ def so_penalties(pi1, pi2, scale):
 
 
 def scanline_optimize(cost, left, right, d_min, pi1=1.0, pi2=3.0, tau_so=15, scale=256, max_cost=None, out=None,
-                      tubes=None):
+                      tubes=None, *, threads=None):
     """Scanline optimisation over 4 paths (module docstring).
 
     Parameters
@@ -267,6 +317,9 @@ def scanline_optimize(cost, left, right, d_min, pi1=1.0, pi2=3.0, tau_so=15, sca
         volumes): the recursion compares equal disparities of neighbours, and a disparity outside the previous
         pixel's tube is unreachable there (the sentinel, not zero), so only the ``P2`` jump from its minimum reaches
         it. Penalties are those of the dense volume at the same disparity.
+    threads : int, optional
+        Threads for the two passes, half each (default: Numba's); a pass's rows go to its threads as SGM's do
+        (:mod:`~riverbed_cli.matching.kernels.row_handover`). The result is the same bits on any count.
 
     Returns
     -------
@@ -296,12 +349,12 @@ def scanline_optimize(cost, left, right, d_min, pi1=1.0, pi2=3.0, tau_so=15, sca
         bwd = np.empty(cost.shape, dtype=np.uint16)
         n_disp = int((tubes.offset + tubes.width).max(initial=1))
         _so_two_passes_tube(cost, fwd, bwd, tubes.start, tubes.width, tubes.offset, int(tubes.max_width), n_disp,
-                            left, right, int(d_min), p1, p2, int(tau_so))
+                            left, right, int(d_min), p1, p2, int(tau_so), int(threads or get_num_threads()))
         return fwd, bwd
     if out is not None and all(o.shape == cost.shape and o.dtype == np.uint16 and o is not cost for o in out):
         fwd, bwd = out
     else:
         fwd = np.empty(cost.shape, dtype=np.uint16)
         bwd = np.empty(cost.shape, dtype=np.uint16)
-    _so_two_passes(cost, fwd, bwd, left, right, int(d_min), p1, p2, int(tau_so))
+    _so_two_passes(cost, fwd, bwd, left, right, int(d_min), p1, p2, int(tau_so), int(threads or get_num_threads()))
     return fwd, bwd
