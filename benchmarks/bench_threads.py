@@ -113,7 +113,7 @@ def run(data):
 
 
 def pass_factor(rows, row):
-    """The measured 2-thread speed-up of a pass for ``row``: its own volume's, else the aerial run's of the same kind."""
+    """The measured 2-thread speed-up of a pass for ``row``: its own volume's, else the aerial run's of its kind."""
     src = row if "pass_1" in row else next(r for r in rows if "pass_1" in r and r["run"] == row["run"])
     return src["pass_1"] / src["pass_2"]
 

@@ -40,9 +40,9 @@ def test_gauss_formula_values():
     d = np.arange(21)
     expect = np.floor(4 * 10 * (1 - np.exp(-((d - 10.0) ** 2) / 2)) * cost[4, 4] + 0.5)
     np.testing.assert_array_equal(out[4, 4], expect)
-    fbar = cost[4, 4].mean()
+    wall_scale = cost[4, 4].mean()
     add = gauss_modulate(cost, one_point(d=10.0), d_min=0, k=10, c=1, form="additive", cost_scale=4)
-    expect = np.floor(4 * (cost[4, 4] + 10 * fbar * (1 - np.exp(-((d - 10.0) ** 2) / 2))) + 0.5)
+    expect = np.floor(4 * (cost[4, 4] + 10 * wall_scale * (1 - np.exp(-((d - 10.0) ** 2) / 2))) + 0.5)
     np.testing.assert_array_equal(add[4, 4], expect)
 
 
@@ -247,7 +247,7 @@ def test_ownership_weights_are_libm_bits():
     assert w[-6] == 0.0 and not np.signbit(w[-6])  # a LiDAR pixel's W is +0
 
 
-def walls_reference(F, dm, w, lidar_pixel, k, c, band, form, scale, fbar, cap, d_min=0):
+def walls_reference(F, dm, w, lidar_pixel, k, c, band, form, scale, wall_scale, cap, d_min=0):
     """Riverbed eq. 6 (docs/method.md reading) evaluated directly, disparity by disparity, in float64."""
     out = []
     for i, f in enumerate(F.astype(np.float64)):
@@ -257,7 +257,7 @@ def walls_reference(F, dm, w, lidar_pixel, k, c, band, form, scale, fbar, cap, d
         t = max(dm - half - d, d - (dm + half), 0.0)
         g = 1.0 - math.exp(-t * t / (2.0 * c * c))
         if form == "additive":
-            v = (1.0 if lidar_pixel else w) * q + scale * k * fbar * g
+            v = (1.0 if lidar_pixel else w) * q + scale * k * wall_scale * g
         else:
             v = ((0.0 if lidar_pixel else w) + k * g) * q
         out.append(min(v, cap))
@@ -276,10 +276,10 @@ def test_riverbed_walls_equal_eq6_value_by_value(form, d_min):
     sparse = np.full((H, W), np.nan, np.float32)
     sparse[3, 4], sparse[7, 9] = d_min + 12.3, d_min + 27.8
     guide = rng.uniform(100, 110, (H, W)).astype(np.float32)
-    k, c, band, scale, fbar, cap = 10.0, 1.5, 3.0, 4, 20.0, 6000
+    k, c, band, scale, wall_scale, cap = 10.0, 1.5, 3.0, 4, 20.0, 6000
     owner, dis = homogeneous_owners(sparse, guide, 7)
     out = riverbed_modulate(cost, sparse, guide, d_min, 7, k=k, c=c, band=band, form=form, cost_scale=scale, cap=cap,
-                            fbar=fbar)
+                            wall_scale=wall_scale)
     values = [float(sparse[3, 4]), float(sparse[7, 9])]
     n = 0
     for y in range(H):
@@ -288,7 +288,7 @@ def test_riverbed_walls_equal_eq6_value_by_value(form, d_min):
                 np.testing.assert_array_equal(out[y, x], cost[y, x].astype(np.uint16) * scale)  # untouched
                 continue
             ref = walls_reference(cost[y, x], values[owner[y, x]], float(dis[y, x]), dis[y, x] == 0, k, c, band,
-                                  form, scale, fbar, cap, d_min)
+                                  form, scale, wall_scale, cap, d_min)
             np.testing.assert_allclose(out[y, x], ref, atol=1.0)  # rounded to the nearest stored unit
             n += 1
     assert n > 20  # owned pixels were checked

@@ -83,7 +83,7 @@ def test_band_modulation():
     extend[1, 1] = True
     lo[2, 2] = np.inf  # no range: never touched
     extend[2, 2] = True
-    out = band_modulate(cost, lo, hi, extend, d_min=0, margin=2.0, k=10.0, c=1.0, fbar=5.0, cost_scale=4)
+    out = band_modulate(cost, lo, hi, extend, d_min=0, margin=2.0, k=10.0, c=1.0, wall_scale=5.0, cost_scale=4)
     plain = 80
     assert (out[~extend] == plain).all() and (out[2, 2] == plain).all()
     px = out[1, 1].astype(float)
@@ -104,8 +104,8 @@ def test_equals_riverbed_where_riverbed_acts_and_on_reliable_pixels():
     sparse[5, 5], sparse[25, 30] = 6.0, 11.0
     unreliable = np.zeros((H, W), bool)
     unreliable[:, ::2] = True
-    rb = guidance.riverbed_modulate(cost, sparse, guide, 0, 5, cost_scale=4, fbar=20.0)
-    plus, info = riverbed_plus_modulate(cost, sparse, guide, 0, 5, cost_scale=4, fbar=20.0,
+    rb = guidance.riverbed_modulate(cost, sparse, guide, 0, 5, cost_scale=4, wall_scale=20.0)
+    plus, info = riverbed_plus_modulate(cost, sparse, guide, 0, 5, cost_scale=4, wall_scale=20.0,
                                         plus=PlusParams(hops=3), unreliable=unreliable)
     owned = guidance.homogeneous_owners(sparse, guide, 5)[0] >= 0
     same = owned | ~unreliable
@@ -113,7 +113,7 @@ def test_equals_riverbed_where_riverbed_acts_and_on_reliable_pixels():
     assert (plus[~same] != rb[~same]).any(axis=-1).mean() > 0.5  # the extension reaches most other pixels
     assert info["hops"] == 3 and 0 < info["extended"] < 1
     # without the confidence mask every pixel riverbed misses may be extended
-    plus_all, _ = riverbed_plus_modulate(cost, sparse, guide, 0, 5, cost_scale=4, fbar=20.0,
+    plus_all, _ = riverbed_plus_modulate(cost, sparse, guide, 0, 5, cost_scale=4, wall_scale=20.0,
                                          plus=PlusParams(hops=3))
     assert (plus_all[~owned] != rb[~owned]).any(axis=-1).mean() > 0.9
 

@@ -285,7 +285,8 @@ _GUIDANCE_HELP = {
     "literal_eq3": "Homogeneous pixels by eq. 3 as printed (W > gamma), only to reproduce that reading.",
 }
 _GUIDANCE_CHECKS = {"k": number(0), "c": _POS, "form": choice(FORMS), "wall_scale": auto_or(_POS, "a positive number"),
-                    "window": auto_or(odd_window_upto(MAX_WINDOW), f"an odd integer from 1 to {MAX_WINDOW}"), "window_target": _POS,
+                    "window": auto_or(odd_window_upto(MAX_WINDOW), f"an odd integer from 1 to {MAX_WINDOW}"),
+                    "window_target": _POS,
                     "sigma_xy": _POS, "sigma_i": _POS, "gamma": number(0), "band": number(0),
                     "literal_eq3": boolean}
 _GUIDANCE_APPLIES = {"k": "gauss, riverbed, riverbed+", "c": "gauss, riverbed, riverbed+",

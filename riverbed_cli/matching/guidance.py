@@ -28,7 +28,8 @@ from numba import njit, prange
 
 from ..errors import RiverbedError
 from .volume import band_pair_rows, band_pairs, volume_layout
-from ..geometry.coverage import lidar_points, lidar_share, lidar_share_of_points, pixels_where  # noqa: F401  (re-exported)
+from ..geometry.coverage import (lidar_points, lidar_share, lidar_share_of_points,  # noqa: F401  (re-exported)
+                                 pixels_where)
 from ..geometry.interpolation import first_at_least
 from .kernels.lanes import LANES
 from .kernels.lanes_guidance import (lanes_claim, lanes_claim_rgb, lanes_claim_rgb_whole, lanes_claim_whole,
@@ -258,12 +259,12 @@ def homogeneous_owners(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0
 
 
 @njit(cache=True, inline="always")
-def _modulate_pixel(flat, base, D, d_min, dm, w, limit, k, band, form, scale, fbar, inv2c2, tfar, fcap):
+def _modulate_pixel(flat, base, D, d_min, dm, w, limit, k, band, form, scale, wall_scale, inv2c2, tfar, fcap):
     # one guided pixel's D costs from flat[base] (disparity d_min first): its LiDAR point's disparity dm, its weight w
     # (0 at a LiDAR pixel); chunks ending before limit are read and written whole
     lidar_pixel = w == 0.0
     if form == 0:
-        alpha, beta, gamma = (1.0 if lidar_pixel else w), 0.0, scale * k * fbar
+        alpha, beta, gamma = (1.0 if lidar_pixel else w), 0.0, scale * k * wall_scale
     else:
         alpha, beta, gamma = (0.0 if lidar_pixel else w), k, 0.0
     half = band * w
@@ -294,8 +295,8 @@ def _modulate_pixel(flat, base, D, d_min, dm, w, limit, k, band, form, scale, fb
 
 
 @njit(cache=True, parallel=True)
-def _modulate_kernel(flat, W, D0, owner, dissim, values, d_min0, k, c, band, form, scale, fbar, cap, tstart, twidth,
-                     toffset):
+def _modulate_kernel(flat, W, D0, owner, dissim, values, d_min0, k, c, band, form, scale, wall_scale, cap, tstart,
+                     twidth, toffset):
     # In place, only at the guided pixels (owner >= 0). flat holds
     # q = scale * F (a dense H x W x D0 volume flattened, or with tstart/twidth/toffset, 0 x 0 for none, per-pixel
     # tubes); every form is out = (alpha + beta * g) * q + gamma * g with the wall height g in [0, 1] (module
@@ -327,7 +328,7 @@ def _modulate_kernel(flat, W, D0, owner, dissim, values, d_min0, k, c, band, for
                 else:
                     base, D, d_min = (y * W + x) * D0, D0, d_min0  # index 0 of this pixel is disparity d_min
                 _modulate_pixel(flat, base, D, d_min, values[o], np.float64(dissim[y, x]), limit, k, band, form,
-                                scale, fbar, inv2c2, tfar, fcap)
+                                scale, wall_scale, inv2c2, tfar, fcap)
 
 
 def check_volume(cost, sparse, tubes=None):
@@ -351,26 +352,27 @@ def scaled_volume(cost, cost_scale, inplace):
     return cost.astype(np.uint16) * np.uint16(cost_scale)
 
 
-def wall_scale(cost, rows, cols, cost_scale):
+def mean_lidar_cost(cost, rows, cols, cost_scale):
     """``F_bar`` of the additive walls: the mean plain cost at the LiDAR pixels over all disparities."""
     return float(cost[rows, cols].mean()) / cost_scale if rows.size else 0.0
 
 
-def _apply(cost, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, cap, fbar=None, tubes=None):
+def _apply(cost, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, cap, wall_scale=None,
+           tubes=None):
     if form not in FORMS:
         raise RiverbedError(f"unknown guidance form '{form}' (use additive or product)")
-    if fbar is None:
+    if wall_scale is None:
         if tubes is not None:
-            raise RiverbedError("give the wall scale fbar for a tube volume")
-        fbar = wall_scale(cost, rows, cols, cost_scale)
+            raise RiverbedError("give wall_scale (F_bar of the walls) for a tube volume")
+        wall_scale = mean_lidar_cost(cost, rows, cols, cost_scale)
     flat, W, D, ts, tw, to = volume_layout(cost, owner.shape, tubes)
     _modulate_kernel(flat, W, D, owner, dissim, values, int(d_min),
-                     float(k), float(c), float(band), FORMS[form], float(cost_scale), fbar, int(cap), ts, tw, to)
+                     float(k), float(c), float(band), FORMS[form], float(cost_scale), wall_scale, int(cap), ts, tw, to)
     return cost
 
 
 def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_scale=4, cap=65535, inplace=False,
-                   fbar=None, tubes=None, points=None):
+                   wall_scale=None, tubes=None, points=None):
     """Gauss enhancement (paper eq. 5, Poggi et al. 2019) at the LiDAR pixels.
 
     Parameters
@@ -390,9 +392,9 @@ def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_sca
         Modulate a scaled ``uint16`` input in place instead of copying it.
     tubes : TubeLayout, optional
         Per-pixel tubes (:class:`~riverbed_cli.matching.volume.TubeLayout`): ``cost`` is then the flat tube volume.
-    fbar : float, optional
+    wall_scale : float, optional
         ``F_bar`` of the additive walls, in plain cost units. Default: the mean cost at the LiDAR pixels
-        (:func:`wall_scale`). A fixed value (the matcher passes half the census bits) makes the result independent
+        (:func:`mean_lidar_cost`). A fixed value (the matcher passes half the census bits) makes the result independent
         of which LiDAR points a tile holds; the walls' height barely matters (docs/method.md).
     points : tuple, optional
         ``lidar_points(sparse)`` (rows, columns, disparities) if already found.
@@ -408,12 +410,12 @@ def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_sca
     owner[rows, cols] = np.arange(rows.size, dtype=np.int32)
     dissim = np.zeros(sparse.shape, dtype=np.float32)
     out = scaled_volume(cost, cost_scale, inplace)
-    return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, 0.0, form, cost_scale, cap, fbar, tubes)
+    return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, 0.0, form, cost_scale, cap, wall_scale, tubes)
 
 
 def riverbed_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, sigma_xy=8.0, sigma_i=8.0, gamma=0.3,
                       band=3.0, form="additive", cost_scale=4, cap=65535, owners=None, inplace=False,
-                      literal_eq3=False, fbar=None, tubes=None, points=None):
+                      literal_eq3=False, wall_scale=None, tubes=None, points=None):
     """Riverbed enhancement (paper eqs. 2, 3, 6): Gauss at LiDAR pixels, band-and-walls at homogeneous pixels.
 
     Parameters are those of :func:`gauss_modulate` plus: ``guide`` the left image (0..255 scale) for the colour
@@ -433,4 +435,4 @@ def riverbed_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, sigma_x
         owners = homogeneous_owners(sparse, guide, window, sigma_xy, sigma_i, gamma, literal_eq3, points)
     owner, dissim = owners
     out = scaled_volume(cost, cost_scale, inplace)
-    return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, cap, fbar, tubes)
+    return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, cap, wall_scale, tubes)

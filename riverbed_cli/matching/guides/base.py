@@ -15,7 +15,7 @@ class GuidanceInputs:
     ``sparse``: (H, W) float32 LiDAR disparities of the left image, NaN elsewhere (all inside the searched range);
     ``image``: the left image on a 0..255 scale, (H, W, C) float32 (:func:`~riverbed_cli.io.images.to_guide`) or
     uint8 as read (:func:`~riverbed_cli.io.images.guide_source`), or None for guides that do not read it;
-    ``share``: the LiDAR share of the image (:func:`~riverbed_cli.matching.guidance.lidar_share`); ``fbar``: the
+    ``share``: the LiDAR share of the image (:func:`~riverbed_cli.matching.guidance.lidar_share`); ``wall_scale``: the
     wall scale ``F_bar`` in plain cost units;
     ``cap``: the largest guided cost the aggregation can take (stored units); ``first_pass``: what the guide's
     :meth:`Guide.prepare` returned; ``want_support``: also return the support (AD-Census's refinement keeps the
@@ -26,7 +26,7 @@ class GuidanceInputs:
     sparse: np.ndarray
     image: np.ndarray
     share: float
-    fbar: float
+    wall_scale: float
     cap: int
     first_pass: object = None
     want_support: bool = False

@@ -29,8 +29,8 @@ class Riverbed(Guide):
                                              g.literal_eq3, points)
         data = guidance.riverbed_modulate(volume.data, inputs.sparse, inputs.image, volume.d_min, window, g.k, g.c,
                                           g.sigma_xy, g.sigma_i, g.gamma, g.band, g.form, volume.scale, inputs.cap,
-                                          owners=owners, inplace=True, literal_eq3=g.literal_eq3, fbar=inputs.fbar,
-                                          tubes=volume.tubes, points=points)
+                                          owners=owners, inplace=True, literal_eq3=g.literal_eq3,
+                                          wall_scale=inputs.wall_scale, tubes=volume.tubes, points=points)
         support = None
         if inputs.want_support:  # riverbed+ and AD-Census's guided stages (their modules load here: start-up)
             from ..riverbed_plus import riverbed_support

@@ -36,8 +36,8 @@ class ADCensusMatcher(Matcher):
             cap = 16383 - int(adcensus.so_penalties(ap.pi1, ap.pi2, ap.scale)[1][0])
             # wall scale: half the largest AD-Census cost (1.0 of the paper's [0, 2]), as half the census bits
             g = config.guidance
-            fbar = 1.0 if g.wall_scale == "auto" else float(g.wall_scale)
-            inputs = GuidanceInputs(sparse, guide_img, share, fbar, cap, first_pass, want_support=True,
+            wall_scale = 1.0 if g.wall_scale == "auto" else float(g.wall_scale)
+            inputs = GuidanceInputs(sparse, guide_img, share, wall_scale, cap, first_pass, want_support=True,
                                     points=points)
 
             def modulate(data, max_cost, layout):

@@ -54,11 +54,11 @@ class SGMMatcher(Matcher):
             # A fixed wall scale (not the mean cost at this image's LiDAR pixels) keeps tiles consistent with the
             # whole image; the walls' height barely matters (docs/method.md).
             g = config.guidance
-            fbar = nbits / 2.0 if g.wall_scale == "auto" else float(g.wall_scale)
+            wall_scale = nbits / 2.0 if g.wall_scale == "auto" else float(g.wall_scale)
             if cap <= nbits * scale:
                 raise RiverbedError(f"P2 {s.p2} is too large for {s.paths} paths with guided uint16 costs")
             image = guide_source(left, bits) if guide.needs_image else None
-            inputs = GuidanceInputs(sparse, image, share, fbar, cap, first_pass, points=points)
+            inputs = GuidanceInputs(sparse, image, share, wall_scale, cap, first_pass, points=points)
             result = guide.modulate(volume, inputs, config)
             volume, window = result.volume, result.window
         _lap(stages, "guidance", t0)
