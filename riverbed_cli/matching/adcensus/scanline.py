@@ -83,6 +83,23 @@ def _row_edges(left, right, y, py, first, step, tau, p1tab, p2tab, P1, P2, pad, 
         _row_penalties(fv, b, p1tab, p2tab, P1[1, b], P2[1, b], pad)
 
 
+@njit(cache=True, inline="always")
+def _row_scratch(W, n):
+    # a thread's rows of penalties, [path (0 horizontal, 1 vertical), left flag (0/1)] -> reversed padded penalty
+    # rows of n, and of colour-edge flags (_row_edges)
+    return (np.empty((2, 2, n), dtype=np.int16), np.empty((2, 2, n), dtype=np.int16), np.empty(W, dtype=np.int8),
+            np.empty(W, dtype=np.int8), np.empty(W, dtype=np.int8), np.empty(W, dtype=np.int8))
+
+
+@njit(cache=True, inline="always")
+def _next_row(claim, progress, H, W, slots, threads):
+    # the next row this thread sweeps (H or more: none left), once the row that read its slot's last row is done
+    yy = take_row(claim)
+    if yy < H and threads > 1:
+        wait_row_done(progress, yy - slots + 1, W)
+    return yy
+
+
 @njit(cache=True)
 def _so_pass(cost, out, left, right, d_min, p1tab, p2tab, tau, flip, Lv, mv, progress, claim, threads):
     # Two of the four paths in one raster pass: forward (flip False) runs left->right and top->bottom, the reverse
@@ -96,20 +113,12 @@ def _so_pass(cost, out, left, right, d_min, p1tab, p2tab, tau, flip, Lv, mv, pro
     acc = np.empty(D, dtype=np.int16)
     pad = D + abs(d_min) + 1
     n = W + 2 * pad
-    # [path (0 horizontal, 1 vertical), left flag (0/1)] -> reversed padded penalty rows
-    P1 = np.empty((2, 2, n), dtype=np.int16)
-    P2 = np.empty((2, 2, n), dtype=np.int16)
-    fh = np.empty(W, dtype=np.int8)
-    fv = np.empty(W, dtype=np.int8)
-    bh = np.empty(W, dtype=np.int8)
-    bv = np.empty(W, dtype=np.int8)
+    P1, P2, fh, fv, bh, bv = _row_scratch(W, n)
     block = block_size(W, threads)
     while True:
-        yy = take_row(claim)
+        yy = _next_row(claim, progress, H, W, slots, threads)
         if yy >= H:
             break
-        if threads > 1:  # the slot's last row is read by the row after it: it is done with it
-            wait_row_done(progress, yy - slots + 1, W)
         y = H - 1 - yy if flip else yy
         py = y - step
         vs = yy % slots
@@ -154,18 +163,30 @@ def _vertical_rows(H, W, width, threads):
             new_progress(H, threads), np.zeros(1, np.int64))
 
 
+@njit(cache=True)
+def _shared_rows(H, W, width, nf, nb):
+    # the buffers of each pass on several threads, shared by them (tiny stand-ins for a pass on one thread)
+    return (_vertical_rows(H, W, width, nf) if nf > 1 else _vertical_rows(0, 0, 1, 1),
+            _vertical_rows(H, W, width, nb) if nb > 1 else _vertical_rows(0, 0, 1, 1))
+
+
+@njit(cache=True)
+def _thread_rows(t, nf, nb, shared_f, shared_b, H, W, width):
+    # iteration t of the passes' loop (the forward pass's nf threads, then the reverse pass's nb): its pass (0, 1),
+    # the pass's thread count and buffers; a pass on one thread makes its own (in its core's cache)
+    p = 0 if t < nf else 1
+    n = nf if p == 0 else nb
+    return p, n, (shared_f if p == 0 else shared_b) if n > 1 else _vertical_rows(H, W, width, 1)
+
+
 @njit(cache=True, parallel=True)
 def _so_two_passes(cost, fwd, bwd, left, right, d_min, p1tab, p2tab, tau, threads):
     H, W, D = cost.shape
     nf, nb = pass_threads(H, threads)
-    # the buffers of a pass on several threads, shared by them (tiny stand-ins for a pass on one thread)
-    shared_f = _vertical_rows(H, W, D + 2, nf) if nf > 1 else _vertical_rows(0, 0, 1, 1)
-    shared_b = _vertical_rows(H, W, D + 2, nb) if nb > 1 else _vertical_rows(0, 0, 1, 1)
+    shared_f, shared_b = _shared_rows(H, W, D + 2, nf, nb)
     for t in prange(nf + nb):
-        p = 0 if t < nf else 1
-        n = nf if p == 0 else nb
-        # a pass on one thread makes its rows itself (in its core's cache)
-        Lv, mv, progress, claim = (shared_f if p == 0 else shared_b) if n > 1 else _vertical_rows(H, W, D + 2, 1)
+        p, n, rows = _thread_rows(t, nf, nb, shared_f, shared_b, H, W, D + 2)
+        Lv, mv, progress, claim = rows
         _so_pass(cost, fwd if p == 0 else bwd, left, right, d_min, p1tab, p2tab, tau, p == 1, Lv, mv, progress, claim,
                  n)
 
@@ -218,19 +239,12 @@ def _so_pass_tube(flat, out, start, width, offset, dmax, n_disp, left, right, d_
     acc_all = np.empty(dmax, dtype=np.int16)
     pad = n_disp + abs(d_min) + 1
     n = W + 2 * pad
-    P1 = np.empty((2, 2, n), dtype=np.int16)
-    P2 = np.empty((2, 2, n), dtype=np.int16)
-    fh = np.empty(W, dtype=np.int8)
-    fv = np.empty(W, dtype=np.int8)
-    bh = np.empty(W, dtype=np.int8)
-    bv = np.empty(W, dtype=np.int8)
+    P1, P2, fh, fv, bh, bv = _row_scratch(W, n)
     block = block_size(W, threads)
     while True:
-        yy = take_row(claim)
+        yy = _next_row(claim, progress, H, W, slots, threads)
         if yy >= H:
             break
-        if threads > 1:  # the slot's last row is read by the row after it: it is done with it
-            wait_row_done(progress, yy - slots + 1, W)
         y = H - 1 - yy if flip else yy
         py = y - step
         vs = yy % slots
@@ -280,13 +294,10 @@ def _so_two_passes_tube(flat, fwd, bwd, start, width, offset, dmax, n_disp, left
                         threads):
     H, W = start.shape
     nf, nb = pass_threads(H, threads)
-    # the buffers of a pass on several threads, shared by them (tiny stand-ins for a pass on one thread)
-    shared_f = _vertical_rows(H, W, dmax + 2, nf) if nf > 1 else _vertical_rows(0, 0, 1, 1)
-    shared_b = _vertical_rows(H, W, dmax + 2, nb) if nb > 1 else _vertical_rows(0, 0, 1, 1)
+    shared_f, shared_b = _shared_rows(H, W, dmax + 2, nf, nb)
     for t in prange(nf + nb):
-        p = 0 if t < nf else 1
-        n = nf if p == 0 else nb
-        Lv, mv, progress, claim = (shared_f if p == 0 else shared_b) if n > 1 else _vertical_rows(H, W, dmax + 2, 1)
+        p, n, rows = _thread_rows(t, nf, nb, shared_f, shared_b, H, W, dmax + 2)
+        Lv, mv, progress, claim = rows
         _so_pass_tube(flat, fwd if p == 0 else bwd, start, width, offset, dmax, n_disp, left, right, d_min, p1tab,
                       p2tab, tau, p == 1, Lv, mv, progress, claim, n)
 
