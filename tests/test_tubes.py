@@ -104,7 +104,7 @@ def hole_tubes(rng, H, W, D):
 
 
 # runs of wide tubes beside each other, within reach of their neighbours in the row and the column (at 4 paths both
-# directions of such a pixel go in one step, sgm._wide_pair_steps, and the column's sweep must skip them)
+# directions of such a pixel go in one step, sgm_pass._wide_pair_steps, and the column's sweep must skip them)
 # (D 150: holes of 10 chunks, the aerial pairs' range)
 @pytest.mark.parametrize("paths", [4, 8])
 @pytest.mark.parametrize("seed, D", [(0, 80), (1, 80), (2, 150)])

@@ -6,7 +6,7 @@ census.py        matching cost: census transform, Hamming cost volume
 guidance.py      LiDAR guidance kernels: Gauss enhancement, riverbed enhancement (eqs. 2, 3, 5, 6)
 diffusion.py     diffusion guidance (Shivakumar et al. 2019)
 riverbed_plus.py riverbed+ guidance (riverbed through cross-based support regions)
-sgm.py           aggregation: Semi-Global Matching (4, 8 or 16 paths)
+sgm.py           aggregation: Semi-Global Matching (4, 8 or 16 paths); sgm_pass.py: its pass over the rows
 disparity.py     selection and refinement: winner-takes-all, sub-pixel, left-right check, median
 adcensus/        the AD-Census matcher's stages: cost, cross aggregation, scanline optimisation, refinement
 

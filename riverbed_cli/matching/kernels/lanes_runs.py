@@ -1,6 +1,7 @@
 """The SGM passes' runs along a row (:func:`lanes_run_pair`): LLVM vector code (Numba intrinsics; the conventions
 of :mod:`.lanes`) that steps a run of pixels whose tubes start at the same disparity as their row neighbour's, the
-row's path costs carried from pixel to pixel in registers (:func:`.sgm._pair_steps`, :func:`.sgm._wide_pair_steps`).
+row's path costs carried from pixel to pixel in registers (:func:`..sgm_pass._pair_steps`,
+:func:`..sgm_pass._wide_pair_steps`).
 
 Inside riverbed's runtime ``Env`` (the program, the tests) kernels are cached per digest of the kernel sources
 (:mod:`riverbed_cli.runtime.numba_cache`): editing this module recompiles the kernels that use it. A program that
@@ -115,7 +116,7 @@ def _run_codegen(context, builder, tys, args, C):
              lambda: builder.icmp_signed("<=", builder.add(get(3, nx), span), n_),
              lambda: builder.icmp_signed("==", get(5, nx), get(5, x))]
 
-    def reach():  # sgm._reaches of the column's shift
+    def reach():  # sgm_pass._reaches of the column's shift
         s = builder.sub(get(5, nx), get(7, nx))
         top = builder.and_(builder.add(get(6, nx), ir.Constant(I64, LANES - 1)), ir.Constant(I64, -LANES))
         return builder.and_(builder.icmp_signed(">=", s, builder.sub(one, guard_)),
@@ -156,7 +157,7 @@ def lanes_run_pair(typingctx, L, cost, Lmin, rb, rws, ros, rwp1, rop1, done, out
     neighbour's step had just stored its costs waited for the store; a step per pixel reloaded the run's few values
     from the stack.
 
-    The arguments are :func:`.sgm._pair_steps`'s (the sweep's layout ``rb``, ``rws``, ``ros`` of this row and
+    The arguments are :func:`..sgm_pass._pair_steps`'s (the sweep's layout ``rb``, ``rws``, ``ros`` of this row and
     ``rwp1``, ``rop1`` of the row before, indexed by the sweep's pixel; ``n`` the volume's size, ``guard`` the ring
     buffer's entries' guard). The caller has checked that pixel ``xx`` qualifies, that its row neighbour's tube takes
     ``chunks`` chunks too, and ``1 <= chunks <=`` :data:`RUN_CHUNKS_MAX`; the run goes on while the next pixel
