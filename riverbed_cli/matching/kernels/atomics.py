@@ -49,36 +49,33 @@ def store_release(typingctx, arr, index, value):
     return sig, codegen
 
 
-@intrinsic
-def exchange(typingctx, arr, index, value):
-    """Atomically ``old = arr[index]; arr[index] = value`` (int64 array, sequentially consistent); returns ``old``:
-    of several threads exchanging the same element, one reads what was there before."""
+def _read_modify_write(operation, arr, index, value):
+    # the signature and code of an atomic read-modify-write of arr[index] with value (LLVM's atomicrmw, sequentially
+    # consistent), which returns what was there before
     _check(arr)
     sig = types.int64(arr, index, value)
 
     def codegen(context, builder, signature, args):
         arr_, index_, value_ = args
         value_ = context.cast(builder, value_, signature.args[2], types.int64)
-        return builder.atomic_rmw("xchg", element_ptr(context, builder, signature.args[0], arr_, index_), value_,
+        return builder.atomic_rmw(operation, element_ptr(context, builder, signature.args[0], arr_, index_), value_,
                                   "seq_cst")
 
     return sig, codegen
+
+
+@intrinsic
+def exchange(typingctx, arr, index, value):
+    """Atomically ``old = arr[index]; arr[index] = value`` (int64 array, sequentially consistent); returns ``old``:
+    of several threads exchanging the same element, one reads what was there before."""
+    return _read_modify_write("xchg", arr, index, value)
 
 
 @intrinsic
 def fetch_add(typingctx, arr, index, value):
     """Atomically ``old = arr[index]; arr[index] += value`` (int64 array, sequentially consistent); returns ``old``:
     threads taking rows from one counter each get a different row."""
-    _check(arr)
-    sig = types.int64(arr, index, value)
-
-    def codegen(context, builder, signature, args):
-        arr_, index_, value_ = args
-        value_ = context.cast(builder, value_, signature.args[2], types.int64)
-        return builder.atomic_rmw("add", element_ptr(context, builder, signature.args[0], arr_, index_), value_,
-                                  "seq_cst")
-
-    return sig, codegen
+    return _read_modify_write("add", arr, index, value)
 
 
 if sys.platform == "win32":
