@@ -46,7 +46,6 @@ def path_directions(paths):
     return fwd + [(-dx, -dy) for dx, dy in fwd]
 
 
-
 @njit(cache=True)
 def _run_pass(t, flat, fwd, bwd, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, nf, nb, ring_f, ring_b,
               rows_done):

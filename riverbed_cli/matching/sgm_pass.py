@@ -16,8 +16,7 @@ from .kernels.lanes import (LANES, SENTINEL, lanes_copy, lanes_fill, lanes_first
                             lanes_step_min, lanes_step_out, lanes_step_pair, lanes_step_wide, lanes_step_wide_out,
                             lanes_step_wide_pair)
 from .kernels.lanes_runs import RUN_CHUNKS_MAX, lanes_run_pair
-from .kernels.row_handover import (block_end, block_size, new_progress, publish, take_row,
-                                   wait_row_done)
+from .kernels.row_handover import block_end, block_size, new_progress, next_row, publish
 
 # Path costs live in int16: every path cost is at most max_cost + P2, and check_sgm_bounds keeps
 # paths * (max_cost + P2) <= 65535, so a path cost is <= 16383 and each half-sum (half the paths) <= 32767.
@@ -302,14 +301,11 @@ def sgm_rows(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, f
         elif dys[k] == 2:
             back2 = min(back2, dxs[k])
     while True:
-        yy = take_row(claim)
+        yy = next_row(claim, progress, H, W, slots, 2, threads)  # 16 paths read two rows back
         if yy >= H:
             break
         y = H - 1 - yy if flip else yy
         slot = yy % slots
-        if several:  # the slot's last row is read by the two rows after it: they are done with it
-            wait_row_done(progress, yy - slots + 1, W)
-            wait_row_done(progress, yy - slots + 2, W)
         for xx in range(W):
             x = W - 1 - xx if flip else xx
             if D > 0:

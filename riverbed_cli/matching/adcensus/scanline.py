@@ -11,7 +11,7 @@ import numpy as np
 from numba import get_num_threads, njit, prange
 
 from ...errors import RiverbedError
-from ..kernels.row_handover import block_end, block_size, new_progress, pass_threads, publish, take_row, wait_row_done
+from ..kernels.row_handover import block_end, block_size, new_progress, next_row, pass_threads, publish
 from ..sgm_pass import path_start, tube_value
 from .cost import u8_image
 
@@ -91,15 +91,6 @@ def _row_scratch(W, n):
             np.empty(W, dtype=np.int8), np.empty(W, dtype=np.int8), np.empty(W, dtype=np.int8))
 
 
-@njit(cache=True, inline="always")
-def _next_row(claim, progress, H, W, slots, threads):
-    # the next row this thread sweeps (H or more: none left), once the row that read its slot's last row is done
-    yy = take_row(claim)
-    if yy < H and threads > 1:
-        wait_row_done(progress, yy - slots + 1, W)
-    return yy
-
-
 @njit(cache=True)
 def _so_pass(cost, out, left, right, d_min, p1tab, p2tab, tau, flip, Lv, mv, progress, claim, threads):
     # Two of the four paths in one raster pass: forward (flip False) runs left->right and top->bottom, the reverse
@@ -116,7 +107,7 @@ def _so_pass(cost, out, left, right, d_min, p1tab, p2tab, tau, flip, Lv, mv, pro
     P1, P2, fh, fv, bh, bv = _row_scratch(W, n)
     block = block_size(W, threads)
     while True:
-        yy = _next_row(claim, progress, H, W, slots, threads)
+        yy = next_row(claim, progress, H, W, slots, 1, threads)
         if yy >= H:
             break
         y = H - 1 - yy if flip else yy
@@ -242,7 +233,7 @@ def _so_pass_tube(flat, out, start, width, offset, dmax, n_disp, left, right, d_
     P1, P2, fh, fv, bh, bv = _row_scratch(W, n)
     block = block_size(W, threads)
     while True:
-        yy = _next_row(claim, progress, H, W, slots, threads)
+        yy = next_row(claim, progress, H, W, slots, 1, threads)
         if yy >= H:
             break
         y = H - 1 - yy if flip else yy

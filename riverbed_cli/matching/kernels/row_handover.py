@@ -2,8 +2,8 @@
 scanline passes (:mod:`..adcensus.scanline`).
 
 A pass's path costs at a pixel depend on the row before (and two before, for 16 SGM paths) near the same column, so
-a pass runs on several threads as a pipeline: each thread takes the next row from a counter (:func:`take_row`) and
-sweeps it in blocks (:func:`block_size`), each block once the rows before have done the pixels it reads
+a pass runs on several threads as a pipeline: each thread takes the next row from a counter (:func:`next_row`)
+and sweeps it in blocks (:func:`block_size`), each block once the rows before have done the pixels it reads
 (:func:`block_end`), publishing how far it is after each block (:func:`publish`). A thread waits only for rows taken
 before it by threads that are running, so a pass given more threads than run still ends. The split of a run's
 threads between the two passes of a match is :func:`pass_threads`.
@@ -47,9 +47,15 @@ def block_size(W, threads):
 
 
 @njit(cache=True, inline="always")
-def take_row(claim):
-    """The next row of the pass (``claim``: its counter, one int64)."""
-    return fetch_add(claim, 0, 1)
+def next_row(claim, progress, H, W, slots, reach, threads):
+    """The next row of the pass (``claim``: its counter, one int64; ``H`` or more: none left). On several threads
+    its ring-buffer slot (of ``slots``) is free first: the ``reach`` rows after the slot's last row, which read it,
+    are done."""
+    yy = fetch_add(claim, 0, 1)
+    if yy < H and threads > 1:
+        for r in range(yy - slots + 1, yy - slots + 1 + reach):
+            wait_row_done(progress, r, W)
+    return yy
 
 
 @njit(cache=True, inline="always")
