@@ -247,7 +247,7 @@ def test_ownership_weights_are_libm_bits():
     assert w[-6] == 0.0 and not np.signbit(w[-6])  # a LiDAR pixel's W is +0
 
 
-def walls_reference(F, dm, w, lidar_pixel, k, c, band, form, scale, wall_scale, cap, d_min=0):
+def walls_reference(F, dm, w, lidar_pixel, k, c, band, form, scale, wall_scale, max_cost, d_min=0):
     """Riverbed eq. 6 (docs/method.md reading) evaluated directly, disparity by disparity, in float64."""
     out = []
     for i, f in enumerate(F.astype(np.float64)):
@@ -260,7 +260,7 @@ def walls_reference(F, dm, w, lidar_pixel, k, c, band, form, scale, wall_scale, 
             v = (1.0 if lidar_pixel else w) * q + scale * k * wall_scale * g
         else:
             v = ((0.0 if lidar_pixel else w) + k * g) * q
-        out.append(min(v, cap))
+        out.append(min(v, max_cost))
     return np.array(out)
 
 
@@ -276,10 +276,10 @@ def test_riverbed_walls_equal_eq6_value_by_value(form, d_min):
     sparse = np.full((H, W), np.nan, np.float32)
     sparse[3, 4], sparse[7, 9] = d_min + 12.3, d_min + 27.8
     guide = rng.uniform(100, 110, (H, W)).astype(np.float32)
-    k, c, band, scale, wall_scale, cap = 10.0, 1.5, 3.0, 4, 20.0, 6000
+    k, c, band, scale, wall_scale, max_cost = 10.0, 1.5, 3.0, 4, 20.0, 6000
     owner, dis = homogeneous_owners(sparse, guide, 7)
-    out = riverbed_modulate(cost, sparse, guide, d_min, 7, k=k, c=c, band=band, form=form, cost_scale=scale, cap=cap,
-                            wall_scale=wall_scale)
+    out = riverbed_modulate(cost, sparse, guide, d_min, 7, k=k, c=c, band=band, form=form, cost_scale=scale,
+                            max_cost=max_cost, wall_scale=wall_scale)
     values = [float(sparse[3, 4]), float(sparse[7, 9])]
     n = 0
     for y in range(H):
@@ -288,7 +288,7 @@ def test_riverbed_walls_equal_eq6_value_by_value(form, d_min):
                 np.testing.assert_array_equal(out[y, x], cost[y, x].astype(np.uint16) * scale)  # untouched
                 continue
             ref = walls_reference(cost[y, x], values[owner[y, x]], float(dis[y, x]), dis[y, x] == 0, k, c, band,
-                                  form, scale, wall_scale, cap, d_min)
+                                  form, scale, wall_scale, max_cost, d_min)
             np.testing.assert_allclose(out[y, x], ref, atol=1.0)  # rounded to the nearest stored unit
             n += 1
     assert n > 20  # owned pixels were checked

@@ -217,9 +217,10 @@ def test_full_width_tubes_equal_the_dense_stages_bit_for_bit():
     sparse = np.full((H, W), np.nan, np.float32)
     sparse[::4, ::5] = rng.uniform(d_min, d_min + D - 1, sparse[::4, ::5].shape)
     guide_img = np.repeat(left[:, :, None], 3, axis=2)
-    a = guidance.riverbed_modulate(dense.copy(), sparse, guide_img, d_min, 9, wall_scale=12.0, cap=4000, inplace=True)
-    b = guidance.riverbed_modulate(tube.copy(), sparse, guide_img, d_min, 9, wall_scale=12.0, cap=4000, inplace=True,
-                                   tubes=layout)
+    a = guidance.riverbed_modulate(dense.copy(), sparse, guide_img, d_min, 9, wall_scale=12.0, max_cost=4000,
+                                   inplace=True)
+    b = guidance.riverbed_modulate(tube.copy(), sparse, guide_img, d_min, 9, wall_scale=12.0, max_cost=4000,
+                                   inplace=True, tubes=layout)
     np.testing.assert_array_equal(b, a.reshape(-1))
     f, bw = sgm.sgm_aggregate_passes(a, 40, 480, 8)
     tf, tb = sgm.sgm_aggregate_passes(b, 40, 480, 8, tubes=layout)
@@ -239,8 +240,9 @@ def test_tube_guidance_equals_dense_guidance_inside_the_tubes():
     sparse[::3, ::4] = rng.uniform(0, D - 1, sparse[::3, ::4].shape)
     img = rng.uniform(0, 255, (H, W, 3)).astype(np.float32)
     cases = [
-        lambda v, t: guidance.gauss_modulate(v, sparse, 0, cap=3000, inplace=True, wall_scale=10.0, tubes=t),
-        lambda v, t: guidance.riverbed_modulate(v, sparse, img, 0, 7, cap=3000, inplace=True, wall_scale=10.0, tubes=t),
+        lambda v, t: guidance.gauss_modulate(v, sparse, 0, max_cost=3000, inplace=True, wall_scale=10.0, tubes=t),
+        lambda v, t: guidance.riverbed_modulate(v, sparse, img, 0, 7, max_cost=3000, inplace=True, wall_scale=10.0,
+                                                tubes=t),
         lambda v, t: diffusion.diffusion_modulate(v, sparse, img, 0, inplace=True, tubes=t),
         lambda v, t: riverbed_plus.band_modulate(v, np.full((H, W), 5.0, np.float32), np.full((H, W), 8.0,
                                                  np.float32), np.ones((H, W), bool), 0, inplace=True, tubes=t),

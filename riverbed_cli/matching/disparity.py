@@ -51,19 +51,19 @@ def _vote_right(s, D, x, o, d_min, W, right_cost, right_best):
 
 
 @njit(cache=True, inline="always")
-def _lr_reject(disp_row, best_left, right_best, d_min, W, lr_threshold, keep, status_row):
-    # keep: record the failure in status_row (1) and leave the disparity; else invalidate it
+def _lr_reject(disp_row, best_left, right_best, d_min, W, lr_threshold, mark_failures, status_row):
+    # mark_failures: record the failure in status_row (1) and leave the disparity; else invalidate it
     for x in range(W):
         xr = x - (d_min + best_left[x])
         if xr < 0 or xr >= W or abs(best_left[x] - right_best[xr]) > lr_threshold:
-            if keep:
+            if mark_failures:
                 status_row[x] = 1
             else:
                 disp_row[x] = np.nan
 
 
 @njit(cache=True, inline="always")
-def _dense_row(fwd, bwd, y, W, D, d_min, subpixel, lr_check, lr_threshold, keep, disp, status):
+def _dense_row(fwd, bwd, y, W, D, d_min, subpixel, lr_check, lr_threshold, mark_failures, disp, status):
     # row y of a dense selection: fwd and bwd flat (pixel (y, x) at (y * W + x) * D), status (H, W or 1)
     s = np.empty(D, dtype=np.int32)
     best_left = np.empty(W, dtype=np.int64)
@@ -78,7 +78,7 @@ def _dense_row(fwd, bwd, y, W, D, d_min, subpixel, lr_check, lr_threshold, keep,
         if lr_check:
             _vote_right(s, D, x, 0, d_min, W, right_cost, right_best)
     if lr_check:
-        _lr_reject(disp[y], best_left, right_best, d_min, W, lr_threshold, keep, status[y])
+        _lr_reject(disp[y], best_left, right_best, d_min, W, lr_threshold, mark_failures, status[y])
 
 
 @njit(cache=True, inline="always")
@@ -110,7 +110,7 @@ def _tube_row(fwd, bwd, y, start, width, offset, wmax, d_min, subpixel, disp):
 
 
 @njit(cache=True, inline="always")
-def _tube_lr_row(fwd, bwd, y, start, width, offset, wmax, d_min, subpixel, lr_threshold, keep, disp, status):
+def _tube_lr_row(fwd, bwd, y, start, width, offset, wmax, d_min, subpixel, lr_threshold, mark_failures, disp, status):
     # _tube_row with the left-right check. A row's sums are kept for the right image's votes, which go LANES
     # disparities at a time (lanes.lanes_vote), the pixels taken 0, 16, 32, ..., then 1, 17, ...: a pixel's votes
     # read and write the right pixels beside its row neighbour's, and read right after that neighbour's store they
@@ -144,36 +144,38 @@ def _tube_lr_row(fwd, bwd, y, start, width, offset, wmax, d_min, subpixel, lr_th
             for i in range(0, D, LANES):
                 xr0 = x - (d_min + o + i)
                 lanes_vote(rs, x * span_max + i, D - i, right_cost, right_best, pad + xr0, xr0, W, o + i)
-    _lr_reject(disp[y], best_left, right_best[pad:], d_min, W, lr_threshold, keep, status[y])
+    _lr_reject(disp[y], best_left, right_best[pad:], d_min, W, lr_threshold, mark_failures, status[y])
 
 
 @njit(cache=True, inline="always")
-def select_row(fwd, bwd, y, W, D, start, width, offset, wmax, d_min, subpixel, lr_check, lr_threshold, keep, disp,
-               status):
+def select_row(fwd, bwd, y, W, D, start, width, offset, wmax, d_min, subpixel, lr_check, lr_threshold, mark_failures,
+               disp, status):
     """Row ``y`` of the disparity selection (:func:`select_disparity`) into ``disp`` and ``status``: the sums of
     the half-sums ``fwd`` and ``bwd`` (flat uint16), of a dense volume (``D > 0``: pixel ``(y, x)`` at ``(y * W +
     x) * D``) or a tube volume (``D == 0``, the layout's ``start``, ``width``, ``offset``, widest ``wmax``); the
-    left-right check where ``lr_check``, marked in ``status`` where ``keep`` (else NaN in ``disp``). Rows are
+    left-right check where ``lr_check``, marked in ``status`` where ``mark_failures`` (else NaN in ``disp``). Rows are
     independent: any thread may select any row once both half-sums hold it."""
     if D > 0:
-        _dense_row(fwd, bwd, y, W, D, d_min, subpixel, lr_check, lr_threshold, keep, disp, status)
+        _dense_row(fwd, bwd, y, W, D, d_min, subpixel, lr_check, lr_threshold, mark_failures, disp, status)
     elif lr_check:
-        _tube_lr_row(fwd, bwd, y, start, width, offset, wmax, d_min, subpixel, lr_threshold, keep, disp, status)
+        _tube_lr_row(fwd, bwd, y, start, width, offset, wmax, d_min, subpixel, lr_threshold, mark_failures, disp,
+                     status)
     else:
         _tube_row(fwd, bwd, y, start, width, offset, wmax, d_min, subpixel, disp)
 
 
 @njit(cache=True, parallel=True)
-def _select_kernel(fwd, bwd, H, W, D, start, width, offset, wmax, d_min, subpixel, lr_check, lr_threshold, keep):
+def _select_kernel(fwd, bwd, H, W, D, start, width, offset, wmax, d_min, subpixel, lr_check, lr_threshold,
+                   mark_failures):
     # every row's select_row, in parallel
     disp = np.empty((H, W), dtype=np.float32)
-    status = np.zeros((H, W if keep else 1), dtype=np.int8)  # keep: 1 where the check fails
+    status = np.zeros((H, W if mark_failures else 1), dtype=np.int8)  # mark_failures: 1 where the check fails
     m = band_pairs(H)
     for i in prange(m):  # the rows' shares of every row-parallel kernel of the match (volume.band_pair_rows)
         r0, r1 = band_pair_rows(i, m, H)
         for y in range(r0, r1):
-            select_row(fwd, bwd, y, W, D, start, width, offset, wmax, d_min, subpixel, lr_check, lr_threshold, keep,
-                       disp, status)
+            select_row(fwd, bwd, y, W, D, start, width, offset, wmax, d_min, subpixel, lr_check, lr_threshold,
+                       mark_failures, disp, status)
     return disp, status
 
 

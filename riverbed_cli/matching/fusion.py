@@ -207,16 +207,16 @@ def _where_values(x, mask):
 def _where_abs_diff(a, b, sigma, mask, limit):
     # |a - b| (float32, as NumPy's) where mask and sigma <= limit (sigma compared as float64), row-major
     H, W = mask.shape
-    keep = np.empty((H, W), np.bool_)
+    kept = np.empty((H, W), np.bool_)
     for y in prange(H):
         for x in range(W):
-            keep[y, x] = mask[y, x] and np.float64(sigma[y, x]) <= limit
-    at = row_offsets(keep)
+            kept[y, x] = mask[y, x] and np.float64(sigma[y, x]) <= limit
+    at = row_offsets(kept)
     out = np.empty(at[-1], np.float32)
     for y in prange(H):
         k = at[y]
         for x in range(W):
-            if keep[y, x]:
+            if kept[y, x]:
                 out[k] = abs(a[y, x] - b[y, x])
                 k += 1
     return out

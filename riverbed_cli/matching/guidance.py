@@ -17,7 +17,7 @@ band and ``F_bar`` the mean cost at the LiDAR pixels (a zero census cost can sti
 At a LiDAR pixel: additive ``F + wall``; product ``k * (1 - exp(-(d - d_m)^2 / 2c^2)) * F`` (minimum 0 at ``d_m``).
 
 The guided volume is ``uint16``: every cost (guided or not) is multiplied by ``cost_scale`` and rounded, so SGM
-penalties must be scaled by the same factor; guided costs are clipped at ``cap`` to keep SGM sums within uint16.
+penalties must be scaled by the same factor; guided costs are clipped at ``max_cost`` to keep SGM sums within uint16.
 The paper writes ``d_m = x_R - x_L``; here ``d = x_left - x_right >= 0`` throughout.
 """
 
@@ -259,7 +259,7 @@ def homogeneous_owners(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0
 
 
 @njit(cache=True, inline="always")
-def _modulate_pixel(flat, base, D, d_min, dm, w, limit, k, band, form, scale, wall_scale, inv2c2, tfar, fcap):
+def _modulate_pixel(flat, base, D, d_min, dm, w, limit, k, band, form, scale, wall_scale, inv2c2, tfar, ceiling):
     # one guided pixel's D costs from flat[base] (disparity d_min first): its LiDAR point's disparity dm, its weight w
     # (0 at a LiDAR pixel); chunks ending before limit are read and written whole
     lidar_pixel = w == 0.0
@@ -275,7 +275,7 @@ def _modulate_pixel(flat, base, D, d_min, dm, w, limit, k, band, form, scale, wa
     g1 = np.float32(gamma + 0.5)  # + 0.5: truncating a positive value then rounds
     if D <= LANES // 2 and base + LANES // 2 <= limit:  # most tubes: half the lanes, walls or flat alike
         lanes_walls_half_whole(flat, base, 0, d_min, dm + half, dm - half, lo, hi, alpha, beta, gamma, a1, g1,
-                               inv2c2, fcap, D)
+                               inv2c2, ceiling, D)
         return
     # LANES disparities at a time, the wall's Gaussian by a polynomial (lanes.lanes_walls): the scalar loops
     # with a multiplicative recurrence for the Gaussians took 2-2.3x as long for the same bits on the dev pairs
@@ -283,19 +283,19 @@ def _modulate_pixel(flat, base, D, d_min, dm, w, limit, k, band, form, scale, wa
         whole = base + i0 + LANES <= limit
         if i0 >= hi or i0 + LANES <= lo:  # flat all along: no wall to evaluate
             if whole:
-                lanes_flat_whole(flat, base + i0, a1, g1, fcap, D - i0)
+                lanes_flat_whole(flat, base + i0, a1, g1, ceiling, D - i0)
             else:
-                lanes_flat(flat, base + i0, a1, g1, fcap, D - i0)
+                lanes_flat(flat, base + i0, a1, g1, ceiling, D - i0)
         elif whole:
             lanes_walls_whole(flat, base + i0, i0, d_min, dm + half, dm - half, lo, hi, alpha, beta, gamma,
-                              a1, g1, inv2c2, fcap, D - i0)
+                              a1, g1, inv2c2, ceiling, D - i0)
         else:
             lanes_walls(flat, base + i0, i0, d_min, dm + half, dm - half, lo, hi, alpha, beta, gamma, a1, g1,
-                        inv2c2, fcap, D - i0)
+                        inv2c2, ceiling, D - i0)
 
 
 @njit(cache=True, parallel=True)
-def _modulate_kernel(flat, W, D0, owner, dissim, values, d_min0, k, c, band, form, scale, wall_scale, cap, tstart,
+def _modulate_kernel(flat, W, D0, owner, dissim, values, d_min0, k, c, band, form, scale, wall_scale, max_cost, tstart,
                      twidth, toffset):
     # In place, only at the guided pixels (owner >= 0). flat holds
     # q = scale * F (a dense H x W x D0 volume flattened, or with tstart/twidth/toffset, 0 x 0 for none, per-pixel
@@ -303,7 +303,7 @@ def _modulate_kernel(flat, W, D0, owner, dissim, values, d_min0, k, c, band, for
     # docstring).
     inv2c2 = 1.0 / (2.0 * c * c)
     tfar = 6.5 * c  # past this, 1 - exp(-t^2 / 2c^2) == 1 to 1e-9: the wall is flat and needs no exp
-    fcap = np.float32(cap)
+    ceiling = np.float32(max_cost)
     tube = tstart.shape[0] > 0
     H = owner.shape[0]
     # The rows' shares of every row-parallel kernel of the match (volume.band_pair_rows), each pair in order (no list
@@ -328,7 +328,7 @@ def _modulate_kernel(flat, W, D0, owner, dissim, values, d_min0, k, c, band, for
                 else:
                     base, D, d_min = (y * W + x) * D0, D0, d_min0  # index 0 of this pixel is disparity d_min
                 _modulate_pixel(flat, base, D, d_min, values[o], np.float64(dissim[y, x]), limit, k, band, form,
-                                scale, wall_scale, inv2c2, tfar, fcap)
+                                scale, wall_scale, inv2c2, tfar, ceiling)
 
 
 def check_volume(cost, sparse, tubes=None):
@@ -357,7 +357,7 @@ def mean_lidar_cost(cost, rows, cols, cost_scale):
     return float(cost[rows, cols].mean()) / cost_scale if rows.size else 0.0
 
 
-def _apply(cost, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, cap, wall_scale=None,
+def _apply(cost, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, max_cost, wall_scale=None,
            tubes=None):
     if form not in FORMS:
         raise RiverbedError(f"unknown guidance form '{form}' (use additive or product)")
@@ -366,12 +366,12 @@ def _apply(cost, owner, dissim, values, rows, cols, d_min, k, c, band, form, cos
             raise RiverbedError("give wall_scale (F_bar of the walls) for a tube volume")
         wall_scale = mean_lidar_cost(cost, rows, cols, cost_scale)
     flat, W, D, ts, tw, to = volume_layout(cost, owner.shape, tubes)
-    _modulate_kernel(flat, W, D, owner, dissim, values, int(d_min),
-                     float(k), float(c), float(band), FORMS[form], float(cost_scale), wall_scale, int(cap), ts, tw, to)
+    _modulate_kernel(flat, W, D, owner, dissim, values, int(d_min), float(k), float(c), float(band), FORMS[form],
+                     float(cost_scale), wall_scale, int(max_cost), ts, tw, to)
     return cost
 
 
-def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_scale=4, cap=65535, inplace=False,
+def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_scale=4, max_cost=65535, inplace=False,
                    wall_scale=None, tubes=None, points=None):
     """Gauss enhancement (paper eq. 5, Poggi et al. 2019) at the LiDAR pixels.
 
@@ -386,7 +386,7 @@ def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_sca
         Height and width (px) of the Gaussian; ``form`` is ``"additive"`` or ``"product"`` (module docstring).
     cost_scale : int
         Fixed-point scale of the output: ``round(cost_scale * cost)`` (scale SGM penalties alike).
-    cap : int
+    max_cost : int
         Upper bound of guided costs (keeps SGM sums within uint16).
     inplace : bool
         Modulate a scaled ``uint16`` input in place instead of copying it.
@@ -410,11 +410,12 @@ def gauss_modulate(cost, sparse, d_min, k=10.0, c=1.0, form="additive", cost_sca
     owner[rows, cols] = np.arange(rows.size, dtype=np.int32)
     dissim = np.zeros(sparse.shape, dtype=np.float32)
     out = scaled_volume(cost, cost_scale, inplace)
-    return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, 0.0, form, cost_scale, cap, wall_scale, tubes)
+    return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, 0.0, form, cost_scale, max_cost, wall_scale,
+                  tubes)
 
 
 def riverbed_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, sigma_xy=8.0, sigma_i=8.0, gamma=0.3,
-                      band=3.0, form="additive", cost_scale=4, cap=65535, owners=None, inplace=False,
+                      band=3.0, form="additive", cost_scale=4, max_cost=65535, owners=None, inplace=False,
                       literal_eq3=False, wall_scale=None, tubes=None, points=None):
     """Riverbed enhancement (paper eqs. 2, 3, 6): Gauss at LiDAR pixels, band-and-walls at homogeneous pixels.
 
@@ -435,4 +436,5 @@ def riverbed_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, sigma_x
         owners = homogeneous_owners(sparse, guide, window, sigma_xy, sigma_i, gamma, literal_eq3, points)
     owner, dissim = owners
     out = scaled_volume(cost, cost_scale, inplace)
-    return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, cap, wall_scale, tubes)
+    return _apply(out, owner, dissim, values, rows, cols, d_min, k, c, band, form, cost_scale, max_cost, wall_scale,
+                  tubes)

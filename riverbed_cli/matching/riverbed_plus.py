@@ -113,7 +113,7 @@ def support_ranges(sparse, arms, hops):
 
 
 @njit(cache=True, parallel=True)
-def _band_kernel(flat, D0, lo, hi, extend, d_min0, margin, wall, c, cap, tstart, twidth, toffset):
+def _band_kernel(flat, D0, lo, hi, extend, d_min0, margin, wall, c, max_cost, tstart, twidth, toffset):
     # cost holds scaled costs; at extended pixels: unchanged inside [lo - margin, hi + margin], plus
     # wall * (1 - exp(-t^2 / 2c^2)) at distance t outside it.
     H, W = lo.shape
@@ -135,13 +135,13 @@ def _band_kernel(flat, D0, lo, hi, extend, d_min0, margin, wall, c, cap, tstart,
                 t = max(a - d, d - b, 0.0)
                 if t > 0.0:
                     g = 1.0 - math.exp(-t * t * inv2c2)
-                    cy[i] = np.uint16(min(cy[i] + wall * g + 0.5, cap))
+                    cy[i] = np.uint16(min(cy[i] + wall * g + 0.5, max_cost))
 
 
-def band_modulate(cost, lo, hi, extend, d_min, margin=2.0, k=10.0, c=1.0, wall_scale=1.0, cost_scale=4, cap=65535,
+def band_modulate(cost, lo, hi, extend, d_min, margin=2.0, k=10.0, c=1.0, wall_scale=1.0, cost_scale=4, max_cost=65535,
                   inplace=False, tubes=None):
     """Band-and-walls guidance at the pixels ``extend``: costs unchanged inside ``[lo - margin, hi + margin]``, raised
-    by ``k * wall_scale * cost_scale * (1 - exp(-t^2 / 2c^2))`` at distance ``t`` outside, clipped at ``cap``.
+    by ``k * wall_scale * cost_scale * (1 - exp(-t^2 / 2c^2))`` at distance ``t`` outside, clipped at ``max_cost``.
 
     ``cost`` is uint8 (plain) or uint16 (already scaled by ``cost_scale``); returns the scaled uint16 volume.
     """
@@ -152,18 +152,18 @@ def band_modulate(cost, lo, hi, extend, d_min, margin=2.0, k=10.0, c=1.0, wall_s
     ext = np.ascontiguousarray(extend, dtype=np.bool_) & np.isfinite(lo) & np.isfinite(hi)
     flat, _, D0, ts, tw, to = volume_layout(out, lo.shape, tubes)
     _band_kernel(flat, D0, np.ascontiguousarray(lo, np.float32), np.ascontiguousarray(hi, np.float32), ext,
-                 int(d_min), float(margin), float(k * wall_scale * cost_scale), float(c), float(cap), ts, tw, to)
+                 int(d_min), float(margin), float(k * wall_scale * cost_scale), float(c), float(max_cost), ts, tw, to)
     return out
 
 
 def riverbed_plus_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, sigma_xy=8.0, sigma_i=8.0, gamma=0.3,
-                           band=3.0, form="additive", cost_scale=4, cap=65535, wall_scale=None, plus=None,
+                           band=3.0, form="additive", cost_scale=4, max_cost=65535, wall_scale=None, plus=None,
                            unreliable=None, share=None, inplace=False, return_support=False, tubes=None):
     """riverbed+ guidance (module docstring).
 
     Parameters
     ----------
-    cost, sparse, guide, d_min, window, k, c, sigma_xy, sigma_i, gamma, band, form, cost_scale, cap, wall_scale
+    cost, sparse, guide, d_min, window, k, c, sigma_xy, sigma_i, gamma, band, form, cost_scale, max_cost, wall_scale
         As for :func:`guidance.riverbed_modulate` (``wall_scale`` default: the mean cost at the LiDAR pixels).
     plus : PlusParams
     unreliable : (H, W) bool, optional
@@ -188,7 +188,8 @@ def riverbed_plus_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, si
     g = np.asarray(guide, dtype=np.float32)
     owners = guidance.homogeneous_owners(sparse, g, window, sigma_xy, sigma_i, gamma)
     out = guidance.riverbed_modulate(out, sparse, g, d_min, window, k, c, sigma_xy, sigma_i, gamma, band, form,
-                                     cost_scale, cap, owners=owners, inplace=True, wall_scale=wall_scale, tubes=tubes)
+                                     cost_scale, max_cost, owners=owners, inplace=True, wall_scale=wall_scale,
+                                     tubes=tubes)
     if share is None:
         share = guidance.lidar_share(sparse)
     hops = auto_hops(share) if q.hops == "auto" else int(q.hops)
@@ -199,7 +200,7 @@ def riverbed_plus_modulate(cost, sparse, guide, d_min, window, k=10.0, c=1.0, si
         if unreliable.shape != sparse.shape:
             raise RiverbedError(f"unreliable mask {unreliable.shape} and sparse map {sparse.shape} differ in size")
         extend &= unreliable
-    out = band_modulate(out, lo, hi, extend, d_min, q.margin, k, c, wall_scale, cost_scale, cap, inplace=True,
+    out = band_modulate(out, lo, hi, extend, d_min, q.margin, k, c, wall_scale, cost_scale, max_cost, inplace=True,
                         tubes=tubes)
     extended = extend & np.isfinite(lo)
     info = {"hops": hops, "extended": round(float(extended.mean()), 4)}

@@ -80,7 +80,7 @@ def _sgm_two_passes(flat, fwd, bwd, H, W, D, start, width, offset, wmax, dxs, dy
 
 @njit(cache=True, parallel=True)
 def _sgm_select_kernel(flat, fwd, bwd, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, d_min, subpixel,
-                       lr_check, lr_threshold, keep, threads):
+                       lr_check, lr_threshold, mark_failures, threads):
     # _sgm_two_passes, each row's disparity selected as soon as both passes hold it. Once its pass has no row left to
     # take, a thread selects the rows from its pass's far end (the rows the other pass did first), as long as both
     # passes have done them and no one took them, and stops at the first it cannot select; the rows left go to every
@@ -88,7 +88,7 @@ def _sgm_select_kernel(flat, fwd, bwd, H, W, D, start, width, offset, wmax, dxs,
     # thread selects nothing and the reverse pass's everything.
     fu, bu = fwd.view(np.uint16), bwd.view(np.uint16)  # the half-sums as the selection reads them
     disp = np.empty((H, W), dtype=np.float32)
-    status = np.zeros((H, W if keep else 1), dtype=np.int8)  # keep: 1 where the check fails
+    status = np.zeros((H, W if mark_failures else 1), dtype=np.int8)  # mark_failures: 1 where the check fails
     taken = np.zeros(H, np.int64)  # 1: a thread has selected (or is selecting) the row
     nf, nb = pass_threads(H, threads)
     ring_f, ring_b = _rings(H, W, dxs.shape[0], wmax, nf, nb)
@@ -102,15 +102,15 @@ def _sgm_select_kernel(flat, fwd, bwd, H, W, D, start, width, offset, wmax, dxs,
             if (load_acquire(rows_done, y) == 0 or load_acquire(rows_done, H + y) == 0
                     or exchange(taken, y, 1) != 0):
                 break
-            select_row(fu, bu, y, W, D, start, width, offset, wmax, d_min, subpixel, lr_check, lr_threshold, keep,
-                       disp, status)
+            select_row(fu, bu, y, W, D, start, width, offset, wmax, d_min, subpixel, lr_check, lr_threshold,
+                       mark_failures, disp, status)
     m = band_pairs(H)
     for i in prange(m):  # the rows' shares of every row-parallel kernel of the match (volume.band_pair_rows)
         r0, r1 = band_pair_rows(i, m, H)
         for y in range(r0, r1):
             if taken[y] == 0:
                 select_row(fu, bu, y, W, D, start, width, offset, wmax, d_min, subpixel, lr_check, lr_threshold,
-                           keep, disp, status)
+                           mark_failures, disp, status)
     return disp, status
 
 

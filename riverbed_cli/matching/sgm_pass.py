@@ -49,9 +49,9 @@ def tube_value(prev, wq, j, P1):
 
 
 @njit(cache=True, boundscheck=False)
-def _step_scalar(L, acc, cur, cost, b, w, span, prev, wq, s, P1, jump, mp, first, keep):
+def _step_scalar(L, acc, cur, cost, b, w, span, prev, wq, s, P1, jump, mp, first, sum_mask):
     # The step of _sgm_pass one disparity at a time, for what its vector steps cannot reach: the last pixels of the
-    # volume (their lanes would read past its end) and shifts past the guard of the neighbour's entry. keep as in
+    # volume (their lanes would read past its end) and shifts past the guard of the neighbour's entry. sum_mask as in
     # lanes_step (0: the pixel's first direction starts the half-sum).
     sent = np.int16(_SENTINEL)
     m = sent
@@ -63,13 +63,13 @@ def _step_scalar(L, acc, cur, cost, b, w, span, prev, wq, s, P1, jump, mp, first
         else:
             v = np.int16(cost[b + i] + min(tube_value(L[prev - 1:], wq, i + s, P1), jump) - mp)
         L[cur + i] = v
-        acc[i] = (acc[i] & keep) + v
+        acc[i] = (acc[i] & sum_mask) + v
         m = min(m, v)
     return m
 
 
 @njit(cache=True, boundscheck=False)
-def _wide_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, end, dx, cbase, pbase, R, RA, P1, P2, keep, out,
+def _wide_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, end, dx, cbase, pbase, R, RA, P1, P2, sum_mask, out,
                 last, done):
     # As _common_steps, for tubes wider than one chunk (a pixel no LiDAR reaches, beside others alike): every chunk in
     # one step (lanes_step_wide), while the neighbour's entry holds every chunk's reads; stops at a pixel whose
@@ -92,7 +92,7 @@ def _wide_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, end, dx, cbas
         if last:
             m = lanes_step_wide_out(L, acc, cur, flat, b, xx * RA, w, span, pi, P1, np.int16(mp + P2), mp, out, b)
         else:
-            m = lanes_step_wide(L, acc, cur, flat, b, xx * RA, w, span, pi, P1, np.int16(mp + P2), mp, keep)
+            m = lanes_step_wide(L, acc, cur, flat, b, xx * RA, w, span, pi, P1, np.int16(mp + P2), mp, sum_mask)
         lanes_fill(L, cur + span, sent)
         Lmin[np.uint64(cbase + xx)] = m
         xx += 1
@@ -210,7 +210,7 @@ def _pixel_layout(rb, rws, xx):
 
 
 @njit(cache=True, boundscheck=False)
-def _common_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, end, dx, cbase, pbase, R, RA, P1, P2, keep,
+def _common_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, end, dx, cbase, pbase, R, RA, P1, P2, sum_mask,
                   out, last):
     # Steps of one direction from pixel xx on (up to end) while each is the common one: a tube of one chunk whose
     # neighbour's entry is within reach (in the row before, py >= 0). Returns the first pixel that is not. A loop of
@@ -233,7 +233,7 @@ def _common_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, end, dx, cb
         if last:  # the pass's last direction: the half-sums straight to its result
             m = lanes_step_out(L, acc, cur, flat, b, xx * RA, w, pi, P1, np.int16(mp + P2), mp, out, b)
         else:
-            m = lanes_step(L, acc, cur, flat, b, xx * RA, w, pi, P1, np.int16(mp + P2), mp, keep)
+            m = lanes_step(L, acc, cur, flat, b, xx * RA, w, pi, P1, np.int16(mp + P2), mp, sum_mask)
         lanes_fill(L, cur + LANES, sent)
         Lmin[np.uint64(cbase + xx)] = m
         xx += 1
@@ -273,7 +273,7 @@ def sgm_rows(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, f
     Steps between pixels of different offsets compare equal disparities; a disparity outside the neighbour's tube is
     unreachable there (the sentinel). Every direction reaches back to the previous pixel of the row or to an earlier
     row, so a row (or a block of it) can be swept direction by direction; its first direction starts each pixel's
-    half-sum (keep 0), the others add to it."""
+    half-sum (sum_mask 0), the others add to it."""
     nd = dxs.shape[0]
     P1 = np.int16(P1)
     P2 = np.int16(P2)
@@ -327,7 +327,7 @@ def sgm_rows(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, f
         while b0 < W:  # one block (the whole row on one thread)
             end = block_end(progress, yy, b0, W, block, back1, back2) if several else W
             for k in range(nd):
-                keep = zero if k == 0 else every
+                sum_mask = zero if k == 0 else every
                 last = k == nd - 1
                 dx = dxs[k]
                 py = yy - dys[k]
@@ -356,7 +356,7 @@ def sgm_rows(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, f
                         # wide tubes not paired in their lean loop (it stops at paired ones); one-chunk ones below
                         x0 = xx
                         xx = _wide_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, end, dx, cbase, pbase, R,
-                                         RA, P1, P2, keep, out, last, done)
+                                         RA, P1, P2, sum_mask, out, last, done)
                         if xx != x0:
                             continue
                     elif py >= 0:
@@ -366,13 +366,13 @@ def sgm_rows(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, f
                         while x0 != xx and xx < end:
                             x0 = xx
                             xx = _common_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, end, dx, cbase,
-                                               pbase, R, RA, P1, P2, keep, out, last)
+                                               pbase, R, RA, P1, P2, sum_mask, out, last)
                             xx = _wide_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, end, dx, cbase,
-                                             pbase, R, RA, P1, P2, keep, out, last, done)
+                                             pbase, R, RA, P1, P2, sum_mask, out, last, done)
                         if xx >= end:
                             break
                     _rare_step(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, py, cbase, pbase, R, RA, P1,
-                               P2, keep, out, last, outside, mv)
+                               P2, sum_mask, out, last, outside, mv)
                     xx += 1
             b0 = end
             if several:
@@ -381,7 +381,7 @@ def sgm_rows(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, f
 
 
 @njit(cache=True, boundscheck=False, inline="always")
-def _rare_step(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, py, cbase, pbase, R, RA, P1, P2, keep, out,
+def _rare_step(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, py, cbase, pbase, R, RA, P1, P2, sum_mask, out,
                last, outside, mv):
     # one direction's step of pixel xx where the lean loops stop: a path's first pixel, tubes far apart, the
     # volume's last pixels
@@ -400,9 +400,9 @@ def _rare_step(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, py, cbase,
         if safe:
             m = sent
             for i in range(0, span, LANES):
-                m = min(m, lanes_first(L, acc, cur + i, flat, b + i, ai + i, w - i, keep))
+                m = min(m, lanes_first(L, acc, cur + i, flat, b + i, ai + i, w - i, sum_mask))
         else:
-            m = _step_scalar(L, acc[ai:], cur, flat, b, w, span, cur, w, 0, P1, sent, zero, True, keep)
+            m = _step_scalar(L, acc[ai:], cur, flat, b, w, span, cur, w, 0, P1, sent, zero, True, sum_mask)
     else:
         q = pbase + px
         wq = rwp[px]
@@ -411,17 +411,17 @@ def _rare_step(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, py, cbase,
         jump = np.int16(mp + P2)
         spanq = (wq + LANES - 1) // LANES * LANES
         if safe and 1 - _GUARD <= s <= spanq + LANES - 1 - span:  # a wide tube (one chunk: the lean loops)
-            m = lanes_step_wide(L, acc, cur, flat, b, ai, w, span, prev + s - 1, P1, jump, mp, keep)
+            m = lanes_step_wide(L, acc, cur, flat, b, ai, w, span, prev + s - 1, P1, jump, mp, sum_mask)
         elif safe and _chunks_reach(s, span, wq, spanq):
             # tubes far apart (a pixel searching the whole range beside a narrow tube): chunk by chunk, those wholly
             # outside the neighbour's tube from the block of sentinels
             for i in range(0, span, LANES):
                 j = i + s
                 pi = outside if _wholly_outside(j, wq) else prev + j - 1
-                lanes_step_min(L, acc, cur + i, flat, b + i, ai + i, w - i, pi, P1, jump, mp, keep, mv, i == 0)
+                lanes_step_min(L, acc, cur + i, flat, b + i, ai + i, w - i, pi, P1, jump, mp, sum_mask, mv, i == 0)
             m = lanes_reduce(mv)
         else:
-            m = _step_scalar(L, acc[ai:], cur, flat, b, w, span, prev, wq, s, P1, jump, mp, False, keep)
+            m = _step_scalar(L, acc[ai:], cur, flat, b, w, span, prev, wq, s, P1, jump, mp, False, sum_mask)
     lanes_fill(L, cur + span, sent)
     Lmin[cbase + xx] = m
     if last:  # the pixel's half-sums to the result (the lean loops store them there themselves)

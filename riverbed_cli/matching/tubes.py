@@ -391,16 +391,16 @@ def cell_widths_from_points(rows, cols, values, shape, d_min, d_max, share, tube
     cell = max(1, int(tube["cell"]))
     ch, cw = -(-shape[0] // cell), -(-shape[1] // cell)
     v = np.asarray(values, np.float32)
-    keep = (v >= d_min) & (v <= d_max)
+    inside = (v >= d_min) & (v <= d_max)
     extrema = []
-    for sel in (keep, ~keep):  # the points inside the range, and those outside it (lidar_tubes)
+    for sel in (inside, ~inside):  # the points inside the range, and those outside it (lidar_tubes)
         emin = np.full((ch, cw), np.inf, np.float32)
         emax = np.full((ch, cw), -np.inf, np.float32)
         np.minimum.at(emin, (rows[sel] // cell, cols[sel] // cell), v[sel])
         np.maximum.at(emax, (rows[sel] // cell, cols[sel] // cell), v[sel])
         extrema.append((emin, emax))
     spacing = 1.0 / math.sqrt(max(share, 1e-12))
-    tlo, thi = cell_tubes(*extrema[0], d_min, d_max, spacing, **tube, outside=extrema[1] if (~keep).any() else None)
+    tlo, thi = cell_tubes(*extrema[0], d_min, d_max, spacing, **tube, outside=extrema[1] if (~inside).any() else None)
     return thi - tlo + 1
 
 

@@ -354,7 +354,7 @@ def check_whole(left, right, sparse, d_min, d_max, params):
     return check_pair(*arrays, np.asarray(sparse[:, :], np.float32), d_min, d_max, params, match_tiled)
 
 
-def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None, global_range=None, range_map=None,
+def match_tile(left, right, sparse, t, overlap, params, bits=8, share_all=None, global_range=None, range_map=None,
                confidence=False, valid_areas=None, changed=None):
     """Match one :class:`Tile` (sources sliced like numpy arrays: arrays, memory maps, :class:`WindowedRaster`).
 
@@ -362,9 +362,9 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
     t.x0``), the disparity evaluations done on its crop, the stage timings, and with tubes a
     :class:`TileTubes` of the tile's own pixels (None on whole ranges). ``params.window`` should be fixed
     (not "auto") so every tile uses the same riverbed window; ``bits`` is the whole pair's effective bit depth.
-    With tubes (``params.range``), ``tube_share`` (the whole image's LiDAR share) and ``global_range`` (the whole
-    image's ``(d_min, d_max)``) make the crop's tubes the whole image's (:func:`lidar_tubes_window`), clipped to
-    the tile's range. A ``range_map`` (the whole image's checked ``(lo, hi)``, NaN: no range) gives the tubes
+    With tubes (``params.range``), ``share_all`` (the whole image's LiDAR share, every point) and ``global_range``
+    (the whole image's ``(d_min, d_max)``) make the crop's tubes the whole image's (:func:`lidar_tubes_window`),
+    clipped to the tile's range. A ``range_map`` (the whole image's checked ``(lo, hi)``, NaN: no range) gives the tubes
     instead.
     With ``confidence`` a fifth value: the fusion's confidence of the tile's own pixels (NaN where the tile was not
     fused: no LiDAR in its range). ``valid_areas``: the images' valid areas ``(left, right)``, each None or sliced
@@ -405,7 +405,7 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, tube_share=None,
         range_map = tuple(np.clip(e - off, lo_c, hi_c) for e in ends)
     elif mode == "tube" and sparse is not None:
         g_lo, g_hi = global_range if global_range is not None else (t.d_min, t.d_max)
-        share = tube_share if tube_share is not None else lidar_share(sc)
+        share = share_all if share_all is not None else lidar_share(sc)
         coarse = p.tube.holes == "coarse"
         lo, hi, *hole = lidar_tubes_window(sparse, ya, yb, a, b, g_lo, g_hi, share, asdict(p.tube), coarse)
         lo = np.clip(lo - off, lo_c, hi_c)
@@ -470,12 +470,12 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, *, params=None
         raise RiverbedError(f"sparse map is {sparse.shape[1]}x{sparse.shape[0]} but the images are {W}x{H} (WxH)")
     with bounded_raster_cache():  # GDAL's cache would otherwise hold blocks of the whole image
         t_all = time.perf_counter()
-        share = 0.0
+        share_all = 0.0  # every point's share, as given: it sets the tubes' spacing
         if sparse is not None:
             pr, pc, pv = sparse_points_any(sparse) if points is None else points
             if pv.size == 0:
                 raise RiverbedError("sparse map has no valid disparities")
-            share = lidar_share_of_points(pr, pc, (H, W))
+            share_all = lidar_share_of_points(pr, pc, (H, W))
         rmap, scan = None, range_scan
         if range_map is not None:  # read once to check and plan, kept as it is (tiles read their windows)
             rmap = tuple(range_map)
@@ -509,21 +509,21 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, *, params=None
             check_seconds = round(time.perf_counter() - t0, 4)
         if scan is not None:
             scan.check(d_min, d_max)
-        # the LiDAR inside the range guides the cost, as match_pair's; all of it bounds the tubes (tube_share)
-        guide_share = share
+        # the LiDAR inside the range guides the cost, as match_pair's; all of it bounds the tubes (share_all)
+        share_in_range = share_all
         if sparse is not None:
             inside = (pv >= d_min) & (pv <= d_max)
             check_inside(int(inside.sum()), pv.size, d_min, d_max, lambda: pv)
             if not inside.all():
-                guide_share = lidar_share_of_points(pr[inside], pc[inside], (H, W))
+                share_in_range = lidar_share_of_points(pr[inside], pc[inside], (H, W))
         bits = image_bits(left, right)
         if guide.uses_window and p.guidance.window == "auto":
             # One window for the whole image: a tile's own LiDAR share would change it from tile to tile.
-            p = p.replace(window=guide.window(guide_share, p))
+            p = p.replace(window=guide.window(share_in_range, p))
         if scan is not None:
             widths = (scan.widths(d_min, d_max), scan.cell)
         else:
-            widths = tube_widths(p, (pr, pc, pv), (H, W), d_min, d_max, share) if sparse is not None else None
+            widths = tube_widths(p, (pr, pc, pv), (H, W), d_min, d_max, share_all) if sparse is not None else None
         plan = plan_tiles(H, W, sparse, d_min, d_max, tile, overlap, lidar_range, widths=widths, range_map=scan)
         if out is None:
             out = np.full((H, W), np.nan, np.float32)
@@ -531,7 +531,7 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, *, params=None
         evaluations = 0
         tube_parts = []
         for t in plan.tiles:
-            block, n, st, tube, *conf = match_tile(left, right, sparse, t, overlap, p, bits, share, (d_min, d_max),
+            block, n, st, tube, *conf = match_tile(left, right, sparse, t, overlap, p, bits, share_all, (d_min, d_max),
                                                    rmap, confidence_out is not None, valid_areas, changed)
             tube_parts.append(tube)
             out[t.y0:t.y1, t.x0:t.x1] = block
@@ -548,7 +548,7 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, *, params=None
         stages["lidar_offset"] = offset_seconds  # the tiles' own (forced) ones are free
     if check is not None:
         stages["lidar_check"] = check_seconds
-    info = TiledMatchInfo(round(time.perf_counter() - t_all, 4), stages, p.guide, guide_share,
+    info = TiledMatchInfo(round(time.perf_counter() - t_all, 4), stages, p.guide, share_in_range,
                           p.guidance.window if guide.uses_window else None, d_min, d_max, [W, H], len(plan.tiles),
                           plan.size, overlap, int(evaluations), plan.to_dict()["tile_ranges"], mode, tubes,
                           offset.to_dict() if offset is not None else None,

@@ -17,7 +17,7 @@ class GuidanceInputs:
     uint8 as read (:func:`~riverbed_cli.io.images.guide_source`), or None for guides that do not read it;
     ``share``: the LiDAR share of the image (:func:`~riverbed_cli.matching.guidance.lidar_share`); ``wall_scale``: the
     wall scale ``F_bar`` in plain cost units;
-    ``cap``: the largest guided cost the aggregation can take (stored units); ``first_pass``: what the guide's
+    ``max_cost``: the largest guided cost the aggregation can take (stored units); ``first_pass``: what the guide's
     :meth:`Guide.prepare` returned; ``want_support``: also return the support (AD-Census's refinement keeps the
     winners inside it); ``points``: the LiDAR's ``(rows, cols, values)``
     (:func:`~riverbed_cli.geometry.coverage.lidar_points` of ``sparse``), or None (:meth:`lidar` finds them).
@@ -27,7 +27,7 @@ class GuidanceInputs:
     image: np.ndarray
     share: float
     wall_scale: float
-    cap: int
+    max_cost: int
     first_pass: object = None
     want_support: bool = False
     points: tuple = None
@@ -42,7 +42,7 @@ class GuidanceInputs:
 
 @dataclass
 class Guidance:
-    """A guide's output: the modulated volume (its ``max_cost`` the guide's cap), the riverbed window used (None
+    """A guide's output: the modulated volume (its ``max_cost`` the guide's), the riverbed window used (None
     for guides without one) and the support, a per-pixel ``(lo, hi)`` disparity interval the guide vouches for
     (NaN where it vouches for nothing), or None."""
 

@@ -25,4 +25,4 @@ class Diffusion(Guide):
         else:
             data = diffusion_modulate(volume.data, inputs.sparse, inputs.image, volume.d_min,
                                       cost_scale=volume.scale, inplace=True, tubes=volume.tubes, **kw)
-        return Guidance(volume.like(data, inputs.cap), None, support)
+        return Guidance(volume.like(data, inputs.max_cost), None, support)

@@ -28,7 +28,7 @@ class Riverbed(Guide):
         owners = guidance.homogeneous_owners(inputs.sparse, inputs.image, window, g.sigma_xy, g.sigma_i, g.gamma,
                                              g.literal_eq3, points)
         data = guidance.riverbed_modulate(volume.data, inputs.sparse, inputs.image, volume.d_min, window, g.k, g.c,
-                                          g.sigma_xy, g.sigma_i, g.gamma, g.band, g.form, volume.scale, inputs.cap,
+                                          g.sigma_xy, g.sigma_i, g.gamma, g.band, g.form, volume.scale, inputs.max_cost,
                                           owners=owners, inplace=True, literal_eq3=g.literal_eq3,
                                           wall_scale=inputs.wall_scale, tubes=volume.tubes, points=points)
         support = None
@@ -36,4 +36,4 @@ class Riverbed(Guide):
             from ..riverbed_plus import riverbed_support
 
             support = riverbed_support(inputs.sparse, owners, g.band)
-        return Guidance(volume.like(data, inputs.cap), window, support)
+        return Guidance(volume.like(data, inputs.max_cost), window, support)

@@ -38,7 +38,7 @@ class RiverbedPlus(Guide):
         window = self.window(inputs.share, config)
         data, extra = riverbed_plus_modulate(volume.data, inputs.sparse, inputs.image, volume.d_min, window, g.k, g.c,
                                              g.sigma_xy, g.sigma_i, g.gamma, g.band, g.form, volume.scale,
-                                             inputs.cap, inputs.wall_scale, config.plus, inputs.first_pass,
+                                             inputs.max_cost, inputs.wall_scale, config.plus, inputs.first_pass,
                                              inputs.share, inplace=True, return_support=inputs.want_support,
                                              tubes=volume.tubes)
-        return Guidance(volume.like(data, inputs.cap), window, extra.get("support"))
+        return Guidance(volume.like(data, inputs.max_cost), window, extra.get("support"))

@@ -33,12 +33,12 @@ def _fmin(builder, a, b):
     return builder.select(builder.fcmp_ordered("<", b, a), b, a)
 
 
-def _flat_wall(builder, q16, a1, g1, fcap):
-    # min(a1 * q + g1, fcap) in float32, truncated to uint16: where the walls are flat (g = 1)
+def _flat_wall(builder, q16, a1, g1, ceiling):
+    # min(a1 * q + g1, ceiling) in float32, truncated to uint16: where the walls are flat (g = 1)
     vf32 = ir.VectorType(F32, q16.type.count)
     flat = builder.fmul(splat(builder, a1, vf32), builder.uitofp(q16, vf32))
     flat = builder.fadd(flat, splat(builder, g1, vf32))
-    return builder.fptoui(_fmin(builder, flat, splat(builder, fcap, vf32)), q16.type)
+    return builder.fptoui(_fmin(builder, flat, splat(builder, ceiling, vf32)), q16.type)
 
 
 #: exp(-x) by the 32nd power of a degree-9 Taylor polynomial of exp(-x / 32) (Horner's steps fused: one rounding
@@ -79,8 +79,9 @@ def _walls_intrinsic(masked, n=LANES):
     v16, vi32, vf = ir.VectorType(I16, n), ir.VectorType(I32, n), ir.VectorType(F32, n)
     lane_index = ir.Constant(vi32, list(range(n)))
 
-    def lanes_walls(typingctx, arr, ai, i0, dmin, right, left, lo, hi, alpha, beta, gamma, a1, g1, inv2c2, fcap, lanes):
-        sig = types.void(arr, ai, i0, dmin, right, left, lo, hi, alpha, beta, gamma, a1, g1, inv2c2, fcap, lanes)
+    def lanes_walls(typingctx, arr, ai, i0, dmin, right, left, lo, hi, alpha, beta, gamma, a1, g1, inv2c2, ceiling,
+                    lanes):
+        sig = types.void(arr, ai, i0, dmin, right, left, lo, hi, alpha, beta, gamma, a1, g1, inv2c2, ceiling, lanes)
 
         def codegen(context, builder, signature, args):
             arr_, ai_, i0_, dmin_, right_, left_, lo_, hi_, alpha_, beta_, gamma_, a1_, g1_, k_, fcap_, lanes_ = args
@@ -117,8 +118,8 @@ def _walls_intrinsic(masked, n=LANES):
 
 
 def _flat_intrinsic(masked):
-    def lanes_flat(typingctx, arr, ai, a1, g1, fcap, lanes):
-        sig = types.void(arr, ai, a1, g1, fcap, lanes)
+    def lanes_flat(typingctx, arr, ai, a1, g1, ceiling, lanes):
+        sig = types.void(arr, ai, a1, g1, ceiling, lanes)
 
         def codegen(context, builder, signature, args):
             arr_, ai_, a1_, g1_, fcap_, lanes_ = args
@@ -136,13 +137,13 @@ def _flat_intrinsic(masked):
 _WALLS_DOC = """The riverbed modulation of ``LANES`` disparities of a pixel's tube (:func:`.guidance._modulate_kernel`).
 
     Lane ``i`` (``i0 + lane``, disparity ``d = dmin + i``) of ``q = arr[ai + lane]`` (uint16): where ``i < lo`` or
-    ``i >= hi`` (the walls are flat) ``min(a1 * q + g1, fcap)`` in float32; elsewhere, with ``t = max(d - right,
+    ``i >= hi`` (the walls are flat) ``min(a1 * q + g1, ceiling)`` in float32; elsewhere, with ``t = max(d - right,
     left - d, 0)`` the distance past the band ``[left, right]`` and the wall height ``g = 1 - exp(-t^2 inv2c2)``,
-    ``min((alpha + beta g) q + gamma g + 0.5, fcap)`` in float32 with fused multiply-adds (``right`` and ``left``
+    ``min((alpha + beta g) q + gamma g + 0.5, ceiling)`` in float32 with fused multiply-adds (``right`` and ``left``
     taken relative to ``dmin`` in float64 first); truncated to uint16 in place, for the first ``lanes`` lanes
     (``i0``, ``lo``, ``hi`` and ``lanes`` fit int32). {reads}
     """
-_FLAT_DOC = """``arr[ai + lane] = min(a1 * q + g1, fcap)`` (float32, truncated to uint16) for the first ``lanes``
+_FLAT_DOC = """``arr[ai + lane] = min(a1 * q + g1, ceiling)`` (float32, truncated to uint16) for the first ``lanes``
     lanes: a chunk of a tube where the walls are flat (:func:`lanes_walls` there, without the wall). {reads}
     """
 _MASKED = "Only those lanes are read and written."

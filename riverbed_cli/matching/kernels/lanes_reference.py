@@ -30,24 +30,24 @@ def _step_values(L, cost, ci, lanes, prev, p1, jump, mp):
     return out
 
 
-def _store(L, acc, cur, ai, keep, values):
-    # the path costs to L, and joined to the half-sum acc (keep -1: added, 0: started), every lane
+def _store(L, acc, cur, ai, sum_mask, values):
+    # the path costs to L, and joined to the half-sum acc (sum_mask -1: added, 0: started), every lane
     for d, v in enumerate(values):
         L[cur + d] = v
-        acc[ai + d] = _i16((int(acc[ai + d]) & int(keep)) + int(v))
+        acc[ai + d] = _i16((int(acc[ai + d]) & int(sum_mask)) + int(v))
 
 
-def lanes_first(L, acc, cur, cost, ci, ai, lanes, keep):
+def lanes_first(L, acc, cur, cost, ci, ai, lanes, sum_mask):
     """:func:`.lanes.lanes_first`: a path's first pixel, its path costs its costs."""
     values = [_i16(int(cost[ci + d])) if d < lanes else np.int16(SENTINEL) for d in range(LANES)]
-    _store(L, acc, cur, ai, keep, values)
+    _store(L, acc, cur, ai, sum_mask, values)
     return min(values)
 
 
-def lanes_step(L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, keep):
+def lanes_step(L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, sum_mask):
     """:func:`.lanes.lanes_step`: one SGM step on ``LANES`` disparities."""
     values = _step_values(L, cost, ci, lanes, prev, p1, jump, mp)
-    _store(L, acc, cur, ai, keep, values)
+    _store(L, acc, cur, ai, sum_mask, values)
     return min(values)
 
 
@@ -61,17 +61,17 @@ def lanes_step_out(L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, out, oi
     return min(values)
 
 
-def lanes_step_min(L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, keep, mv, first):
+def lanes_step_min(L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, sum_mask, mv, first):
     """:func:`.lanes.lanes_step_min`: the step of one chunk, its lanes joined to the running minimum ``mv``."""
     values = _step_values(L, cost, ci, lanes, prev, p1, jump, mp)
-    _store(L, acc, cur, ai, keep, values)
+    _store(L, acc, cur, ai, sum_mask, values)
     for d, v in enumerate(values):
         mv[d] = v if first else min(mv[d], v)
 
 
-def lanes_step_wide(L, acc, cur, cost, ci, ai, lanes, span, prev, p1, jump, mp, keep):
+def lanes_step_wide(L, acc, cur, cost, ci, ai, lanes, span, prev, p1, jump, mp, sum_mask):
     """:func:`.lanes.lanes_step_wide`: the step over ``span`` disparities, a chunk at a time."""
-    return min(lanes_step(L, acc, cur + i, cost, ci + i, ai + i, lanes - i, prev + i, p1, jump, mp, keep)
+    return min(lanes_step(L, acc, cur + i, cost, ci + i, ai + i, lanes - i, prev + i, p1, jump, mp, sum_mask)
                for i in range(0, span, LANES))
 
 

@@ -33,11 +33,11 @@ class ADCensusMatcher(Matcher):
         if guide.needs_sparse:
             # int16 scanline paths: a guided cost plus the largest penalty must stay below 16384 (and each half-sum
             # of two paths within int16)
-            cap = 16383 - int(adcensus.so_penalties(ap.pi1, ap.pi2, ap.scale)[1][0])
+            max_cost = 16383 - int(adcensus.so_penalties(ap.pi1, ap.pi2, ap.scale)[1][0])
             # wall scale: half the largest AD-Census cost (1.0 of the paper's [0, 2]), as half the census bits
             g = config.guidance
             wall_scale = 1.0 if g.wall_scale == "auto" else float(g.wall_scale)
-            inputs = GuidanceInputs(sparse, guide_img, share, wall_scale, cap, first_pass, want_support=True,
+            inputs = GuidanceInputs(sparse, guide_img, share, wall_scale, max_cost, first_pass, want_support=True,
                                     points=points)
 
             def modulate(data, max_cost, layout):

@@ -50,15 +50,15 @@ class SGMMatcher(Matcher):
         window = None
         t0 = time.perf_counter()
         if guided:
-            cap = 65535 // s.paths - s.p2 * scale
+            max_cost = 65535 // s.paths - s.p2 * scale
             # A fixed wall scale (not the mean cost at this image's LiDAR pixels) keeps tiles consistent with the
             # whole image; the walls' height barely matters (docs/method.md).
             g = config.guidance
             wall_scale = nbits / 2.0 if g.wall_scale == "auto" else float(g.wall_scale)
-            if cap <= nbits * scale:
+            if max_cost <= nbits * scale:
                 raise RiverbedError(f"P2 {s.p2} is too large for {s.paths} paths with guided uint16 costs")
             image = guide_source(left, bits) if guide.needs_image else None
-            inputs = GuidanceInputs(sparse, image, share, wall_scale, cap, first_pass, points=points)
+            inputs = GuidanceInputs(sparse, image, share, wall_scale, max_cost, first_pass, points=points)
             result = guide.modulate(volume, inputs, config)
             volume, window = result.volume, result.window
         _lap(stages, "guidance", t0)
