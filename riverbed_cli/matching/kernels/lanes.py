@@ -44,38 +44,33 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from .vector_ir import (F32, I16, I32, I64, LANES, V16, VI32, VI64, declared, load_i16, masked_store, reduce_min, smin,
-                        splat, store_vector, valid, vector_ptr)
+from .vector_ir import (F32, I16, I32, I64, LANES, V16, VI32, VI64, Args, declared, load_i16, masked_store, reduce_min,
+                        smin, splat, store_vector, typed, valid, vector_ptr)
 
 SENTINEL = 16384  # above any path cost (sgm.check_sgm_bounds); SENTINEL + P1 still fits int16
 
 
-def _store_path_costs(context, builder, sig_args, v, mask, L, cur, acc, ai, keep):
+def _store_path_costs(a, v, mask, cur, ai):
     # lanes past the tube hold the sentinel (unreachable for the next pixel); the path cost joins the half-sum
-    # (keep 0: the pixel's first direction starts it, so the half-sum needs no zeroing per pixel); returns the
-    # stored lanes
+    # (a.sum_mask 0: the pixel's first direction starts it, so the half-sum needs no zeroing per pixel); returns the
+    # stored lanes (a: the step's Args, with L, acc and sum_mask)
+    builder = a.builder
     v = builder.select(mask, v, ir.Constant(V16, [SENTINEL] * LANES))
-    store_vector(context, builder, sig_args[0], L, cur, v)
-    accty = sig_args[1]
-    kept = builder.and_(load_i16(context, builder, accty, acc, ai), splat(builder, keep))
-    store_vector(context, builder, accty, acc, ai, builder.add(kept, v))
+    a.store("L", cur, v)
+    kept = builder.and_(a.load("acc", ai), splat(builder, a.sum_mask))
+    a.store("acc", ai, builder.add(kept, v))
     return v
 
 
-def _store_half_sum(context, builder, sig_args, v, mask, L, cur, acc, ai, out, oi):
+def _store_half_sum(a, v, mask, cur, ai, oi):
     # the last direction of a pass: as _store_path_costs, the half-sum (acc + the path costs) then stored to the
     # pass's result out[oi:] in the tube's lanes only (masked: the lanes past it are other pixels', some already
     # written); returns the stored path costs
+    builder = a.builder
     v = builder.select(mask, v, ir.Constant(V16, [SENTINEL] * LANES))
-    store_vector(context, builder, sig_args[0], L, cur, v)
-    total = builder.add(load_i16(context, builder, sig_args[1], acc, ai), v)
-    masked_store(builder, total, vector_ptr(context, builder, sig_args[-2], out, oi), mask)
+    a.store("L", cur, v)
+    masked_store(builder, builder.add(a.load("acc", ai), v), a.ptr("out", oi), mask)
     return v
-
-
-def _finish(context, builder, sig_args, v, mask, L, cur, acc, ai, keep):
-    # _store_path_costs, then the minimum over the lanes
-    return reduce_min(builder, _store_path_costs(context, builder, sig_args, v, mask, L, cur, acc, ai, keep))
 
 
 def neighbour_min(context, builder, lt, L, prev, p1, jump):
@@ -88,47 +83,47 @@ def neighbour_min(context, builder, lt, L, prev, p1, jump):
     return smin(builder, v, splat(builder, jump))
 
 
-def _step_value(context, builder, sig_args, L, cost, ci, prev, p1, jump, mp):
-    # cost + min(a, min(b, e) + P1, jump) - mp with a, b, e the previous path costs at prev + 1, prev, prev + 2
-    v = neighbour_min(context, builder, sig_args[0], L, prev, p1, jump)
-    c = load_i16(context, builder, sig_args[3], cost, ci)
-    return builder.sub(builder.add(c, v), splat(builder, mp))
+def _step_value(a, ci, prev):
+    # cost[ci:] + min(a, min(b, e) + P1, jump) - mp with a, b, e the previous path costs at prev + 1, prev, prev + 2
+    # (a: the step's Args, with L, cost, p1, jump and mp)
+    builder = a.builder
+    v = neighbour_min(a.context, builder, a.type("L"), a.L, prev, a.p1, a.jump)
+    return builder.sub(builder.add(a.load("cost", ci), v), splat(builder, a.mp))
 
 
-def _wide_codegen(context, builder, sig_args, args, store):
-    # the chunks of a wide tube's step (args as lanes_step_wide's up to mp), each stored by store(v, mask, i) (chunk
-    # i); the running minimum in a register, reduced once
-    L, cost, ci, lanes, span, prev, p1, jump, mp = (args[0], args[3], args[4], args[6], args[7], args[8], args[9],
-                                                    args[10], args[11])
+def _wide_codegen(a, store):
+    # the chunks of a wide tube's step (a: lanes_step_wide's Args), each stored by store(v, mask, i) (chunk i); the
+    # running minimum in a register, reduced once
+    builder = a.builder
     mv = cgutils.alloca_once_value(builder, ir.Constant(V16, [SENTINEL] * LANES))
     step = ir.Constant(I64, LANES)
-    with cgutils.for_range_slice(builder, ir.Constant(I64, 0), span, step) as (i, _):
-        v = _step_value(context, builder, sig_args, L, cost, builder.add(ci, i), builder.add(prev, i), p1, jump, mp)
-        v = store(v, valid(builder, builder.sub(lanes, i)), i)
+    with cgutils.for_range_slice(builder, ir.Constant(I64, 0), a.span, step) as (i, _):
+        v = _step_value(a, builder.add(a.ci, i), builder.add(a.prev, i))
+        v = store(v, valid(builder, builder.sub(a.lanes, i)), i)
         builder.store(smin(builder, builder.load(mv), v), mv)
     return reduce_min(builder, builder.load(mv))
 
 
 @intrinsic
-def lanes_first(typingctx, L, acc, cur, cost, ci, ai, lanes, keep):
+def lanes_first(typingctx, L, acc, cur, cost, ci, ai, lanes, sum_mask):
     """The first pixel of a path: its path costs are its costs.
 
     Lane ``d``: ``L[cur + d] = cost[ci + d]`` (the sentinel for ``d >= lanes``), ``acc[ai + d] = (acc[ai + d] &
-    keep) +`` that (``keep`` int16 -1: adds to the half-sum, 0: starts it); returns the minimum over the lanes
+    sum_mask) +`` that (``sum_mask`` int16 -1: adds to the half-sum, 0: starts it); returns the minimum over the lanes
     (int16).
     """
-    sig = types.int16(L, acc, cur, cost, ci, ai, lanes, keep)
+    names, sig = typed(locals(), types.int16)
 
     def codegen(context, builder, signature, args):
-        L_, acc_, cur_, cost_, ci_, ai_, lanes_, keep_ = args
-        c = load_i16(context, builder, signature.args[3], cost_, ci_)
-        return _finish(context, builder, signature.args, c, valid(builder, lanes_), L_, cur_, acc_, ai_, keep_)
+        a = Args(names, context, builder, signature, args)
+        c = a.load("cost", a.ci)
+        return reduce_min(builder, _store_path_costs(a, c, valid(builder, a.lanes), a.cur, a.ai))
 
     return sig, codegen
 
 
 @intrinsic
-def lanes_step(typingctx, L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, keep):
+def lanes_step(typingctx, L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, sum_mask):
     """One SGM step along a path on ``LANES`` disparities.
 
     Lane ``d``: with ``a, b, e = L[prev + d + 1], L[prev + d], L[prev + d + 2]`` (the previous pixel's path costs at
@@ -136,12 +131,12 @@ def lanes_step(typingctx, L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, 
     (``jump = mp + P2``, ``mp`` the previous pixel's minimum) for ``d < lanes``, the sentinel past them;
     ``acc[ai + d]`` as in :func:`lanes_first`. Returns the minimum over the lanes (int16).
     """
-    sig = types.int16(L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, keep)
+    names, sig = typed(locals(), types.int16)
 
     def codegen(context, builder, signature, args):
-        L_, acc_, cur_, cost_, ci_, ai_, lanes_, prev_, p1_, jump_, mp_, keep_ = args
-        v = _step_value(context, builder, signature.args, L_, cost_, ci_, prev_, p1_, jump_, mp_)
-        return _finish(context, builder, signature.args, v, valid(builder, lanes_), L_, cur_, acc_, ai_, keep_)
+        a = Args(names, context, builder, signature, args)
+        v = _step_value(a, a.ci, a.prev)
+        return reduce_min(builder, _store_path_costs(a, v, valid(builder, a.lanes), a.cur, a.ai))
 
     return sig, codegen
 
@@ -150,14 +145,12 @@ def lanes_step(typingctx, L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, 
 def lanes_step_out(typingctx, L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, out, oi):
     """:func:`lanes_step` in a pass's last direction: the half-sum ``acc[ai + d] +`` the path cost goes to
     ``out[oi + d]`` for ``d < lanes`` only (``acc`` is read, not written). Returns the minimum over the lanes."""
-    sig = types.int16(L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, out, oi)
+    names, sig = typed(locals(), types.int16)
 
     def codegen(context, builder, signature, args):
-        L_, acc_, cur_, cost_, ci_, ai_, lanes_, prev_, p1_, jump_, mp_, out_, oi_ = args
-        v = _step_value(context, builder, signature.args, L_, cost_, ci_, prev_, p1_, jump_, mp_)
-        v = _store_half_sum(context, builder, signature.args, v, valid(builder, lanes_), L_, cur_, acc_, ai_, out_,
-                            oi_)
-        return reduce_min(builder, v)
+        a = Args(names, context, builder, signature, args)
+        v = _step_value(a, a.ci, a.prev)
+        return reduce_min(builder, _store_half_sum(a, v, valid(builder, a.lanes), a.cur, a.ai, a.oi))
 
     return sig, codegen
 
@@ -168,31 +161,30 @@ def lanes_step_pair(typingctx, L, cur, cost, ci, lanes, prev, p1, jump, mp, cur2
     pass's last (4 paths: the row's direction and the column's): the cost is loaded once, the path costs go to
     ``L[cur:]`` and ``L[cur2:]`` (neighbours at ``prev`` and ``prev2``), their sum to ``out[oi + d]`` for ``d <
     lanes``, with no half-sum in between. Returns both minima, the first in the low 16 bits (int32)."""
-    sig = types.int32(L, cur, cost, ci, lanes, prev, p1, jump, mp, cur2, prev2, jump2, mp2, out, oi)
+    names, sig = typed(locals(), types.int32)
 
     def codegen(context, builder, signature, args):
-        vs = _pair_chunk(context, builder, signature.args, args, ir.Constant(I64, 0))
+        vs = _pair_chunk(Args(names, context, builder, signature, args), ir.Constant(I64, 0))
         return _pair_minima(builder, [reduce_min(builder, v) for v in vs])
 
     return sig, codegen
 
 
-def _pair_chunk(context, builder, sig_args, args, i):
-    # chunk i of a pixel's two paired steps (args as lanes_step_pair's): the cost loaded once, each direction's path
-    # costs stored (the sentinel past the tube), their sum to out; returns both directions' path costs
-    L_, cur_, cost_, ci_, lanes_, prev_, p1_, jump_, mp_, cur2_, prev2_, jump2_, mp2_, out_, oi_ = args
-    lt = sig_args[0]
-    c = load_i16(context, builder, sig_args[2], cost_, builder.add(ci_, i))
-    mask = valid(builder, builder.sub(lanes_, i))
+def _pair_chunk(a, i):
+    # chunk i of a pixel's two paired steps (a: lanes_step_pair's or lanes_step_wide_pair's Args): the cost loaded
+    # once, each direction's path costs stored (the sentinel past the tube), their sum to out; returns both
+    # directions' path costs
+    builder = a.builder
+    c = a.load("cost", builder.add(a.ci, i))
+    mask = valid(builder, builder.sub(a.lanes, i))
     sent = ir.Constant(V16, [SENTINEL] * LANES)
     vs = []
-    for cur, prev, jump, mp in ((cur_, prev_, jump_, mp_), (cur2_, prev2_, jump2_, mp2_)):
-        v = neighbour_min(context, builder, lt, L_, builder.add(prev, i), p1_, jump)
+    for cur, prev, jump, mp in ((a.cur, a.prev, a.jump, a.mp), (a.cur2, a.prev2, a.jump2, a.mp2)):
+        v = neighbour_min(a.context, builder, a.type("L"), a.L, builder.add(prev, i), a.p1, jump)
         v = builder.select(mask, builder.sub(builder.add(c, v), splat(builder, mp)), sent)
-        store_vector(context, builder, lt, L_, builder.add(cur, i), v)
+        a.store("L", builder.add(cur, i), v)
         vs.append(v)
-    masked_store(builder, builder.add(vs[0], vs[1]),
-                 vector_ptr(context, builder, sig_args[13], out_, builder.add(oi_, i)), mask)
+    masked_store(builder, builder.add(vs[0], vs[1]), a.ptr("out", builder.add(a.oi, i)), mask)
     return vs
 
 
@@ -209,15 +201,13 @@ def lanes_step_wide_pair(typingctx, L, cur, cost, ci, lanes, span, prev, p1, jum
     ``LANES``) a chunk at a time, chunk ``i`` at ``cur + i``, ``ci + i``, ``prev + i``, ``cur2 + i``, ``prev2 + i``,
     ``oi + i`` with ``lanes - i`` valid lanes; each direction's running minimum in a register, reduced once.
     Returns both minima, the first in the low 16 bits (int32)."""
-    sig = types.int32(L, cur, cost, ci, lanes, span, prev, p1, jump, mp, cur2, prev2, jump2, mp2, out, oi)
+    names, sig = typed(locals(), types.int32)
 
     def codegen(context, builder, signature, args):
-        span_ = args[5]
-        pair_args = args[:5] + args[6:]
-        pair_sig = signature.args[:5] + signature.args[6:]
+        a = Args(names, context, builder, signature, args)
         mvs = [cgutils.alloca_once_value(builder, ir.Constant(V16, [SENTINEL] * LANES)) for _ in range(2)]
-        with cgutils.for_range_slice(builder, ir.Constant(I64, 0), span_, ir.Constant(I64, LANES)) as (i, _):
-            for mv, v in zip(mvs, _pair_chunk(context, builder, pair_sig, pair_args, i)):
+        with cgutils.for_range_slice(builder, ir.Constant(I64, 0), a.span, ir.Constant(I64, LANES)) as (i, _):
+            for mv, v in zip(mvs, _pair_chunk(a, i)):
                 builder.store(smin(builder, builder.load(mv), v), mv)
         return _pair_minima(builder, [reduce_min(builder, builder.load(mv)) for mv in mvs])
 
@@ -225,42 +215,39 @@ def lanes_step_wide_pair(typingctx, L, cur, cost, ci, lanes, span, prev, p1, jum
 
 
 @intrinsic
-def lanes_step_min(typingctx, L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, keep, mv, first):
+def lanes_step_min(typingctx, L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, sum_mask, mv, first):
     """:func:`lanes_step` for one chunk of a tube wider than ``LANES``: instead of returning the chunk's minimum, its
     lanes join a running minimum ``mv[0:LANES]`` (int16; ``first``: start it), reduced once for the pixel by
     :func:`lanes_reduce` (one horizontal reduction per pixel, not per chunk)."""
-    sig = types.void(L, acc, cur, cost, ci, ai, lanes, prev, p1, jump, mp, keep, mv, first)
+    names, sig = typed(locals(), types.void)
 
     def codegen(context, builder, signature, args):
-        L_, acc_, cur_, cost_, ci_, ai_, lanes_, prev_, p1_, jump_, mp_, keep_, mv_, first_ = args
-        v = _step_value(context, builder, signature.args, L_, cost_, ci_, prev_, p1_, jump_, mp_)
-        v = _store_path_costs(context, builder, signature.args, v, valid(builder, lanes_), L_, cur_, acc_, ai_,
-                              keep_)
+        a = Args(names, context, builder, signature, args)
+        v = _step_value(a, a.ci, a.prev)
+        v = _store_path_costs(a, v, valid(builder, a.lanes), a.cur, a.ai)
         zero = ir.Constant(I64, 0)
-        old = load_i16(context, builder, signature.args[12], mv_, zero)
-        first_ = builder.icmp_signed("!=", first_, ir.Constant(first_.type, 0))
-        store_vector(context, builder, signature.args[12], mv_, zero, builder.select(first_, v, smin(builder, old, v)))
+        first = builder.icmp_signed("!=", a.first, ir.Constant(a.first.type, 0))
+        a.store("mv", zero, builder.select(first, v, smin(builder, a.load("mv", zero), v)))
         return context.get_dummy_value()
 
     return sig, codegen
 
 
 @intrinsic
-def lanes_step_wide(typingctx, L, acc, cur, cost, ci, ai, lanes, span, prev, p1, jump, mp, keep):
+def lanes_step_wide(typingctx, L, acc, cur, cost, ci, ai, lanes, span, prev, p1, jump, mp, sum_mask):
     """:func:`lanes_step` over a whole tube, ``span`` disparities (a multiple of ``LANES``) a chunk at a time, the
     chunk ``i`` at ``cur + i``, ``ci + i``, ``ai + i``, ``prev + i`` with ``lanes - i`` valid lanes; returns the
     minimum over all (int16). The running minimum stays in a register: kept in an array between one call per chunk,
     each chunk's load waited for the last one's store."""
-    sig = types.int16(L, acc, cur, cost, ci, ai, lanes, span, prev, p1, jump, mp, keep)
+    names, sig = typed(locals(), types.int16)
 
     def codegen(context, builder, signature, args):
-        L_, acc_, cur_, cost_, ci_, ai_, lanes_, span_, prev_, p1_, jump_, mp_, keep_ = args
+        a = Args(names, context, builder, signature, args)
 
         def store(v, mask, i):
-            return _store_path_costs(context, builder, signature.args, v, mask, L_, builder.add(cur_, i), acc_,
-                                     builder.add(ai_, i), keep_)
+            return _store_path_costs(a, v, mask, builder.add(a.cur, i), builder.add(a.ai, i))
 
-        return _wide_codegen(context, builder, signature.args, args, store)
+        return _wide_codegen(a, store)
 
     return sig, codegen
 
@@ -268,16 +255,15 @@ def lanes_step_wide(typingctx, L, acc, cur, cost, ci, ai, lanes, span, prev, p1,
 @intrinsic
 def lanes_step_wide_out(typingctx, L, acc, cur, cost, ci, ai, lanes, span, prev, p1, jump, mp, out, oi):
     """:func:`lanes_step_wide` in a pass's last direction, the half-sums to ``out`` as :func:`lanes_step_out`."""
-    sig = types.int16(L, acc, cur, cost, ci, ai, lanes, span, prev, p1, jump, mp, out, oi)
+    names, sig = typed(locals(), types.int16)
 
     def codegen(context, builder, signature, args):
-        L_, acc_, cur_, cost_, ci_, ai_, lanes_, span_, prev_, p1_, jump_, mp_, out_, oi_ = args
+        a = Args(names, context, builder, signature, args)
 
         def store(v, mask, i):
-            return _store_half_sum(context, builder, signature.args, v, mask, L_, builder.add(cur_, i), acc_,
-                                   builder.add(ai_, i), out_, builder.add(oi_, i))
+            return _store_half_sum(a, v, mask, builder.add(a.cur, i), builder.add(a.ai, i), builder.add(a.oi, i))
 
-        return _wide_codegen(context, builder, signature.args, args, store)
+        return _wide_codegen(a, store)
 
     return sig, codegen
 

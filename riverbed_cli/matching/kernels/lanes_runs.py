@@ -15,8 +15,8 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from .lanes import SENTINEL, neighbour_min
-from .vector_ir import (I32, I64, LANES, V16, VI32, element_ptr, load_i16, masked_store, reduce_min, smin, splat,
-                        store_vector, valid, vector_ptr)
+from .vector_ir import (I32, I64, LANES, V16, VI32, Args, load_i16, masked_store, reduce_min, smin, splat,
+                        store_vector, typed, valid)
 
 # shuffle_vector(sentinels, pv, _LANE_BEFORE): lane d holds pv[d - 1] (lane 0 the sentinel before the tube);
 # shuffle_vector(pv, sentinels, _LANE_AFTER): lane d holds pv[d + 1] (the last lane the sentinel chunk's)
@@ -39,31 +39,29 @@ def _spread_min(builder, v):
 RUN_CHUNKS_MAX = 12
 
 
-def _run_codegen(context, builder, tys, args, C):
-    # lanes_run_pair's loop for tubes of C chunks; returns the first pixel after the run
-    (L_, cost_, Lmin_, rb_, rws_, ros_, rwp1_, rop1_, done_, out_, xx_, W_, n_, guard_, cb0, cb1, pb1, R_, p1_,
-     p2_) = args[:20]
-    lt = tys[0]
+def _run_codegen(a, C):
+    # lanes_run_pair's loop for tubes of C chunks (a: its Args); returns the first pixel after the run
+    context, builder = a.context, a.builder
+    lt = a.type("L")
+    get = a.at  # an element of a 1-D argument: get("rws", x) is rws[x]
     lanes = ir.Constant(I64, LANES)
     span = ir.Constant(I64, C * LANES)
     one = ir.Constant(I64, 1)
     sent = ir.Constant(V16, [SENTINEL] * LANES)
 
-    def get(k, index):  # element index of the k-th argument (a 1-D array)
-        return builder.load(element_ptr(context, builder, tys[k], args[k], index))
-
     def entry(base, x):  # the start of a ring-buffer entry
-        return builder.add(builder.mul(builder.add(base, x), R_), guard_)
+        return builder.add(builder.mul(builder.add(base, x), a.R), a.guard)
 
     def chunks(w):  # how many chunks a tube of w (>= 0) disparities takes
         return builder.udiv(builder.add(w, ir.Constant(I64, LANES - 1)), lanes)
 
-    x_ptr = cgutils.alloca_once_value(builder, xx_)
-    pent = entry(cb0, builder.sub(xx_, one))
-    pv_ptrs = [cgutils.alloca_once_value(builder, load_i16(context, builder, lt, L_,
+    x_ptr = cgutils.alloca_once_value(builder, a.xx)
+    pent = entry(a.cbase0, builder.sub(a.xx, one))
+    pv_ptrs = [cgutils.alloca_once_value(builder, load_i16(context, builder, lt, a.L,
                                                            builder.add(pent, ir.Constant(I64, i * LANES))))
                for i in range(C)]
-    mp_ptr = cgutils.alloca_once_value(builder, splat(builder, get(2, builder.sub(builder.add(cb0, xx_), one))))
+    mp_ptr = cgutils.alloca_once_value(builder, splat(builder, get("Lmin", builder.sub(builder.add(a.cbase0, a.xx),
+                                                                                        one))))
     body = builder.append_basic_block(f"run{C}_body")
     check = builder.append_basic_block(f"run{C}_check")
     exit_ = builder.append_basic_block(f"run{C}_exit")
@@ -71,37 +69,36 @@ def _run_codegen(context, builder, tys, args, C):
 
     builder.position_at_end(body)
     x = builder.load(x_ptr)
-    b = get(3, x)
-    w = get(4, x)
-    prev = builder.sub(builder.add(entry(pb1, x), builder.sub(get(5, x), get(7, x))), one)
-    mp1 = get(2, builder.add(pb1, x))
-    cur1 = entry(cb1, x)
+    b = get("rb", x)
+    w = get("rws", x)
+    prev = builder.sub(builder.add(entry(a.pbase1, x), builder.sub(get("ros", x), get("rop1", x))), one)
+    mp1 = get("Lmin", builder.add(a.pbase1, x))
+    cur1 = entry(a.cbase1, x)
     pv = [builder.load(ptr) for ptr in pv_ptrs]
     mpv = builder.load(mp_ptr)  # the previous pixel's minimum in every lane
     rows, rmin, cmin = [], None, None
     for i in range(C):
         off = ir.Constant(I64, i * LANES)
         mask = valid(builder, builder.sub(w, off))
-        c = load_i16(context, builder, tys[1], cost_, builder.add(b, off))
+        c = a.load("cost", builder.add(b, off))
         # the row's step from the previous pixel's costs in registers (lane shifts across its chunks)
         before = builder.shuffle_vector(pv[i - 1] if i else sent, pv[i], _LANE_BEFORE)
         after = builder.shuffle_vector(pv[i], pv[i + 1] if i < C - 1 else sent, _LANE_AFTER)
-        v0 = smin(builder, pv[i], builder.add(smin(builder, before, after), splat(builder, p1_)))
+        v0 = smin(builder, pv[i], builder.add(smin(builder, before, after), splat(builder, a.p1)))
         # c + min(v0, mp + P2) - mp as c + min(v0 - mp, P2) (the same integers): v0 does not wait for the minimum
-        v0 = smin(builder, builder.sub(v0, mpv), splat(builder, p2_))
+        v0 = smin(builder, builder.sub(v0, mpv), splat(builder, a.p2))
         row = builder.select(mask, builder.add(c, v0), sent)
         # the column's step from the row before's entry, shifted by the difference of the tubes' offsets
-        v1 = neighbour_min(context, builder, lt, L_, builder.add(prev, off), p1_, builder.add(mp1, p2_))
+        v1 = neighbour_min(context, builder, lt, a.L, builder.add(prev, off), a.p1, builder.add(mp1, a.p2))
         col = builder.select(mask, builder.sub(builder.add(c, v1), splat(builder, mp1)), sent)
-        store_vector(context, builder, lt, L_, builder.add(cur1, off), col)
-        masked_store(builder, builder.add(row, col), vector_ptr(context, builder, tys[9], out_, builder.add(b, off)),
-                     mask)
+        store_vector(context, builder, lt, a.L, builder.add(cur1, off), col)
+        masked_store(builder, builder.add(row, col), a.ptr("out", builder.add(b, off)), mask)
         rows.append(row)
         rmin = row if rmin is None else smin(builder, rmin, row)
         cmin = col if cmin is None else smin(builder, cmin, col)
-    store_vector(context, builder, lt, L_, builder.add(cur1, span), sent)
-    builder.store(reduce_min(builder, cmin), element_ptr(context, builder, tys[2], Lmin_, builder.add(cb1, x)))
-    builder.store(ir.Constant(ir.IntType(8), 1), element_ptr(context, builder, tys[8], done_, x))
+    store_vector(context, builder, lt, a.L, builder.add(cur1, span), sent)
+    builder.store(reduce_min(builder, cmin), a.element("Lmin", builder.add(a.cbase1, x)))
+    builder.store(ir.Constant(ir.IntType(8), 1), a.element("done", x))
     for ptr, row in zip(pv_ptrs, rows):
         builder.store(row, ptr)
     builder.store(_spread_min(builder, rmin), mp_ptr)
@@ -111,15 +108,15 @@ def _run_codegen(context, builder, tys, args, C):
 
     # whether the next pixel qualifies (each test in its own block: the later ones read its layout)
     builder.position_at_end(check)
-    tests = [lambda: builder.icmp_signed("<", nx, W_),
-             lambda: builder.icmp_signed("==", chunks(get(4, nx)), ir.Constant(I64, C)),
-             lambda: builder.icmp_signed("<=", builder.add(get(3, nx), span), n_),
-             lambda: builder.icmp_signed("==", get(5, nx), get(5, x))]
+    tests = [lambda: builder.icmp_signed("<", nx, a.W),
+             lambda: builder.icmp_signed("==", chunks(get("rws", nx)), ir.Constant(I64, C)),
+             lambda: builder.icmp_signed("<=", builder.add(get("rb", nx), span), a.n),
+             lambda: builder.icmp_signed("==", get("ros", nx), get("ros", x))]
 
     def reach():  # sgm_pass._reaches of the column's shift
-        s = builder.sub(get(5, nx), get(7, nx))
-        top = builder.and_(builder.add(get(6, nx), ir.Constant(I64, LANES - 1)), ir.Constant(I64, -LANES))
-        return builder.and_(builder.icmp_signed(">=", s, builder.sub(one, guard_)),
+        s = builder.sub(get("ros", nx), get("rop1", nx))
+        top = builder.and_(builder.add(get("rwp1", nx), ir.Constant(I64, LANES - 1)), ir.Constant(I64, -LANES))
+        return builder.and_(builder.icmp_signed(">=", s, builder.sub(one, a.guard)),
                             builder.icmp_signed("<=", s, builder.sub(builder.add(top, lanes),
                                                                      builder.add(span, one))))
 
@@ -134,12 +131,12 @@ def _run_codegen(context, builder, tys, args, C):
     builder.position_at_end(exit_)
     x = builder.load(x_ptr)
     last = builder.sub(x, one)
-    cur0 = entry(cb0, last)
+    cur0 = entry(a.cbase0, last)
     for i, ptr in enumerate(pv_ptrs):
-        store_vector(context, builder, lt, L_, builder.add(cur0, ir.Constant(I64, i * LANES)), builder.load(ptr))
-    store_vector(context, builder, lt, L_, builder.add(cur0, span), sent)
+        store_vector(context, builder, lt, a.L, builder.add(cur0, ir.Constant(I64, i * LANES)), builder.load(ptr))
+    store_vector(context, builder, lt, a.L, builder.add(cur0, span), sent)
     builder.store(builder.extract_element(builder.load(mp_ptr), ir.Constant(I32, 0)),
-                  element_ptr(context, builder, tys[2], Lmin_, builder.add(cb0, last)))
+                  a.element("Lmin", builder.add(a.cbase0, last)))
     return x
 
 
@@ -166,18 +163,18 @@ def lanes_run_pair(typingctx, L, cost, Lmin, rb, rws, ros, rwp1, rop1, done, out
     half-sum and ``done`` are written as :func:`lanes_step_pair`'s caller writes them; the row's path costs and
     minimum only for the run's last pixel (the only one another step reads). Returns the first pixel after the run
     (``xx`` itself for ``chunks`` out of bounds)."""
-    sig = types.int64(L, cost, Lmin, rb, rws, ros, rwp1, rop1, done, out, xx, W, n, guard, cbase0, cbase1, pbase1,
-                      R, p1, p2, chunks)
+    names, sig = typed(locals(), types.int64)
 
     def codegen(context, builder, signature, args):
-        result = cgutils.alloca_once_value(builder, args[10])
+        a = Args(names, context, builder, signature, args)
+        result = cgutils.alloca_once_value(builder, a.xx)
         merge = builder.append_basic_block("run_merge")
-        switch = builder.switch(args[20], merge)
+        switch = builder.switch(a.chunks, merge)
         for C in range(1, RUN_CHUNKS_MAX + 1):
             block = builder.append_basic_block(f"run{C}")
-            switch.add_case(ir.Constant(args[20].type, C), block)
+            switch.add_case(ir.Constant(a.chunks.type, C), block)
             builder.position_at_end(block)
-            builder.store(_run_codegen(context, builder, signature.args, args, C), result)
+            builder.store(_run_codegen(a, C), result)
             builder.branch(merge)
         builder.position_at_end(merge)
         return builder.load(result)

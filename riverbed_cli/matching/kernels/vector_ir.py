@@ -108,3 +108,48 @@ def fma(builder, a, b, c):
     vty = a.type
     fn = declared(builder, f"llvm.fma.v{vty.count}{elem_name(vty)}", vty, [vty, vty, vty])
     return builder.call(fn, [a, b, c])
+
+
+def typed(params, restype):
+    """An intrinsic's argument names and signature from its typing function's ``locals()`` (called first thing, so
+    they hold just the parameters, in order): ``names, sig = typed(locals(), types.int16)``. The names are the
+    parameters', so :class:`Args` reads each argument by the name the typing function gives it."""
+    names = tuple(k for k in params if k != "typingctx")
+    return names, restype(*(params[k] for k in names))
+
+
+class Args:
+    """An intrinsic's arguments by name (``names`` from :func:`typed`), so a code generator reads none by its
+    position: ``a.rws`` is the LLVM value, ``a.type("rws")`` its Numba type, ``a.at("rws", i)`` the element
+    ``rws[i]`` of a 1-D array (``a.element("rws", i)`` a pointer to it), ``a.load("cost", i)`` and
+    ``a.store("L", i, v)`` ``LANES`` lanes from and to ``[i]`` (:func:`load_i16`, :func:`store_vector`),
+    ``a.ptr("out", i)`` a vector pointer to ``out[i]``."""
+
+    def __init__(self, names, context, builder, signature, args):
+        self.context, self.builder = context, builder
+        self._values = dict(zip(names, args))
+        self._types = dict(zip(names, signature.args))
+
+    def __getattr__(self, name):
+        try:
+            return self.__dict__["_values"][name]
+        except KeyError:
+            raise AttributeError(name) from None
+
+    def type(self, name):
+        return self._types[name]
+
+    def element(self, name, index):
+        return element_ptr(self.context, self.builder, self._types[name], self._values[name], index)
+
+    def at(self, name, index):
+        return self.builder.load(self.element(name, index))
+
+    def load(self, name, index):
+        return load_i16(self.context, self.builder, self._types[name], self._values[name], index)
+
+    def store(self, name, index, value):
+        store_vector(self.context, self.builder, self._types[name], self._values[name], index, value)
+
+    def ptr(self, name, index, elem=None):
+        return vector_ptr(self.context, self.builder, self._types[name], self._values[name], index, elem)
