@@ -13,7 +13,8 @@ from riverbed_cli.io.disparity import read_disparity, write_disparity
 from riverbed_cli.matching.pipeline import match_pair
 from riverbed_cli.products.evaluate import evaluate_disparity
 from riverbed_cli.products.simulate import simulate_lidar
-from riverbed_cli.scale.tiles import Tile, check_tiling, lidar_ranges, match_tiled, tile_grid
+from riverbed_cli.scale.match_plan import Tile, check_tiling, lidar_ranges, tile_grid
+from riverbed_cli.scale.tiles import match_tiled
 
 BORDER = 4  # census half-height/width: the image border where crops and the whole image differ anyway
 
@@ -174,7 +175,7 @@ def test_tube_tiles_are_sized_for_the_tubes_only_for_sgm():
     # SGM's tube tiles count the tubes' volume; AD-Census's exact tube aggregation holds 1.6-3.8x the tubes' costs,
     # so its tiles are planned for the nominal volume (as with --range full): smaller tiles under the same budget.
     from riverbed_cli.matching.pipeline import make_config
-    from riverbed_cli.scale.tiles import plan_tiles, tube_widths
+    from riverbed_cli.scale.match_plan import plan_tiles, tube_widths
 
     H, W = 3000, 3000
     rng = np.random.default_rng(0)

@@ -23,8 +23,8 @@ from ..matching.pipeline import check_lidar_count, match_pair, resolve_fusion, w
 from ..matching.registry import get_guide
 from ..runtime.heap import match_heap_bytes
 from ..products.visualize import disparity_picture, write_picture, write_png
-from ..matching.guidance import lidar_share_of_points
-from .tiles import check_tiling, match_tiled, plan_tiles, scan_range_map, tube_widths
+from .match_plan import check_tiling, plan_match, scan_range_map
+from .tiles import match_tiled
 
 log = logging.getLogger(__name__)
 
@@ -80,18 +80,17 @@ def _range_for_plan(vals, min_disp, max_disp, width):
     return clamp_to_width(lo if min_disp is None else min_disp, hi if max_disp is None else max_disp, width)
 
 
-def _heap_estimate(H, W, rng, widths, plan, overlap):
+def _heap_estimate(H, W, plan, overlap):
     # the heap the match (its first tile) will take: prefault_heap's size
-    if rng is None:
+    if plan is None:
         return 0
-    tiled = plan is not None and plan.tiled
-    pixels = min(H * W, (plan.size + 2 * overlap) ** 2) if tiled else H * W
-    if widths is not None:
-        width = float(np.mean(widths[0]))
-    elif tiled:
-        width = max(t.d_max - t.d_min + 1 for t in plan.tiles)
+    pixels = min(H * W, (plan.tile + 2 * overlap) ** 2) if plan.tiled else H * W
+    if plan.tube_width is not None:
+        width = plan.tube_width
+    elif plan.tiled:
+        width = max(t[5] - t[4] + 1 for t in plan.tiles)
     else:
-        width = rng[1] - rng[0] + 1
+        width = plan.d_max - plan.d_min + 1
     return match_heap_bytes(pixels, width)
 
 
@@ -102,7 +101,7 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
     """Match the files ``left`` (reference) and ``right`` into the disparity file ``output``.
 
     ``config`` is a :class:`~riverbed_cli.matching.config.MatchConfig`; ``tile`` ``"auto"``, 0 (never) or a side
-    in px (:func:`~riverbed_cli.scale.tiles.plan_tiles`); ``progress(n_total)`` is called once with the number of
+    in px (:func:`~riverbed_cli.scale.match_plan.plan_tiles`); ``progress(n_total)`` is called once with the number of
     steps and returns a callable advanced after each (or None); ``range_map`` a 2-band TIFF of per-pixel min and
     max disparity (:func:`~riverbed_cli.io.windowed.open_range_map`), searched instead of the LiDAR's tubes;
     ``confidence`` a ``.tif`` path for the fusion's per-pixel confidence (float32 in [0, 1]: the estimated
@@ -164,9 +163,10 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
             if e.path is not None:  # names its file already
                 raise
             raise RiverbedError(str(e), range_map) from None
-    # the same tiling rule as blocks: untiled when the whole range (with tubes: their volume) fits, else tiles sized
-    # for the widest LiDAR range; the LiDAR points are read once for both
-    plan = widths = None
+    # the same plan as blocks' (match_plan.plan_match): untiled when the whole range (with tubes: their volume)
+    # fits, else tiles sized for the widest LiDAR range; the LiDAR points are read once for it and the match. Made of
+    # the LiDAR as given, for the choice to tile and the memory: match_tiled plans again after its offset and check
+    plan = None
     points = sparse_points_any(sparse_src) if sparse_src is not None else None
     if points is not None:
         try:
@@ -176,23 +176,17 @@ def match_files(left, right, output, config, sparse=None, sparse_scale=None, min
             raise RiverbedError(str(e), sparse) from None
     rng = _range_for_plan(points[2] if points else None, min_disp, max_disp, W)
     if rng is not None:
-        if rmap is not None:
-            widths = (scan.widths(rng[0], rng[1]), scan.cell)
-        elif points is not None:
-            widths = tube_widths(config, points, (H, W), rng[0], rng[1],
-                                 lidar_share_of_points(points[0], points[1], (H, W)))
-        if tile != 0:
-            plan = plan_tiles(H, W, sparse_src, rng[0], rng[1], tile, overlap, lidar_range, widths=widths,
-                              range_map=scan)
+        plan = plan_match((H, W), points, rng[0], rng[1], config, sparse=sparse_src, tile=tile, overlap=overlap,
+                          lidar_range=lidar_range, scan=scan)
     # load the kernels this run uses now (start-up, not matching time), while a thread faults in the heap the match
     # will take (runtime/heap.py)
     # the fusion's LiDAR side by the density of the whole map (tiles of the same density decide alike)
     kind = lidar_kind(config.fuse.lidar, len(points[0]), (H, W)) if points is not None else None
-    with runtime.prefault_heap(_heap_estimate(H, W, rng, widths, plan, overlap)):
+    with runtime.prefault_heap(_heap_estimate(H, W, plan, overlap)):
         warm_up(config=config, fusion_lidar=kind)
     runtime.start_up_done()  # the program's collector back on, start-up's objects frozen (runtime/collector.py)
     if plan is not None and plan.tiled:
-        return _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, plan.size, overlap,
+        return _match_tiled(left_src, right_src, sparse_src, min_disp, max_disp, config, plan.tile, overlap,
                             lidar_range, output, color_png, overwrite, progress, rmap, confidence, scan, valid,
                             points, lidar_mask)
 

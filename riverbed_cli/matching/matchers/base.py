@@ -23,7 +23,7 @@ class Matcher:
 
     name = ""
     supports_tubes = False  # match() takes per-pixel tubes (tubes=(offset, width))
-    #: Tiles of a tube match are sized for the tubes' volume (``scale.tiles.auto_tile``'s 6 bytes per tube cost:
+    #: Tiles of a tube match are sized for the tubes' volume (``scale.match_plan.auto_tile``'s 6 bytes per tube cost:
     #: SGM's three uint16 volumes); False sizes them for the nominal volume, as a full-range match.
     tube_sized_tiles = False
 

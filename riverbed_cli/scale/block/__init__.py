@@ -9,7 +9,7 @@ The manifest (YAML, read with ``yaml.safe_load`` only; paths relative to the man
       guide: riverbed          # matching: every setting of `riverbed match` under its name, e.g. matcher
       plus_hops: 2             #   guide window census paths p1 p2 ... adcensus_pi2 diffusion_radius plus_hops
       min_disp: 0              #   min_disp max_disp max_pixels (the table riverbed_cli.matching.config.MATCH_SETTINGS)
-      tile: auto               # tiling: tile (px; auto: riverbed match's rule, scale.tiles.plan_tiles; 0: never)
+      tile: auto               # tiling: tile (px; auto: riverbed match's rule, scale.match_plan.plan_tiles; 0: never)
                                #   overlap lidar_range
       drop_classes: [7, 18]    # projection: outliers visibility side footprint classes drop_classes
                                #             registration (a 4x4 file) lidar_crs

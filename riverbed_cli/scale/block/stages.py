@@ -21,16 +21,14 @@ from ...io.lidar import lidar_info, resolve_crs
 from ...geometry.pairfile import load_pairfile, load_registration
 from ...io.windowed import (WindowedRaster, image_bits, open_range_map, open_windowed, sparse_points_any,
                             valid_area_source)
-from ...matching.guidance import lidar_share_of_points
-from ...matching.lidar_offset import correct_large
-from ...matching.lidar_input import check_disparity_values, resolve_disparity_range
+from ...matching.lidar_input import resolve_disparity_range
 from ...matching.pipeline import match_pair
-from ...matching.registry import get_guide
 from ...matching.tubes import ranges_from_disparity, spacing_window
 from ...products.dsm import build_dsm
 from ...products.dsm_files import RPC_HEIGHTS, write_dsm_outputs
 from ...products.change_map import CHANGED_POINT
-from ..tiles import Tile, check_whole, match_tile, plan_tiles, scan_range_map, tube_widths
+from ..match_plan import MatchPlan, Tile, plan_match, scan_range_map
+from ..tiles import match_tile, prepare_lidar_whole
 from .plan import (DONE, LIDAR_OUTPUT, OUTPUTS, WORK, clean_temps, rectify_rpc, riverbed_version, sha256_file,
                    write_json)
 from .settings import match_params
@@ -106,21 +104,18 @@ def _save_npy(src, path, rows=512):
 
 @dataclass
 class PairPlan:
-    """A projected pair's matching plan, handed from its project task to its match and finish tasks (plain values:
-    dask sends it between processes as it is).
+    """A projected pair's plan, handed from its project task to its match and finish tasks (plain values: dask sends
+    it between processes as it is).
 
-    ``tiles``: ``[y0, y1, x0, x1, d_min, d_max, source]`` per tile, empty when the pair is matched whole;
-    ``window``: the guide's window (one for every tile); ``bits``: the images' bit depth when tiled (one 16-bit
-    scale for all tiles), else None; ``d_min``, ``d_max``: the pair's range (px); ``stats``: what projection and
-    the LiDAR's offset and check found (the pair's summary takes them); ``shape``: ``[H, W]``; ``range_map``: the
-    pair's per-pixel ranges are in its ``.work`` folder; ``rectify_seconds``: its ROI's rectification (RPC
-    entries), None without one; ``seconds``: the project task's."""
+    ``match``: the :class:`~riverbed_cli.scale.plan.MatchPlan` (range, LiDAR shares, window, tiles), made as
+    :func:`~riverbed_cli.scale.tiles.match_tiled` makes it; ``bits``: the images' bit depth when tiled (one 16-bit
+    scale for all tiles), else None; ``stats``: what projection and the LiDAR's offset and check found (the pair's
+    summary takes them); ``shape``: ``[H, W]``; ``range_map``: the pair's per-pixel ranges are in its ``.work``
+    folder; ``rectify_seconds``: its ROI's rectification (RPC entries), None without one; ``seconds``: the project
+    task's."""
 
-    tiles: list
-    window: object
+    match: MatchPlan
     bits: object
-    d_min: int
-    d_max: int
     stats: dict
     shape: list
     range_map: bool = False
@@ -129,7 +124,7 @@ class PairPlan:
 
     @property
     def tiled(self):
-        return bool(self.tiles)
+        return self.match.tiled
 
 
 def project_stage(job):
@@ -189,7 +184,7 @@ def project_stage(job):
         raise RiverbedError(f"no cloud has points in the pair's images ({len(job.clouds)} checked)", job.pair)
     p = pair_params(s, lidar=sparse is not None)
     srcs = [_image_source(getattr(pair, side), (H, W), s["max_pixels"]) for side in ("left", "right")]
-    points, share, offset, check = None, 0.0, None, None
+    points, offset, check = None, None, None
     if sparse is None:  # no cloud: the images alone, over the pair's range
         d_min, d_max = _range_without_lidar(s, pair, job.pair, W)
         (folder / "sparse.tif").unlink(missing_ok=True)  # an earlier run's, with a cloud the manifest has no more
@@ -199,10 +194,6 @@ def project_stage(job):
                 "riverbed_lidar_offset": json.dumps(offset.to_dict())}
         write_disparity(folder / "sparse.tif", sparse, overwrite=True, tags=tags)
         points = sparse_points_any(sparse)
-        share = lidar_share_of_points(points[0], points[1], (H, W))
-
-    # The matching plan, as match_tiled makes it.
-    guide = get_guide(p.guide)
 
     rmap, dsm_stats = None, {}
     if job.range_map:
@@ -211,18 +202,12 @@ def project_stage(job):
         lo, hi, dsm_stats = _dsm_ranges(s, pair, reg, (H, W))
         d_min, d_max, rmap = _pair_ranges(lo, hi, (H, W), d_min, d_max, s, folder / WORK, s["range_dsm"])
         del lo, hi
-    if rmap is not None:
-        widths = (rmap.widths(d_min, d_max), rmap.cell)
-    else:
-        widths = tube_widths(p, points, (H, W), d_min, d_max, share)
-    plan = plan_tiles(H, W, sparse, d_min, d_max, s["tile"], s["overlap"], s["lidar_range"], widths=widths,
-                      range_map=rmap)
-    tiles, window, bits = [], p.guidance.window, None
+    # the matching plan, as match_tiled makes it
+    plan = plan_match((H, W), points, d_min, d_max, p, sparse=sparse, tile=s["tile"], overlap=s["overlap"],
+                      lidar_range=s["lidar_range"], scan=rmap)
+    bits = None
     if plan.tiled:
         bits = image_bits(*srcs)
-        if guide.uses_window and p.guidance.window == "auto":
-            window = guide.window(share, p)  # one window for every tile
-        tiles = [[t.y0, t.y1, t.x0, t.x1, t.d_min, t.d_max, t.source] for t in plan.tiles]
         work = folder / WORK
         work.mkdir(exist_ok=True)
         for side, src in zip(("left", "right"), srcs):
@@ -233,12 +218,11 @@ def project_stage(job):
             if valid is not None:
                 _save_npy(valid, work / f"{side}_valid.npy")
     stats = {"clouds": len(used), "clouds_without_points": len(empty), "lidar_points_read": counts["points_read"],
-             "lidar_points_kept": counts["kept"], "lidar_share": share, "lidar_crs": counts["crs"],
-             "tile": int(plan.size) if tiles else None,
+             "lidar_points_kept": counts["kept"], "lidar_share": plan.share_all, "lidar_crs": counts["crs"],
+             "tile": plan.tile if plan.tiled else None,
              **({"lidar_offset": offset.to_dict()} if offset is not None else {}),
              **({"lidar_check": check.report.to_dict()} if check is not None else {}), **dsm_stats}
-    return PairPlan(tiles, window, bits, d_min, d_max, stats, [H, W], rmap is not None, t_rectify,
-                    round(time.perf_counter() - t0, 4))
+    return PairPlan(plan, bits, stats, [H, W], rmap is not None, t_rectify, round(time.perf_counter() - t0, 4))
 
 
 def pair_params(s, lidar=True):
@@ -265,20 +249,15 @@ def _lidar_stage(s, p, srcs, sparse, W, folder):
     # The LiDAR's offset against the images, once for the pair (as match_tiled does for its tiles): sparse.tif holds
     # the corrected LiDAR, and the matching tasks take it as it is; then the LiDAR check, once for the pair too:
     # sparse.tif holds the points kept, .work/changed.npy the changed area
-    check_disparity_values(sparse, W)  # a point next to a camera is no disparity of the pair
-    pr, pc = np.nonzero(np.isfinite(sparse))
-    sparse, offset = correct_large(*srcs, sparse, (pr, pc, sparse[pr, pc]), p.lidar_offset, image_bits(*srcs))
-    d_min, d_max = resolve_disparity_range(s["min_disp"], s["max_disp"], sparse[np.isfinite(sparse)], width=W)
-    check = None
-    if p.lidar_check == "auto":
-        given = sparse
-        sparse, check = check_whole(*srcs, sparse, d_min, d_max, p)
-        if check.changed is not None:  # the changed area for the tiles, its points for the pair's change map
-            (folder / WORK).mkdir(exist_ok=True)
-            _save_npy(check.changed, folder / WORK / "changed.npy")
-            rr, cc = np.nonzero(check.dropped == 2)
-            np.save(folder / WORK / "changed_points.npy", np.stack([rr, cc, given[rr, cc]], axis=1).astype(np.float64))
-    return d_min, d_max, offset, check, sparse
+    lidar = prepare_lidar_whole(*srcs, sparse, sparse_points_any(sparse), s["min_disp"], s["max_disp"], p)
+    check = lidar.check
+    if check is not None and check.changed is not None:  # the changed area for the tiles, its points for the change map
+        (folder / WORK).mkdir(exist_ok=True)
+        _save_npy(check.changed, folder / WORK / "changed.npy")
+        rr, cc = np.nonzero(check.dropped == 2)
+        np.save(folder / WORK / "changed_points.npy",
+                np.stack([rr, cc, lidar.corrected[rr, cc]], axis=1).astype(np.float64))
+    return lidar.d_min, lidar.d_max, lidar.offset, check, lidar.sparse
 
 
 def _pair_range_map(path, shape, d_min, d_max, s, work):
@@ -356,24 +335,24 @@ def tile_stage(job, plan, index):
         valid = tuple(read_valid_area(path) for path in (pair.left, pair.right))
         ch = None if changed is None else np.asarray(changed)
         if rmap is None:  # with LiDAR, the range it gives (as project_stage found it); without, the pair's
-            d0, d1 = (s["min_disp"], s["max_disp"]) if lidar else (plan.d_min, plan.d_max)
+            d0, d1 = (s["min_disp"], s["max_disp"]) if lidar else (plan.match.d_min, plan.match.d_max)
             res = match_pair(left, right, sparse, d0, d1, params=p, valid_areas=valid, changed_area=ch)
         else:  # the pair's range, widened to hold the map
-            res = match_pair(left, right, sparse, plan.d_min, plan.d_max, params=p, range_map=rmap,
+            res = match_pair(left, right, sparse, plan.match.d_min, plan.match.d_max, params=p, range_map=rmap,
                              valid_areas=valid, changed_area=ch)
         n_d = res.info["d_max"] - res.info["d_min"] + 1
         return {"index": 0, "disparity": res.disparity, "evaluations": H * W * n_d, "stages": res.info["stages"],
                 "seconds": round(time.perf_counter() - t0, 4)}
-    p = p.replace(window=plan.window)
-    tile = Tile(*plan.tiles[index])
+    p = p.replace(window=plan.match.window)
+    tile = Tile(*plan.match.tiles[index])
     left = np.load(folder / WORK / "left.npy", mmap_mode="r")
     right = np.load(folder / WORK / "right.npy", mmap_mode="r")
     sparse = WindowedRaster(folder / "sparse.tif", "disparity") if lidar else None
     # the pair's LiDAR share and range: every tile takes the whole pair's tubes, as match_tiled does
     valid = tuple(np.load(f, mmap_mode="r") if f.exists() else None
                   for f in (folder / WORK / f"{side}_valid.npy" for side in ("left", "right")))
-    disp, n, stages, _ = match_tile(left, right, sparse, tile, s["overlap"], p, plan.bits,
-                                    plan.stats["lidar_share"], (plan.d_min, plan.d_max),
+    disp, n, stages, _ = match_tile(left, right, sparse, tile, s["overlap"], p, plan.bits, plan.match.share_all,
+                                    (plan.match.d_min, plan.match.d_max),
                                     _load_range_map(folder, plan), valid_areas=valid, changed=changed)
     return {"index": index, "disparity": disp, "evaluations": n, "stages": stages,
             "seconds": round(time.perf_counter() - t0, 4)}
@@ -381,7 +360,7 @@ def tile_stage(job, plan, index):
 
 def n_tasks(plan):
     """Number of matching tasks a projected pair needs (its tiles, or one)."""
-    return len(plan.tiles) or 1
+    return len(plan.match.tiles) if plan.tiled else 1
 
 
 def finish_stage(job, plan, tiles):
@@ -399,7 +378,7 @@ def finish_stage(job, plan, tiles):
     if tiled:
         disp = np.full((H, W), np.nan, np.float32)
         for t in tiles:
-            y0, y1, x0, x1 = plan.tiles[t["index"]][:4]
+            y0, y1, x0, x1 = plan.match.tiles[t["index"]][:4]
             disp[y0:y1, x0:x1] = t["disparity"]
     else:
         disp = tiles[0]["disparity"]
@@ -442,8 +421,8 @@ def finish_stage(job, plan, tiles):
         seconds["rectify"] = plan.rectify_seconds
     summary = {"points": len(xyz), "resolution": grid.resolution, "crs": crs,
                **({"heights": RPC_HEIGHTS, "roi": list(pair.roi)} if rpc else {}),
-               "bounds": list(grid.bounds), **plan.stats, **info, "d_min": plan.d_min,
-               "d_max": plan.d_max, **({"change_map": change_stats} if change_stats else {}), "seconds": seconds}
+               "bounds": list(grid.bounds), **plan.stats, **info, "d_min": plan.match.d_min,
+               "d_max": plan.match.d_max, **({"change_map": change_stats} if change_stats else {}), "seconds": seconds}
     outputs = {name: {"size": (folder / name).stat().st_size, "sha256": sha256_file(folder / name)}
                for name in OUTPUTS if name != LIDAR_OUTPUT or plan.stats["clouds"]}
     record = {"name": job.name, "pair": job.pair, "clouds": job.clouds, "settings_hash": job.settings_hash,
