@@ -1,6 +1,7 @@
 """The package's architecture, held by tests: layering, public names across modules, imports at module top, a
 ``riverbed --help`` that loads no Numba kernel, and registries that agree with the settings table."""
 
+import re
 import subprocess
 from pathlib import Path
 
@@ -78,3 +79,11 @@ def test_registries_agree_with_the_settings_table():
     assert {s.name for s in MATCH_SETTINGS if s.group is not None} == set(MatchConfig().to_settings())
     names = [s.name for s in MATCH_SETTINGS]
     assert len(names) == len(set(names))
+
+
+def test_every_kernel_has_the_one_decorator():
+    # runtime/kernel.py's @kernel is the only way into Numba's njit: the options (cache, inline, parallel) in one place
+    found = [f"{p.relative_to(PACKAGE)}:{i}" for p in sorted(PACKAGE.rglob("*.py")) if p.name != "kernel.py"
+             for i, line in enumerate(p.read_text().splitlines(), 1) if re.search(r"\bnjit\b|\bjit\(", line)]
+    assert found == []
+    assert sum(p.read_text().count("@kernel") for p in PACKAGE.rglob("*.py")) >= 160

@@ -3,6 +3,7 @@ inside its Env, restored when it exits."""
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -129,3 +130,20 @@ def test_an_edited_helper_recompiles_the_kernels_that_inline_it(tmp_path):
     second = numba_cache.cache_dir(pkg, root=tmp_path / "cache")
     assert second != first and run(second) == "12"
     assert numba_cache.prune_other_caches(second) == [first] and not first.exists() and second.exists()
+
+
+def test_every_kernel_module_keys_the_cache(tmp_path):
+    # a module whose kernels are @kernel (runtime/kernel.py) may name Numba nowhere: its edits must still recompile
+    from riverbed_cli.runtime import numba_cache
+
+    package = numba_cache.PACKAGE
+    kernels = {p for p in package.rglob("*.py") if "@kernel" in p.read_text()}
+    assert len(kernels) >= 30 and kernels <= set(numba_cache.kernel_sources())
+    quiet = sorted(p for p in kernels if b"numba" not in p.read_bytes())
+    assert quiet, "every kernel module names Numba: the rule for those that do not is untested"
+    copy = tmp_path / package.name
+    shutil.copytree(package, copy, ignore=shutil.ignore_patterns("__pycache__"))
+    assert numba_cache.sources_digest(copy) == numba_cache.sources_digest(package)
+    edited = copy / quiet[0].relative_to(package)
+    edited.write_text(edited.read_text() + "\n# edited\n")
+    assert numba_cache.sources_digest(copy) != numba_cache.sources_digest(package)

@@ -2,7 +2,9 @@
 
 import cv2
 import numpy as np
-from numba import njit, prange
+from numba import prange
+
+from ..runtime.kernel import kernel
 
 
 def lidar_points(sparse):
@@ -13,7 +15,7 @@ def lidar_points(sparse):
     return rows, cols, sparse[rows, cols].astype(np.float64)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def row_offsets(mask):
     """Where each row's True pixels of a 2-D boolean ``mask`` start in its row-major list: (H + 1,) int64, the last
     the total; the rows counted in parallel."""
@@ -29,7 +31,7 @@ def row_offsets(mask):
     return ends
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def pixels_where(mask):
     """``np.nonzero`` of a 2-D boolean ``mask`` as int64 rows and columns (row-major order).
 

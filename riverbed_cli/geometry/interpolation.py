@@ -11,9 +11,10 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import get_num_threads, njit, prange
+from numba import get_num_threads, prange
 
 from ..errors import RiverbedError
+from ..runtime.kernel import kernel
 from .coverage import lidar_points
 
 
@@ -28,7 +29,7 @@ def checked_points(sparse):
     return sparse, valid
 
 
-@njit(cache=True)
+@kernel
 def first_at_least(sorted_values, v):
     # np.searchsorted(sorted_values, v) (side left) by bisection: Numba's searchsorted lives in numba.np.arraymath,
     # whose import (scipy.linalg with it) a cached kernel calling it costs at start-up (runtime/numba_cache.py).
@@ -46,7 +47,7 @@ def first_at_least(sorted_values, v):
     return lo
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _along_edge(x, y, xa, ya, va, xb, yb, vb, ia, ib):
     # linear interpolation along the edge a-b at (x, y), from the end with the lower point index: both triangles of
     # the edge compute it with the same operations, so they write the same bits
@@ -56,7 +57,7 @@ def _along_edge(x, y, xa, ya, va, xb, yb, vb, ia, ib):
     return np.float32(va + t * (vb - va))
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _edge_span(lo, hi, y, sign, xa, ya, xb, yb):
     # [lo, hi] narrowed to the columns x of row y where sign * ((xb - xa) (y - ya) - (yb - ya) (x - xa)) >= 0 may
     # hold, widened by a pixel; empty (lo > hi) when it holds nowhere
@@ -71,7 +72,7 @@ def _edge_span(lo, hi, y, sign, xa, ya, xb, yb):
     return lo, hi
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _raster_triangles(tx, ty, tv, tp, out):
     # Each triangle (corners tx, ty: integer pixel positions, values tv, point indices tp: (T, 3)) fills the pixel
     # centres inside it or on its edges with the interpolation of its corners. The edge functions are exact integers:
@@ -110,7 +111,7 @@ def _raster_triangles(tx, ty, tv, tp, out):
                     out[y, x] = _along_edge(x, y, x0, y0, tv[t, 0], x1, y1, tv[t, 1], tp[t, 0], tp[t, 1])
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _nearest_walk(rows, cols, ptr, nbr, anchor, dist):
     # Each pixel's nearest LiDAR point by a greedy walk on the Delaunay graph (CSR ptr, nbr): from a point that is not
     # the nearest, the segment to the pixel leaves its Voronoi cell into a Delaunay neighbour's, which is strictly
@@ -155,7 +156,7 @@ def _nearest_walk(rows, cols, ptr, nbr, anchor, dist):
             x = end + 1
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _nearest_brute(rows, cols, anchor, dist):
     # each pixel's nearest of a few points (ties: the lower index)
     H, W = anchor.shape
@@ -210,7 +211,7 @@ def _delaunay(rows, cols, shape):
     return tx, ty, tp, ends
 
 
-@njit(cache=True)
+@kernel
 def _image_shapes(shapes, lookup):
     # The shapes from Subdiv2D (rows of k (x, y) corners) with every corner in the image - its virtual outer vertices
     # lie far outside: their corner columns and rows (m, k) float64 and point indices (m, k) int32 (lookup: the
@@ -244,7 +245,7 @@ def _image_shapes(shapes, lookup):
     return xs, ys, idx
 
 
-@njit(cache=True)
+@kernel
 def _adjacency(ends, n):
     # CSR neighbour lists of n points from (E, 2) undirected edges, by counting: each point's neighbours in edge
     # order, first through the edges it starts, then through those it ends
@@ -297,7 +298,7 @@ def nearest_points(rows, cols, k, ptr, nbr):
     return dist, idx
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _graph_knn(rows, cols, ptr, nbr, cap, nblocks, dist, idx):
     # nearest_points: per point, grow the candidates (neighbours of the points found) and take the nearest unused one;
     # a stamp per point (the point whose search saw it last) tells seen candidates in one lookup. A candidate's key

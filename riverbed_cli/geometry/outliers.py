@@ -18,9 +18,10 @@ neighbours: near the image border a point has fewer close neighbours, which the 
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 from scipy.spatial import cKDTree
 
+from ..runtime.kernel import kernel
 from .visibility import disc_offsets
 
 SOR_K = 8
@@ -57,7 +58,7 @@ def sor_inliers(xyz, depth, k=SOR_K, n_sigma=SOR_SIGMA):
 SOR_SEARCH_RADIUS = 24
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _sor_spacing_kernel(slots, pix, idx0, idx1, width, height, xyz, depth, ody, odx, odist, focal, k):
     """Mean distance to the k nearest (3D) candidates over depth, by an image scan (see sor_inliers_image)."""
     n = slots.shape[0]

@@ -21,8 +21,9 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
+from ..runtime.kernel import kernel
 from .coverage import lidar_points
 from .interpolation import checked_points
 
@@ -47,7 +48,7 @@ def nearest_labels(rows, cols, shape):
     return index[labels], dist
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _touching_cells(anchor, n, cap):
     # Pairs of 4-adjacent pixels with different anchors: their points are natural neighbours. Scanned in order, each
     # pair offered once per run of equal pairs (a cell boundary along the row repeats its vertical pair); a point's
@@ -94,7 +95,7 @@ def _touching_cells(anchor, n, cap):
     return nb, cnt
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _second_ring(rows, cols, nb, cnt, fewest):
     # a point with fewer than `fewest` neighbours (its cell cut by an image corner) also takes the nearest of its
     # neighbours' neighbours, up to `fewest`: a plane needs three
@@ -126,7 +127,7 @@ def _second_ring(rows, cols, nb, cnt, fewest):
             cnt[i] += 1
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _natural_neighbours(anchor, rows, cols, cap, fewest):
     # natural_neighbours in one kernel (a fresh process loads each cached kernel for 3-4 ms): the cells' scan and the
     # corners' second ring in order, then each point's list sorted in parallel
@@ -135,7 +136,7 @@ def _natural_neighbours(anchor, rows, cols, cap, fewest):
     return nb, cnt, _sort_by_distance(rows, cols, nb, cnt)
 
 
-@njit(cache=True, parallel=True, inline="always")
+@kernel(parallel=True, inline=True)
 def _sort_by_distance(rows, cols, nb, cnt):
     # each point's neighbours nearest first (ties: the lower index), in place; and the nearest one's distance (px)
     n = nb.shape[0]
@@ -172,7 +173,7 @@ def natural_neighbours(anchor, rows, cols, cap=NEIGHBOUR_CAP):
     return _natural_neighbours(np.ascontiguousarray(anchor, np.int32), rows, cols, int(cap), 3)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def plane_fit(rows, cols, values, nb, cnt, k, self_weight, weighted):
     """Per point ``i``, the least-squares plane ``d = c + a dx + b dy`` (``dx``, ``dy``: px from the point) through
     its first ``min(k, cnt[i])`` neighbours ``nb[i]`` and, with weight ``self_weight``, itself: ``(c, a, b)``,
@@ -224,7 +225,7 @@ def plane_fit(rows, cols, values, nb, cnt, k, self_weight, weighted):
     return c, ga, gb
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _on_planes(anchor, rows, cols, c, ga, gb):
     # each pixel on its nearest point's plane
     H, W = anchor.shape

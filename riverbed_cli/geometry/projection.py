@@ -29,7 +29,6 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
 from pyproj import CRS
 from pyproj.exceptions import CRSError
 
@@ -38,6 +37,7 @@ from ..io.images import read_image
 from ..io.lidar import class_mask, iter_lidar, lidar_info, resolve_crs
 from ..records import RecordMapping
 from . import visibility as vis
+from ..runtime.kernel import kernel
 from .cameras import as_matrix, check_registration
 from .coverage import lidar_share
 from .outliers import SOR_K, SOR_SIGMA, layer_winners, sor_inliers_image
@@ -92,7 +92,7 @@ class ProjectionStats(RecordMapping):
     _optional = ("row_offset_px", "heights_converted")
 
 
-@njit(cache=True)
+@kernel
 def _project_chunk(xyz, keep, A, PL, PR, sl, sr, width, height, max_dy, idx0, idx1, store_xyz, store_z,
                    store_pix, store_code, n_used, start, counts):
     """Project points ``start..`` of a chunk and insert them into the two-layer z-buffer of the left image.

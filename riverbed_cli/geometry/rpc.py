@@ -35,13 +35,14 @@ from pathlib import Path
 
 import numpy as np
 import rasterio
-from numba import njit, prange
+from numba import prange
 from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
 from rasterio.rpc import RPC
 
 from ..errors import RiverbedError
 from ..io.paths import require_file
 from ..io.textfiles import parse_json
+from ..runtime.kernel import kernel
 
 #: RPC files larger than this are refused before parsing (WorldView-1's XML, the largest sample, is 0.7 MB).
 MAX_RPC_BYTES = 20_000_000
@@ -76,7 +77,7 @@ NEWTON_TOL_PX = 1e-9
 NEWTON_MAX_ITER = 30
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _rational_kernel(L, P, H, coef, expo, derivatives, out):
     # Per point: the column and row ratios N/D of the 20-term polynomials (coef rows: samp num, samp den, line num,
     # line den) and, with derivatives, their partial derivatives in L and P. out: (6, N) = q_s, dq_s/dL, dq_s/dP,

@@ -27,9 +27,11 @@ import logging
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError
+
+from ..runtime.kernel import kernel
 
 log = logging.getLogger(__name__)
 
@@ -58,7 +60,7 @@ def disc_offsets(radius):
             np.sqrt(d2[keep][order]).astype(np.float64))
 
 
-@njit(cache=True)
+@kernel
 def _index_image(rows, cols, disp, H, W):
     """Index of the nearest point (largest disparity) per pixel (-1: none)."""
     img = np.full((H, W), -1, np.int32)
@@ -69,7 +71,7 @@ def _index_image(rows, cols, disp, H, W):
     return img
 
 
-@njit(cache=True)
+@kernel
 def _radii_kernel(img, rows, cols, disp, ody, odx, odist, k, tolerance, largest):
     """Distance to the k-th nearest same-or-nearer point, scanning pixels in order of distance (see below)."""
     H, W = img.shape
@@ -106,7 +108,7 @@ def _radii_kernel(img, rows, cols, disp, ody, odx, odist, k, tolerance, largest)
     return out
 
 
-@njit(cache=True)
+@kernel
 def _splat_kernel(rows, cols, disp, radius, slope, H, W):
     """Largest ``d - slope * distance`` over the discs (radius per point) covering each pixel (-inf: none)."""
     cover = np.full((H, W), -np.inf, np.float32)
@@ -127,7 +129,7 @@ def _splat_kernel(rows, cols, disp, radius, slope, H, W):
     return cover
 
 
-@njit(cache=True)
+@kernel
 def _surround_kernel(cand, img, rows, cols, disp, radius, ody, odx, odist, slope, tolerance, reach, nsec):
     """For each candidate (a point some splat covers): still hidden under the edge-reach rule?
 
@@ -306,7 +308,7 @@ def surface_cell(xyz):
     return max(math.sqrt(occupied * c0 * c0 / n), 1e-6)
 
 
-@njit(cache=True)
+@kernel
 def _grid_max(xyz, x0, y0, cell, nx, ny):
     grid = np.full((ny, nx), -np.inf, np.float64)
     for i in range(xyz.shape[0]):
@@ -317,7 +319,7 @@ def _grid_max(xyz, x0, y0, cell, nx, ny):
     return grid
 
 
-@njit(cache=True)
+@kernel
 def _filter(grid, r, take_max):
     """Max (``take_max``) or min filter over the (2r+1)^2 window, ignoring empty (-inf) cells."""
     ny, nx = grid.shape
@@ -386,7 +388,7 @@ def surface_grid(xyz, cell=SURFACE_CELL, closing=SURFACE_CLOSING, fill=SURFACE_F
     return grid, lo, cell
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _surface_kernel(xyz, centre, grid, x0, y0, cell, zmax, margin):
     """Per point: does the segment to ``centre`` pass more than ``margin`` below the grid (cell by cell)?
 

@@ -18,11 +18,12 @@ import cv2
 import numpy as np
 import rasterio
 from llvmlite import ir
-from numba import njit, prange, types
+from numba import prange, types
 from numba.extending import intrinsic
 from rasterio.enums import ColorInterp
 
 from ..errors import RiverbedError
+from ..runtime.kernel import kernel
 from ..settings import MAX_PIXELS  # noqa: F401  (the default pixel limit; --max-pixels raises it)
 from .atomic import c_stderr_silenced
 from .paths import require_file
@@ -324,7 +325,7 @@ def _splat(builder, value, vty):
                                   ir.Constant(ir.VectorType(ir.IntType(32), vty.count), [0] * vty.count))
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _grey_kernel(img, scale, cr, cg, cb):
     # rows in parallel: fma(B, cb, fma(R, cr, G * cg)) of the samples times scale (a power of two: exact); img is
     # H x W x 3 C-contiguous, a row's pixels _GREY_LANES at a time, its last ones one by one

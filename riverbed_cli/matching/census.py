@@ -5,9 +5,10 @@ Conventions: the left image is the reference; disparity ``d = x_left - x_right``
 """
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from ..errors import RiverbedError
+from ..runtime.kernel import kernel
 from ..settings import parse_census_window
 from .kernels.lanes import LANES, lanes_census, lanes_census_bits, lanes_census_half
 from .volume import band_pair_rows, band_pairs
@@ -23,7 +24,7 @@ _S4 = np.uint64(4)
 _S56 = np.uint64(56)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def popcount64(x):
     """Number of set bits of a uint64 (branch-free bit tricks; LLVM lowers it to POPCNT where available)."""
     x = x - ((x >> _S1) & _M1)
@@ -32,7 +33,7 @@ def popcount64(x):
     return (x * _H01) >> _S56
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _census_kernel(pad, H, W, hw, hh):
     # pad is the image with hh rows / hw columns of replicated border on each side. A row's pixels LANES at a time,
     # all their bits in registers (lanes.lanes_census_bits); the row's last pixels one neighbour at a time over the
@@ -97,7 +98,7 @@ def census_transform(grey, window=(9, 7)):
     return _census_kernel(pad, H, W, w // 2, h // 2)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _pixel_costs(flat, b, w, top, a, row, outside, scale):
     # The w costs of one pixel (census a) from flat[b]: index i compares the right row's column top - i. The
     # disparities whose column lies in the image form one run [i0, i1): outside it the constant, inside a loop with
@@ -113,7 +114,7 @@ def _pixel_costs(flat, b, w, top, a, row, outside, scale):
         flat[b + np.uint64(i)] = outside
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _census_cost_kernel(cl, cr, d_min, cost, outside, scale):
     H, W, D = cost.shape
     flat = cost.reshape(-1)
@@ -123,7 +124,7 @@ def _census_cost_kernel(cl, cr, d_min, cost, outside, scale):
             _pixel_costs(flat, np.uint64((y * W + x) * D), D, x - d_min, cl[y, x], row, outside, scale)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _census_tube_kernel(cl, cr, d_min, flat, start, width, offset, outside, scale, vector):
     # vector (a uint16 volume, scale > 1): a row's pixels in order, LANES costs at a time (lanes.lanes_census) while
     # the chunk's right pixels lie in the image and it ends before the row's tubes do; its lanes past the pixel's

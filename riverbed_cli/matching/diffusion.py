@@ -37,16 +37,17 @@ Conventions: left image reference, ``d = x_left - x_right``; volume ``H x W x D`
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from ..errors import RiverbedError
 from ..geometry.coverage import lidar_rows
 from ..geometry.interpolation import first_at_least
+from ..runtime.kernel import kernel
 from .guidance import check_volume, guide_image, scaled_volume
 from .volume import volume_layout
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def bilateral_weight(guide, y, x, yy, xx, a, b):
     """Joint-bilateral weight of pixel (yy, xx) seen from (y, x): ``exp(-|p - q|^2 a - |I(p) - I(q)|^2 b)`` over the
     channels of ``guide`` (H, W, C); ``a = 1 / 2 sigma_s^2``, ``b = 1 / 2 sigma_i^2`` (per channel scaling by the
@@ -58,7 +59,7 @@ def bilateral_weight(guide, y, x, yy, xx, a, b):
     return math.exp(-((yy - y) ** 2 + (xx - x) ** 2) * a - dd * b)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _diffusion_kernel(flat, D0, sparse, ptr, cols, guide, d_min0, radius, a, b, dref, min_weight, tstart, twidth,
                       toffset):
     # Pixel-centric: every pixel visits the LiDAR pixels of its (2 radius + 1)^2 window (rows as CSR lists, so only

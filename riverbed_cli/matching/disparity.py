@@ -6,14 +6,15 @@ disparity map of the left image, ``d = x_left - x_right``, NaN where invalid.
 
 import cv2
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from ..errors import RiverbedError
+from ..runtime.kernel import kernel
 from .kernels.lanes import LANES, lanes_find, lanes_sum, lanes_sum_wide, lanes_vote, lanes_vote_half
 from .volume import band_pair_rows, band_pairs, volume_layout
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _pick(s, si, D, o, d_min, subpixel):
     # winner index of the D costs at s[si:] and its disparity d_min + o + index, parabola-refined inside the range
     bi = 0
@@ -25,7 +26,7 @@ def _pick(s, si, D, o, d_min, subpixel):
     return bi, _refine(s, si, D, bi, d_min + o, subpixel)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _refine(s, si, D, bi, d0, subpixel):
     # the disparity d0 + bi of winner bi (the first minimum of the D costs at s[si:], indexed from there: no array
     # view per pixel), parabola-refined inside the range
@@ -40,7 +41,7 @@ def _refine(s, si, D, bi, d0, subpixel):
     return val
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _vote_right(s, D, x, o, d_min, W, right_cost, right_best):
     # Right-image winner: min over d of S(y, xr + d, d), accumulated while scanning the row (as d - d_min).
     for i in range(D):
@@ -50,7 +51,7 @@ def _vote_right(s, D, x, o, d_min, W, right_cost, right_best):
             right_best[xr] = o + i
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _lr_reject(disp_row, best_left, right_best, d_min, W, lr_threshold, mark_failures, status_row):
     # mark_failures: record the failure in status_row (1) and leave the disparity; else invalidate it
     for x in range(W):
@@ -62,7 +63,7 @@ def _lr_reject(disp_row, best_left, right_best, d_min, W, lr_threshold, mark_fai
                 disp_row[x] = np.nan
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _dense_row(fwd, bwd, y, W, D, d_min, subpixel, lr_check, lr_threshold, mark_failures, disp, status):
     # row y of a dense selection: fwd and bwd flat (pixel (y, x) at (y * W + x) * D), status (H, W or 1)
     s = np.empty(D, dtype=np.int32)
@@ -81,7 +82,7 @@ def _dense_row(fwd, bwd, y, W, D, d_min, subpixel, lr_check, lr_threshold, mark_
         _lr_reject(disp[y], best_left, right_best, d_min, W, lr_threshold, mark_failures, status[y])
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _tube_winner(fwd, bwd, n, b, D, o, d_min, subpixel, s, si):
     # the summed costs of a pixel's tube (D disparities from d_min + o at b) into s[si:] and its winner: (index,
     # disparity). The sums and the winner come a chunk of LANES disparities at a time (the sums fit uint16:
@@ -98,7 +99,7 @@ def _tube_winner(fwd, bwd, n, b, D, o, d_min, subpixel, s, si):
     return _pick(s, si, D, o, d_min, subpixel)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _tube_row(fwd, bwd, y, start, width, offset, wmax, d_min, subpixel, disp):
     # row y of a tube selection without the left-right check: pixel (y, x) holds width[y, x] (<= wmax) disparities
     # from d_min + offset[y, x]
@@ -109,7 +110,7 @@ def _tube_row(fwd, bwd, y, start, width, offset, wmax, d_min, subpixel, disp):
                                   subpixel, s, 0)[1]
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _tube_lr_row(fwd, bwd, y, start, width, offset, wmax, d_min, subpixel, lr_threshold, mark_failures, disp, status):
     # _tube_row with the left-right check. A row's sums are kept for the right image's votes, which go LANES
     # disparities at a time (lanes.lanes_vote), the pixels taken 0, 16, 32, ..., then 1, 17, ...: a pixel's votes
@@ -147,7 +148,7 @@ def _tube_lr_row(fwd, bwd, y, start, width, offset, wmax, d_min, subpixel, lr_th
     _lr_reject(disp[y], best_left, right_best[pad:], d_min, W, lr_threshold, mark_failures, status[y])
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def select_row(fwd, bwd, y, W, D, start, width, offset, wmax, d_min, subpixel, lr_check, lr_threshold, mark_failures,
                disp, status):
     """Row ``y`` of the disparity selection (:func:`select_disparity`) into ``disp`` and ``status``: the sums of
@@ -164,7 +165,7 @@ def select_row(fwd, bwd, y, W, D, start, width, offset, wmax, d_min, subpixel, l
         _tube_row(fwd, bwd, y, start, width, offset, wmax, d_min, subpixel, disp)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _select_kernel(fwd, bwd, H, W, D, start, width, offset, wmax, d_min, subpixel, lr_check, lr_threshold,
                    mark_failures):
     # every row's select_row, in parallel
@@ -231,7 +232,7 @@ def select_disparity(aggregated, d_min, subpixel=True, lr_check=False, lr_thresh
     return finish_selection(disp, status, lr_check, return_status)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _median_at(disp, y, x, r, buf):
     # NaN-aware median of the (2 r + 1)^2 window around (y, x), border replicated; NaN at a NaN pixel
     H, W = disp.shape
@@ -258,7 +259,7 @@ def _median_at(disp, y, x, r, buf):
     return np.float32(0.5) * (buf[n // 2 - 1] + buf[n // 2])
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def median_kernel(disp, r):
     """NaN-aware median of ``disp`` over ``(2 r + 1)^2`` windows, border replicated (:func:`median_filter`)."""
     H, W = disp.shape
@@ -270,7 +271,7 @@ def median_kernel(disp, r):
     return out
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _median_where(disp, r, where, out):
     # median_kernel's value at the pixels where `where` is set, into out
     H, W = disp.shape

@@ -41,13 +41,14 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from ..errors import RiverbedError
 from ..geometry.coverage import lidar_points, row_offsets
 from ..geometry.interpolation import delaunay_graph, linear_fill, nearest_points
 from ..geometry.planes import PlaneFill, plane_fill, plane_fit
 from ..records import RecordMapping
+from ..runtime.kernel import kernel
 from .config import LIDAR_KINDS
 from .volume import spread_rows
 
@@ -145,7 +146,7 @@ def lidar_sigma(sparse, neighbours=6, support=4, floor=0.25, fill=None):
     return _pixel_sigma(fill.anchor, fill.distance, point_sigma, float(floor), GROWTH * typical), fill.distance
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _pixel_sigma(anchor, dist, point_sigma, floor, reach):
     # sigma of the pixel's nearest point (at least floor), grown in proportion to the distance beyond reach
     H, W = anchor.shape
@@ -188,7 +189,7 @@ def median_of(values):
     return np.mean(part[half - 1:half + 1])
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _where_values(x, mask):
     # x[mask] as float64, row-major
     at = row_offsets(mask)
@@ -203,7 +204,7 @@ def _where_values(x, mask):
     return out
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _where_abs_diff(a, b, sigma, mask, limit):
     # |a - b| (float32, as NumPy's) where mask and sigma <= limit (sigma compared as float64), row-major
     H, W = mask.shape
@@ -309,7 +310,7 @@ def fuse_disparity(stereo, status, sparse, gate=4.0, neighbours=6, support=4, fl
     return FusionOutput(out, confidence, stats)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _decide(stereo, lidar, sig_l, consistent, sig_s, gate):
     # The per-pixel decision of fuse_disparity (module docstring) in one pass: output, confidence, and the counts of
     # pixels averaged / kept from the stereo / taken from the LiDAR.

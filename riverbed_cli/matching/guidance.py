@@ -24,13 +24,14 @@ The paper writes ``d_m = x_R - x_L``; here ``d = x_left - x_right >= 0`` through
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from ..errors import RiverbedError
 from .volume import band_pair_rows, band_pairs, volume_layout
 from ..geometry.coverage import (lidar_points, lidar_share, lidar_share_of_points,  # noqa: F401  (re-exported)
                                  pixels_where)
 from ..geometry.interpolation import first_at_least
+from ..runtime.kernel import kernel
 from .kernels.lanes import LANES
 from .kernels.lanes_guidance import (lanes_claim, lanes_claim_rgb, lanes_claim_rgb_whole, lanes_claim_whole,
                                      lanes_colour, lanes_colour_whole, lanes_flat, lanes_flat_whole, lanes_walls,
@@ -55,7 +56,7 @@ def auto_window(share, target=4.0, smallest=5, largest=25):
     return int(min(max(s, smallest), largest))
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _claim(j, rows, cols, planes, H, W, C, half, spatial, sw, b, e_lo, e_hi, owner, dissim, dd, ya, yb):
     # Offer LiDAR point j's window to its pixels in rows ya to yb - 1; a pixel keeps the most similar point (ties:
     # lower index), so the result does not depend on the order in which points are offered. Works on the exponent e
@@ -95,7 +96,7 @@ def _claim(j, rows, cols, planes, H, W, C, half, spatial, sw, b, e_lo, e_hi, own
                 lanes_claim(dissim, owner, k, dd, spatial, si, b, e_lo, e_hi, j, n - i0)
 
 
-@njit(cache=True)
+@kernel
 def spatial_terms(half, a):
     """The spatial terms ``(dr^2 + dc^2) a`` of the ownership's exponent (float64), flat, ``sw`` per window row:
     ``dr`` from ``-half`` to ``half`` (rows), ``dc`` from ``-half`` to ``sw - half - 1`` (columns; ``sw`` reaches
@@ -108,7 +109,7 @@ def spatial_terms(half, a):
     return t, sw
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
     # rows are sorted (row-major order of the points). Each thread offers the points to the pixels of its own rows
     # only (volume.band_pair_rows, as every row-parallel kernel of the match), so no pixel is written by both
@@ -157,7 +158,7 @@ def _owners_kernel(rows, cols, guide, half, sigma_xy, sigma_i, gamma, literal):
     return owner, w
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _weights_row(e, w):
     for x in range(e.shape[0]):
         w[x] = _weight_sure(e[x])
@@ -166,7 +167,7 @@ def _weights_row(e, w):
             w[x] = np.float32(-math.expm1(-e[x]))
 
 
-@njit(cache=True)
+@kernel
 def ownership_weights(e):
     """``W = 1 - exp(-e)`` of paper eq. 2 as float32 from the exponents ``e >= 0`` (1-D float64; ``inf`` gives
     ``inf``, no owner), as :func:`homogeneous_owners` computes it: ``float32(-expm1(-e))`` to the bit."""
@@ -180,7 +181,7 @@ def ownership_weights(e):
 _E_SURE = 1.25  # covers the default reading's exponents (e <= -ln(gamma), 1.2 at gamma 0.3)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _weight_sure(e):
     # float32(-expm1(-e)) where the polynomial's float64 value (1e-14 off) and anything within 1e-12 of it round
     # to the same float32 (then libm's, also within, does too: the same bits); inf for inf (no owner); NaN where not
@@ -258,7 +259,7 @@ def homogeneous_owners(sparse, guide, window, sigma_xy=8.0, sigma_i=8.0, gamma=0
                           float(sigma_xy), float(sigma_i), float(gamma), bool(literal_eq3))
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _modulate_pixel(flat, base, D, d_min, dm, w, limit, k, band, form, scale, wall_scale, inv2c2, tfar, ceiling):
     # one guided pixel's D costs from flat[base] (disparity d_min first): its LiDAR point's disparity dm, its weight w
     # (0 at a LiDAR pixel); chunks ending before limit are read and written whole
@@ -294,7 +295,7 @@ def _modulate_pixel(flat, base, D, d_min, dm, w, limit, k, band, form, scale, wa
                         inv2c2, ceiling, D - i0)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _modulate_kernel(flat, W, D0, owner, dissim, values, d_min0, k, c, band, form, scale, wall_scale, max_cost, tstart,
                      twidth, toffset):
     # In place, only at the guided pixels (owner >= 0). flat holds

@@ -55,10 +55,11 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from ..io.images import effective_bits, to_grey
 from ..records import RecordMapping
+from ..runtime.kernel import kernel
 from .lidar_offset import RADIUS, patch_costs
 from .range_maps import coarse_match
 
@@ -205,7 +206,7 @@ def _cell_regions(rows, cols, verdict, has_alt, shape, side):
     return regions.astype(bool), cell
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _explained_kernel(sparse, rows, cols, values, alt, band, edge, tau, out):
     # out[j]: the LiDAR around point j holds the images' alternative alt[j] (module docstring, "occlusions")
     H, W = sparse.shape
@@ -227,7 +228,7 @@ def _explained_kernel(sparse, rows, cols, values, alt, band, edge, tau, out):
         out[j] = found
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _neighbour_kernel(sparse, rows, cols, radius, tau, around, supported):
     H, W = sparse.shape
     side = 2 * radius + 1
@@ -269,7 +270,7 @@ def neighbour_stats(sparse, rows, cols, radius):
     return around, supported
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _plane_kernel(sparse, rows, cols, radius, out):
     # out[j]: the least-squares plane through the other points within the square of the radius round point j, at
     # its pixel (NaN with fewer than 3 points or all on a line); coordinates relative to the point, so the value
@@ -326,7 +327,7 @@ def _changed_area(rows, cols, shape, spacing):
     return area
 
 
-@njit(cache=True)
+@kernel
 def _flood(index, rows, cols, radius, state, seeds, hops):
     # the points a change reaches from its seeds (seeds[i] = its sign), neighbours being the points within a square
     # of the radius (index: the point at each pixel, -1 none): through points of state == sign (contradicted that

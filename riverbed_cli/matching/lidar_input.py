@@ -9,10 +9,11 @@ import logging
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from ..errors import RiverbedError
 from ..geometry.coverage import lidar_share_of_row_ends
+from ..runtime.kernel import kernel
 from .volume import band_pair_rows, band_pairs
 
 log = logging.getLogger(__name__)
@@ -122,7 +123,7 @@ def prepare_lidar(sparse, shape, d_min, d_max):
     return out, points, share, share_all
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _cut_to_range(sparse, d_min, d_max):
     # In one pass: a copy with NaN outside [d_min, d_max] and per row the finite values and those inside, with the
     # first and last column of each (-1: none). NumPy's masks, sums and np.where took 1 ms on 740 x 500 px, and the
@@ -156,7 +157,7 @@ def _cut_to_range(sparse, d_min, d_max):
     return per_row, out
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _row_ends(row, lo, hi):
     # the first and last column of a row whose value is finite and within [lo, hi] (-1, -1: none)
     W = row.shape[0]
@@ -175,7 +176,7 @@ def _row_ends(row, lo, hi):
     return first, last
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _points_of_rows(sparse, per_row):
     # lidar_points of a map whose finite values are those counted inside by _cut_to_range: rows, columns (int64)
     # and values (float64) in row-major order, each row filled from its running total

@@ -23,11 +23,12 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from ..errors import RiverbedError
 from ..io.images import effective_bits, to_grey
 from ..records import RecordMapping
+from ..runtime.kernel import kernel
 
 log = logging.getLogger(__name__)
 
@@ -80,7 +81,7 @@ class OffsetEstimate(RecordMapping):
     spread: float = None
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _patch_cost_kernel(gl, gr, rows, cols, vals, offsets, radius, cap, out):
     H, W = gl.shape
     n, m = rows.size, offsets.size

@@ -29,7 +29,9 @@ from dataclasses import replace
 
 import cv2
 import numpy as np
-from numba import njit, prange
+from numba import prange
+
+from ..runtime.kernel import kernel
 
 #: How far (px) beyond the searched range a disparity may lie: the sub-pixel refinement's reach, with room.
 RANGE_SLACK = 1.0
@@ -71,7 +73,7 @@ def matchable_mask(shape, d_min, d_max, right_valid=None, left_valid=None, tubes
     return out
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _matchable(offset, width, d_min, nominal, right_valid, H, W):
     # Per row, the running count of valid right pixels: a pixel with range [lo, hi] (d_min + offset, width wide) is
     # matchable when its candidate columns [x - hi, x - lo] (cut to the image) hold at least one, or, for a tube

@@ -40,10 +40,11 @@ Conventions: left image reference, ``d = x_left - x_right``; volumes ``H x W x D
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from ..errors import RiverbedError
 from . import guidance
+from ..runtime.kernel import kernel
 from .config import CONFIDENCES, PlusConfig  # noqa: F401  (CONFIDENCES: the valid confidence rules)
 from .adcensus import cross_arms, to_u8
 from .volume import volume_layout
@@ -60,7 +61,7 @@ def auto_hops(share, per_hop=6.0, largest=8):
     return int(min(max(round((1.0 / math.sqrt(share)) / per_hop), 1), largest))
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _segment_range(lo, hi, arms, vertical):
     # min of lo / max of hi over every pixel's horizontal (or vertical) arm segment
     H, W = lo.shape
@@ -112,7 +113,7 @@ def support_ranges(sparse, arms, hops):
     return lo, hi
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _band_kernel(flat, D0, lo, hi, extend, d_min0, margin, wall, c, max_cost, tstart, twidth, toffset):
     # cost holds scaled costs; at extended pixels: unchanged inside [lo - margin, hi + margin], plus
     # wall * (1 - exp(-t^2 / 2c^2)) at distance t outside it.

@@ -22,9 +22,10 @@ on half of the threads (the pass and its rows' hand-over between threads: :mod:`
 """
 
 import numpy as np
-from numba import get_num_threads, njit, prange
+from numba import get_num_threads, prange
 
 from ..errors import RiverbedError
+from ..runtime.kernel import kernel
 from .disparity import finish_selection, select_row
 from .kernels.atomics import exchange, load_acquire
 from .kernels.row_handover import MAX_PASS_THREADS, pass_threads
@@ -46,7 +47,7 @@ def path_directions(paths):
     return fwd + [(-dx, -dy) for dx, dy in fwd]
 
 
-@njit(cache=True)
+@kernel
 def _run_pass(t, flat, fwd, bwd, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, nf, nb, ring_f, ring_b,
               rows_done):
     # iteration t of the passes' parallel loop: the forward pass's threads first, then the reverse pass's; returns
@@ -61,14 +62,14 @@ def _run_pass(t, flat, fwd, bwd, H, W, D, start, width, offset, wmax, dxs, dys, 
     return p
 
 
-@njit(cache=True)
+@kernel
 def _rings(H, W, nd, wmax, nf, nb):
     # the buffers of the passes on several threads, shared by them (tiny stand-ins for a pass on one thread)
     return (pass_ring(H, W, nd, wmax, nf) if nf > 1 else pass_ring(0, 0, 0, 0, 1),
             pass_ring(H, W, nd, wmax, nb) if nb > 1 else pass_ring(0, 0, 0, 0, 1))
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _sgm_two_passes(flat, fwd, bwd, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, threads):
     nf, nb = pass_threads(H, threads)
     ring_f, ring_b = _rings(H, W, dxs.shape[0], wmax, nf, nb)
@@ -78,7 +79,7 @@ def _sgm_two_passes(flat, fwd, bwd, H, W, D, start, width, offset, wmax, dxs, dy
                   ring_b, rows_done)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _sgm_select_kernel(flat, fwd, bwd, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, d_min, subpixel,
                        lr_check, lr_threshold, mark_failures, threads):
     # _sgm_two_passes, each row's disparity selected as soon as both passes hold it. Once its pass has no row left to
@@ -133,7 +134,7 @@ def sgm_aggregate_select(cost, p1, p2, d_min, paths=8, max_cost=None, tubes=None
     return finish_selection(disp, status, lr_check, return_status)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _add_inplace(a, b):
     H = a.shape[0]
     for y in prange(H):
@@ -168,7 +169,7 @@ def sgm_aggregate_passes(cost, p1, p2, paths=8, max_cost=None, tubes=None):
     return fwd, bwd
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _forward_kernel(flat, fwd, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, threads):
     n = max(1, min(threads, MAX_PASS_THREADS, H))
     L, Lmin, rw, ro, progress, claim = pass_ring(H, W, dxs.shape[0], wmax, n)

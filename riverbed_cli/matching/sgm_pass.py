@@ -9,8 +9,8 @@ published (the two-core layout: one pass per core).
 """
 
 import numpy as np
-from numba import njit
 
+from ..runtime.kernel import kernel
 from .kernels.atomics import store_release
 from .kernels.lanes import (LANES, SENTINEL, lanes_copy, lanes_fill, lanes_first, lanes_reduce, lanes_step,
                             lanes_step_min, lanes_step_out, lanes_step_pair, lanes_step_wide, lanes_step_wide_out,
@@ -27,7 +27,7 @@ _SENTINEL = SENTINEL  # above any path cost; sentinel + P1 still fits int16
 _GUARD = LANES
 
 
-@njit(cache=True, boundscheck=False)
+@kernel(boundscheck=False)
 def path_start(cur, c, acc):
     m = np.int16(_SENTINEL)
     for d in range(c.shape[0]):
@@ -38,7 +38,7 @@ def path_start(cur, c, acc):
     return m
 
 
-@njit(cache=True, boundscheck=False, inline="always")
+@kernel(inline=True, boundscheck=False)
 def tube_value(prev, wq, j, P1):
     # min(L(j), L(j -+ 1) + P1) of the previous pixel's tube (wq wide) at its index j; outside it: the sentinel
     sent = np.int16(_SENTINEL)
@@ -48,7 +48,7 @@ def tube_value(prev, wq, j, P1):
     return min(a, min(b, e) + P1)
 
 
-@njit(cache=True, boundscheck=False)
+@kernel(boundscheck=False)
 def _step_scalar(L, acc, cur, cost, b, w, span, prev, wq, s, P1, jump, mp, first, sum_mask):
     # The step of _sgm_pass one disparity at a time, for what its vector steps cannot reach: the last pixels of the
     # volume (their lanes would read past its end) and shifts past the guard of the neighbour's entry. sum_mask as in
@@ -68,7 +68,7 @@ def _step_scalar(L, acc, cur, cost, b, w, span, prev, wq, s, P1, jump, mp, first
     return m
 
 
-@njit(cache=True, boundscheck=False)
+@kernel(boundscheck=False)
 def _wide_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, end, dx, cbase, pbase, R, RA, P1, P2, sum_mask, out,
                 last, done):
     # As _common_steps, for tubes wider than one chunk (a pixel no LiDAR reaches, beside others alike): every chunk in
@@ -99,14 +99,14 @@ def _wide_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, end, dx, cbas
     return xx
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _reaches(s, wq, span):
     # whether a step over span disparities (whole chunks) shifted by s against its neighbour's tube (wq wide) reads
     # only inside the neighbour's ring-buffer entry (its guard and sentinel chunk included)
     return 1 - _GUARD <= s <= (wq + LANES - 1) // LANES * LANES + LANES - 1 - span
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _pair_entries(Lmin, cbase0, cbase1, pbase1, xx, R):
     # a paired step's two ring-buffer entries and its two neighbours' minima (the row's pixel xx - 1, the column's
     # pixel xx of the row before)
@@ -114,7 +114,7 @@ def _pair_entries(Lmin, cbase0, cbase1, pbase1, xx, R):
             Lmin[np.uint64(pbase1 + xx)])
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _paired(L, Lmin, m, cur0, cur1, at0, at1, span, done, ux):
     # after a paired step: the sentinel chunk after both entries, both minima (m: the first in the low 16 bits) at
     # Lmin[at0] and Lmin[at1], the pixel done
@@ -126,7 +126,7 @@ def _paired(L, Lmin, m, cur0, cur1, at0, at1, span, done, ux):
     done[ux] = 1
 
 
-@njit(cache=True, boundscheck=False)
+@kernel(boundscheck=False)
 def _pair_steps(L, flat, Lmin, rb, rws, ros, rwp1, rop1, xx, W, cbase0, cbase1, pbase1, R, P1, P2, out, done):
     # 4 paths: both of a pass's directions of each pixel at once (lanes_step_pair: the row's from pixel xx - 1, the
     # column's from the row before), from pixel xx on while both are common steps (one chunk, the neighbours'
@@ -153,7 +153,7 @@ def _pair_steps(L, flat, Lmin, rb, rws, ros, rwp1, rop1, xx, W, cbase0, cbase1, 
     return xx
 
 
-@njit(cache=True, boundscheck=False)
+@kernel(boundscheck=False)
 def _wide_pair_steps(L, flat, Lmin, rb, rws, ros, rwp1, rop1, xx, W, cbase0, cbase1, pbase1, R, P1, P2, out, done):
     # As _pair_steps, for tubes wider than one chunk (every chunk in one step, lanes_step_wide_pair) while both
     # neighbours' entries hold every chunk's reads
@@ -183,14 +183,14 @@ def _wide_pair_steps(L, flat, Lmin, rb, rws, ros, rwp1, rop1, xx, W, cbase0, cba
     return xx
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _wholly_outside(j, wq):
     # whether a chunk whose first disparity is index j of the neighbour's tube (wq wide) reads only outside it: its
     # LANES disparities and their neighbours, indices j - 1 .. j + LANES
     return j + LANES < 0 or j - 1 >= wq
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _chunks_reach(s, span, wq, spanq):
     # whether each LANES-chunk of a tube (span wide, shifted by s against its neighbour's tube of wq disparities,
     # spanq in whole chunks) reads either within the neighbour's entry (its guard and sentinel chunk included) or
@@ -202,14 +202,14 @@ def _chunks_reach(s, span, wq, spanq):
     return True
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _pixel_layout(rb, rws, xx):
     # pixel xx's unsigned index (no negative-index wrap-around code), the start of its tube and its width
     ux = np.uint64(xx)
     return ux, rb[ux], rws[ux]
 
 
-@njit(cache=True, boundscheck=False)
+@kernel(boundscheck=False)
 def _common_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, end, dx, cbase, pbase, R, RA, P1, P2, sum_mask,
                   out, last):
     # Steps of one direction from pixel xx on (up to end) while each is the common one: a tube of one chunk whose
@@ -240,7 +240,7 @@ def _common_steps(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, end, dx, cb
     return xx
 
 
-@njit(cache=True)
+@kernel
 def pass_ring(H, W, nd, wmax, threads):
     """The buffers a pass's ``threads`` share (:func:`sgm_rows`): the ring buffer of path costs ``L`` and of their
     minima ``Lmin`` (per direction: a slot per row in flight and two rows back, and one per thread for the row's own
@@ -261,7 +261,7 @@ def pass_ring(H, W, nd, wmax, threads):
     return L, Lmin, rw, ro, progress, claim
 
 
-@njit(cache=True, boundscheck=False)
+@kernel(boundscheck=False)
 def sgm_rows(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, flip, L, Lmin, rw, ro, progress, claim,
              threads, thread, rows_done, done_base):
     """Half of the paths over a dense volume (D > 0: pixel (y, x) holds D disparities at (y * W + x) * D) or a tube
@@ -380,7 +380,7 @@ def sgm_rows(flat, out, H, W, D, start, width, offset, wmax, dxs, dys, P1, P2, f
         store_release(rows_done, done_base + y, 1)
 
 
-@njit(cache=True, boundscheck=False, inline="always")
+@kernel(inline=True, boundscheck=False)
 def _rare_step(L, acc, flat, Lmin, rb, rws, ros, rwp, rop, xx, W, dx, py, cbase, pbase, R, RA, P1, P2, sum_mask, out,
                last, outside, mv):
     # one direction's step of pixel xx where the lean loops stop: a path's first pixel, tubes far apart, the

@@ -35,10 +35,11 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from ..errors import RiverbedError
 from ..records import RecordMapping
+from ..runtime.kernel import kernel
 from .guidance import lidar_share
 from .volume import TubeLayout, band_pair_rows, band_pairs
 
@@ -153,7 +154,7 @@ def _rule_on_cells(sparse, d_min, d_max, reach, margin, levels, level_margin, ce
     return tlo, thi, reached, spacing
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _cells_layout(tlo, thi, cell, H, W, d_min):
     # TubeLayout.from_bounds of the cells' tubes expanded to their pixels: offsets and widths by rows in parallel,
     # each row's total, then each row's start indices from the running total before it
@@ -257,7 +258,7 @@ def _window_bounds(disp, shape, factor, window):
     return cmin, cmax, np.isfinite(cmin), ok[at]
 
 
-@njit(cache=True)
+@kernel
 def range_map_summary(lo, hi):
     """A range map's pixels with both ends finite, those of them with ``lo > hi``, and their smallest ``lo`` and
     largest ``hi`` (float64): one pass, no copy (a memory map is read once)."""
@@ -310,7 +311,7 @@ def hole_bounds(coarse, shape, d_min, d_max, factor=HOLE_FACTOR, window=HOLE_WIN
     return lo, np.maximum(hi, lo)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _cell_extrema(sparse, cell, d_min, d_max):
     # min and max of the finite values of each cell x cell cell (+inf / -inf: none): of those inside [d_min, d_max],
     # and of those outside it; a row of cells per parallel iteration (it alone writes them)
@@ -336,7 +337,7 @@ def _cell_extrema(sparse, cell, d_min, d_max):
     return cmin, cmax, omin, omax
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _expand_cells(tlo, thi, cell, lo, hi):
     # every pixel takes its cell's tube; a row walks its cells (a division per pixel took most of the time)
     H, W = lo.shape

@@ -8,9 +8,9 @@ described by a :class:`TubeLayout`.
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from ..errors import RiverbedError
+from ..runtime.kernel import kernel
 
 
 @dataclass
@@ -82,7 +82,7 @@ class TubeLayout:
         return self.width.shape
 
 
-@njit(cache=True)
+@kernel
 def _layout(lo, hi, d_min):
     # offsets, widths and start indices (row-major running sum of the widths) of tubes [lo, hi], and the total
     H, W = lo.shape
@@ -120,7 +120,7 @@ def volume_layout(data, shape, tubes=None):
     return data, W, 0, tubes.start, tubes.width, tubes.offset
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def spread_rows(i, n):
     """Row ``i`` of ``n`` in a parallel loop's order where the first half of the loop takes the even rows and the
     second half the odd ones: the threads' contiguous shares of the loop then hold rows from all over the image, as
@@ -136,14 +136,14 @@ def spread_rows(i, n):
 BAND_ROWS = 8
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def band_pairs(H):
     """How many pairs of bands of :data:`BAND_ROWS` rows ``H`` rows hold (the last may be short): the iterations of a
     row-parallel kernel's ``prange`` over :func:`band_pair_rows`."""
     return (H + 2 * BAND_ROWS - 1) // (2 * BAND_ROWS)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def band_pair_rows(i, m, H):
     """Rows ``[r0, r1)`` of iteration ``i`` of a ``prange(m)`` over the ``m = band_pairs(H)`` pairs of bands, in
     :func:`spread_rows`' order: with two threads, the first takes the even pairs and the second the odd ones.

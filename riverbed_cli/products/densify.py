@@ -21,7 +21,7 @@ Conventions: the left image is the reference, ``d = x_left - x_right`` (px); NaN
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 from scipy import ndimage
 
 from ..errors import RiverbedError
@@ -29,6 +29,7 @@ from ..geometry.coverage import lidar_rows, lidar_share
 from ..geometry.interpolation import checked_points, interpolate_linear
 from ..geometry.planes import interpolate_planes
 from ..matching.diffusion import bilateral_weight
+from ..runtime.kernel import kernel
 
 METHODS = ("nearest", "linear", "planes", "guided")
 
@@ -49,7 +50,7 @@ def interpolate_nearest(sparse, nearest=None):
     return sparse[iy, ix].astype(np.float32)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _guided_kernel(sparse, ptr, cols, guide, radius, a, b, out, wsum):
     H, W = sparse.shape
     for y in prange(H):

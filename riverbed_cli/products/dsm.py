@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 import rasterio
 from affine import Affine
-from numba import njit
 
 from ..errors import RiverbedError
 from ..geometry.rpc_geometry import rpc_disparity_points
 from ..io.lidar import iter_lidar, lidar_info
 from ..io.paths import require_file
 from ..io.raster import write_geotiff
+from ..runtime.kernel import kernel
 from .dsm_holes import MAX_FILL_CELLS, check_fill_holes, close_lattice, fill_holes  # noqa: F401  (re-exported)
 
 AGGREGATIONS = ("max", "mean", "median", "idw")
@@ -102,7 +102,7 @@ def grid_indices(grid, x, y):
     return row, col
 
 
-@njit(cache=True)
+@kernel
 def _accumulate(x, y, z, xmin, ymax, res, mode, counts, value, sums, weights, keys):
     # One pass per chunk: cell index, count and the aggregation state (mode 0 max, 1 mean, 2 idw, 3 median keys).
     H, W = counts.shape
@@ -133,7 +133,7 @@ def _accumulate(x, y, z, xmin, ymax, res, mode, counts, value, sums, weights, ke
             keys[i] = r * W + c
 
 
-@njit(cache=True)
+@kernel
 def _median_kernel(keys, heights, out):
     # Counting sort of the heights by cell (O(N)), then the median of each cell's bucket.
     n_cells = out.shape[0]

@@ -15,10 +15,11 @@ flagged in a second band (:func:`fill_holes`).
 
 import cv2
 import numpy as np
-from numba import njit, prange
+from numba import prange
 from rasterio.fill import fillnodata
 
 from ..errors import RiverbedError
+from ..runtime.kernel import kernel
 
 #: An empty cell is closed when at least this many of its 8 neighbours hold heights.
 LATTICE_NEIGHBOURS = 6
@@ -34,7 +35,7 @@ def close_lattice(dsm, min_neighbours=LATTICE_NEIGHBOURS):
     return out, int(n)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _close_lattice(dsm, min_neighbours, out):
     # rows in parallel; each empty cell gathers its neighbours' heights and, with enough of them, takes their median
     H, W = dsm.shape

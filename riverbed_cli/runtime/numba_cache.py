@@ -78,15 +78,20 @@ PACKAGE = Path(__file__).resolve().parents[1]
 
 
 def sources_digest(package=PACKAGE):
-    """A digest of the ``.py`` files of ``package`` that use Numba (their paths and bytes): the kernels and what they
-    inline or call. An edit elsewhere (the command line, the docs) leaves the cached kernels as they are."""
+    """A digest of the ``.py`` files of ``package`` that use Numba (their paths and bytes): the kernels (``@kernel``,
+    :mod:`.kernel`), the intrinsics and what they inline or call. An edit elsewhere (the command line, the docs)
+    leaves the cached kernels as they are."""
     h = hashlib.sha256()
-    for path in sorted(Path(package).rglob("*.py")):
-        text = path.read_bytes()
-        if b"numba" in text:
-            h.update(path.relative_to(package).as_posix().encode())
-            h.update(text)
+    for path in kernel_sources(package):
+        h.update(path.relative_to(package).as_posix().encode())
+        h.update(path.read_bytes())
     return h.hexdigest()[:16]
+
+
+def kernel_sources(package=PACKAGE):
+    """The ``.py`` files of ``package`` that use Numba, sorted: those that name it or import :func:`.kernel.kernel`."""
+    return [path for path in sorted(Path(package).rglob("*.py"))
+            if any(key in path.read_bytes() for key in (b"numba", b"runtime.kernel import kernel"))]
 
 
 def cache_root():

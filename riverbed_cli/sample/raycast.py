@@ -5,10 +5,12 @@ two-level grid traversal (blocks, then cells), bilinear height lookup; :func:`ca
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
+
+from ..runtime.kernel import kernel
 
 
-@njit(cache=True)
+@kernel
 def _first_line(o, d, t, g0, size):
     """Index ``k`` of the first grid line ``g0 + k * size`` a ray ``o + t d`` (1-D, ``d != 0``) meets after ``t``."""
     k = float(math.floor((o + t * d - g0) / size))
@@ -17,7 +19,7 @@ def _first_line(o, d, t, g0, size):
     return k, (g0 + k * size - o) / d
 
 
-@njit(cache=True)
+@kernel
 def _patch_root(pu, pv, pz, du, dv, dz, L, h00, h10, h01, h11, cell):
     """First ``s`` in ``[0, L]`` where the ray ``p + s d`` meets the bilinear patch of one cell, or -1.
 
@@ -82,7 +84,7 @@ def _patch_root(pu, pv, pz, du, dv, dz, L, h00, h10, h01, h11, cell):
     return root
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _traversal_start(ou, ov, du, dv, t, u0, v0, size):
     # Grid traversal set-up (cells of ``size``): per axis the next grid line, the ray parameter there and the step.
     ku, tu, su = 0.0, np.inf, 0.0
@@ -96,7 +98,7 @@ def _traversal_start(ou, ov, du, dv, t, u0, v0, size):
     return ku, tu, su, kv, tv, sv
 
 
-@njit(cache=True)
+@kernel
 def _cast_cells(ou, ov, oz, du, dv, dz, ta, tb, hgt, u0, v0, cell):
     """First hit in ``[ta, tb]`` by a cell-by-cell traversal, or -1."""
     nv, nu = hgt.shape
@@ -131,7 +133,7 @@ def _cast_cells(ou, ov, oz, du, dv, dz, ta, tb, hgt, u0, v0, cell):
     return -1.0
 
 
-@njit(cache=True)
+@kernel
 def first_hit(ou, ov, oz, du, dv, dz, tmin, tmax, hgt, bmax, u0, v0, cell, bs, zlo, zhi):
     """Smallest ``t`` in ``[tmin, tmax]`` where the ray ``o + t d`` (grid frame) meets the surface, or -1.
 
@@ -183,7 +185,7 @@ def first_hit(ou, ov, oz, du, dv, dz, tmin, tmax, hgt, bmax, u0, v0, cell, bs, z
     return -1.0
 
 
-@njit(cache=True)
+@kernel
 def locate(pu, pv, nu, nv, u0, v0, cell):
     """Cell ``(i, j)`` containing a grid-frame point and the point's fractional position ``(a, b)`` in it."""
     fu = (pu - u0) / cell
@@ -193,13 +195,13 @@ def locate(pu, pv, nu, nv, u0, v0, cell):
     return i, j, fu - i, fv - j
 
 
-@njit(cache=True)
+@kernel
 def bilinear(arr, i, j, a, b):
     return ((1.0 - a) * (1.0 - b) * float(arr[j, i]) + a * (1.0 - b) * float(arr[j, i + 1])
             + (1.0 - a) * b * float(arr[j + 1, i]) + a * b * float(arr[j + 1, i + 1]))
 
 
-@njit(parallel=True, cache=True)
+@kernel(parallel=True)
 def _heights_kernel(x, y, cr, sr, hgt, u0, v0, cell, out):
     nv, nu = hgt.shape
     for n in prange(x.shape[0]):
@@ -214,7 +216,7 @@ def _heights_kernel(x, y, cr, sr, hgt, u0, v0, cell, out):
         out[n] = bilinear(hgt, i, j, a, b)
 
 
-@njit(parallel=True, cache=True)
+@kernel(parallel=True)
 def _cast_kernel(orig, dirs, tmin, tmax, cr, sr, hgt, bmax, u0, v0, cell, bs, zlo, zhi, out):
     for n in prange(orig.shape[0]):
         ou = cr * orig[n, 0] + sr * orig[n, 1]

@@ -6,8 +6,9 @@ import math
 
 import cv2
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
+from ..runtime.kernel import kernel
 from .cameras import FrameCamera
 from .materials import ROOF, SOLAR, TAR, WATER
 from .raycast import bilinear, first_hit, locate
@@ -19,7 +20,7 @@ _GAMMA = 1.6  # tone curve of the camera: DN = 255 * (gain * radiance) ** (1 / g
 GAIN = 2.7
 
 
-@njit(cache=True)
+@kernel
 def _shade(pu, pv, pz, hgt, bmax, alb, mat, u0, v0, cell, bs, zlo, zhi, sun, sky, out):
     """Radiance (RGB, linear) of the surface point ``(pu, pv, pz)`` (grid frame) lit by sun and sky.
 
@@ -64,7 +65,7 @@ def _shade(pu, pv, pz, hgt, bmax, alb, mat, u0, v0, cell, bs, zlo, zhi, sun, sky
     return m
 
 
-@njit(parallel=True, cache=True)
+@kernel(parallel=True)
 def _render_kernel(Kinv, Rt, C, ss, cr, sr, hgt, bmax, alb, mat, u0, v0, cell, bs, zlo, zhi, sun, sky, rad, hits,
                    mats):
     height, width = mats.shape
@@ -122,7 +123,7 @@ def _render_kernel(Kinv, Rt, C, ss, cr, sr, hgt, bmax, alb, mat, u0, v0, cell, b
             rad[row, col, 2] = acc2 / (ss * ss)
 
 
-@njit(parallel=True, cache=True)
+@kernel(parallel=True)
 def _shade_points_kernel(pts, cr, sr, hgt, bmax, alb, mat, u0, v0, cell, bs, zlo, zhi, sun, sky, rad, mats):
     for n in prange(pts.shape[0]):
         px = np.empty(3)

@@ -13,9 +13,10 @@ refinement re-fills those pixels, docs/riverbed_plus.md).
 """
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from ...errors import RiverbedError
+from ...runtime.kernel import kernel
 from ..census import popcount64
 
 
@@ -32,7 +33,7 @@ def cost_luts(channels, lambda_ad, lambda_census, scale, nbits=64):
     return ad, cen
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def cost_row(left, right, cl, cr, y, d_min, ad_lut, cen_lut, outside, out):
     # Costs of row y into out (W, D). left/right are planar (C, H, W) float32 with C = 1 or 3 (absolute differences
     # of integers in float32 are exact). Disparity-major: for one disparity the left and right pixels are both
@@ -72,7 +73,7 @@ def cost_row(left, right, cl, cr, y, d_min, ad_lut, cen_lut, outside, out):
             out[x0 + k, i] = ad_lut[s[k]] + cen_lut[h[k]]
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def cost_kernel(left, right, cl, cr, d_min, ad_lut, cen_lut, outside, cost):
     for y in prange(cost.shape[0]):
         cost_row(left, right, cl, cr, y, d_min, ad_lut, cen_lut, outside, cost[y])
@@ -144,7 +145,7 @@ def to_u8(guide):
                                 .astype(np.uint8))
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _cost_tube_kernel(left, right, cl, cr, d_min, ad_lut, cen_lut, outside, flat, start, width, offset):
     # cost_row's costs, pixel by pixel, at each pixel's own disparities only
     C, H, W = left.shape

@@ -17,14 +17,15 @@ swept 5 times instead of 9.
 """
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from ...errors import RiverbedError
+from ...runtime.kernel import kernel
 from .cost import cost_inputs, cost_kernel, cost_row, u8_image
 from .params import ADCensusParams
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _arms_inputs(img, tau1):
     # planar float32 channels (a grey image is repeated into all three), and the adjacency tests
     # adjh[y, x]: D_c((y, x), (y, x + 1)) < tau1, adjv[y, x]: D_c((y, x), (y + 1, x)) < tau1 (1 / 0)
@@ -50,7 +51,7 @@ def _arms_inputs(img, tau1):
     return F, adjh, adjv
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _grow(p0, p1, p2, q0, q1, q2, adj, alive, length, n, k, l2, tau1, tau2):
     # step k of n arms at once: arm j is still alive if its k-th pixel q passes D_c(q, p) < tau1, the adjacency
     # test with its predecessor, and D_c(q, p) < tau2 once k > L2. Branch-free over j (vectorises).
@@ -66,7 +67,7 @@ def _grow(p0, p1, p2, q0, q1, q2, adj, alive, length, n, k, l2, tau1, tau2):
     return grown
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _arms_kernel(F, adjh, adjv, l1, l2, tau1, tau2):
     # One image row at a time, all arms of one direction grow together, one step k at a time, until none grows.
     C, H, W = F.shape
@@ -141,7 +142,7 @@ def cross_arms(img, l1=34, l2=17, tau1=20, tau2=6):
     return _arms_kernel(F, adjh, adjv, int(l1), int(l2), np.float32(tau1), np.float32(tau2))
 
 
-@njit(cache=True)
+@kernel
 def _counts_kernel(arms):
     # prefix sums of the segment lengths along columns (hv) and rows (vh)
     H, W, _ = arms.shape
@@ -166,7 +167,7 @@ def support_counts(arms):
     return _counts_kernel(np.ascontiguousarray(arms))
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _segment_sums(pre, lo, hi, out, f, norm):
     # out[d] = pre[hi, d] - pre[lo, d], or that times f (float32 1 / |U(p)|) rounded half up when norm
     D = out.shape[0]
@@ -181,14 +182,14 @@ def _segment_sums(pre, lo, hi, out, f, norm):
             out[d] = pb[d] - pa[d]
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _prefix_step(p0, p1, sx):
     # One step of a running sum over disparity rows: p1 = p0 + sx (int32).
     for d in range(p0.shape[0]):
         p1[d] = p0[d] + np.int32(sx[d])
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _prefix(rows, pre):
     # Prefix sums along the first axis: pre[0] = 0, pre[x + 1] = pre[x] + rows[x].
     for d in range(pre.shape[1]):
@@ -197,7 +198,7 @@ def _prefix(rows, pre):
         _prefix_step(pre[x], pre[x + 1], rows[x])
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _row_segments(pre, arms_row, out_row, inv_row, norm):
     # every pixel x of a row: the sum (or with norm, the average) over its horizontal segment, from the row's prefix
     for x in range(out_row.shape[0]):
@@ -206,7 +207,7 @@ def _row_segments(pre, arms_row, out_row, inv_row, norm):
         _segment_sums(pre, lo, hi, out_row[x], inv_row[x], norm)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _hstage(src, arms, out, inv, first_norm, chain):
     # One horizontal stage per row, in cache: segment sums of src (normalised with inv when first_norm); when chain,
     # the raw segment sums of that result (the first pass of the next iteration, also horizontal) go to out.
@@ -223,7 +224,7 @@ def _hstage(src, arms, out, inv, first_norm, chain):
             _row_segments(pre, arms[y], out[y], inv[y], first_norm)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _cost_hstage(left, right, cl, cr, d_min, ad_lut, cen_lut, outside, arms, out):
     # The AD-Census cost of each row, computed in cache and summed along the horizontal segments (the first pass of
     # the first aggregation iteration) without ever storing the cost volume.
@@ -236,7 +237,7 @@ def _cost_hstage(left, right, cl, cr, d_min, ad_lut, cen_lut, outside, arms, out
         _row_segments(pre, arms[y], out[y], np.ones(W, dtype=np.float32), False)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _vstage(src, arms, out, inv, first_norm, chain, strip):
     # The vertical counterpart of _hstage, on strips of columns (prefix sums of a strip stay in L2 cache).
     H, W, D = src.shape

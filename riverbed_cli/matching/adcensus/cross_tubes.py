@@ -12,9 +12,10 @@ segment's ends.
 """
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from ...errors import RiverbedError
+from ...runtime.kernel import kernel
 from ..volume import TubeLayout
 from .cross import inverse_counts
 
@@ -31,7 +32,7 @@ def stage_plan(iterations):
     return plan
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _dilate_rows(lo, hi, back, ahead):
     # (lo, hi) at q: min / max over the p of q's row whose segment [x - back, x + ahead] holds q. Every p's segment
     # holds p, so the result contains the input.
@@ -91,7 +92,7 @@ def support_layouts(tubes, arms, iterations, d_min):
     return out[::-1]
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _run_step(src, sb, w, o, run, rb, rp, wp, op):
     # running sums of one pixel's tube (w wide from offset o; source at src[sb:], result at run[rb:]): each
     # disparity continues the previous pixel's run (its tube wp wide from op, at run[rp:]) where that pixel holds it
@@ -112,7 +113,7 @@ def _run_step(src, sb, w, o, run, rb, rp, wp, op):
         rv[i] = sv[i]
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _seg_out(run, eb, ew, eo, pb, pw, po, has_before, out, ob, w, o, f, norm):
     # out[ob + i] for disparity index o + i: the segment's sum run(end) - run(before), end's tube at run[eb:] (ew
     # wide from eo), the pixel before the segment at run[pb:] (pw wide from po; absent when not has_before)
@@ -146,7 +147,7 @@ def _seg_out(run, eb, ew, eo, pb, pw, po, has_before, out, ob, w, o, f, norm):
             ov[i] = ev[i]
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _tube_hstage(src, sstart, swidth, soff, out, ostart, owidth, ooff, arms, inv, norm):
     # one horizontal segment-sum stage from a tube volume on layout s to one on layout o (o inside s)
     H, W = sstart.shape
@@ -170,7 +171,7 @@ def _tube_hstage(src, sstart, swidth, soff, out, ostart, owidth, ooff, arms, inv
                      hb, out, ostart[y, x], owidth[y, x], ooff[y, x], inv[y, x], norm)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _tube_vruns(src, sstart, swidth, soff, run):
     # running sums down the columns, on the source layout; rows in raster order within strips of columns (one per
     # thread), so consecutive tubes are read and written one after the other
@@ -188,7 +189,7 @@ def _tube_vruns(src, sstart, swidth, soff, run):
                               swidth[y - 1, x], soff[y - 1, x])
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _tube_vout(run, sstart, swidth, soff, out, ostart, owidth, ooff, arms, inv, norm):
     H, W = sstart.shape
     for y in prange(H):

@@ -21,13 +21,14 @@ import math
 import time
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
+from ...runtime.kernel import kernel
 from .cost import u8_image
 from .params import ADCensusParams
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _lr_status_row(best, rbest, d_min, pad, lr_threshold, status):
     # One row's left-right outcome from the left winners (indices d - d_min) and the right ones (rbest, reversed
     # and padded): 0 consistent, 1 mismatch, 2 occlusion.
@@ -49,7 +50,7 @@ def _lr_status_row(best, rbest, d_min, pad, lr_threshold, status):
             status[x] = 1 if back[x] else 2
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def wta_lr_kernel(fwd, bwd, d_min, lr_threshold):
     # Winner index of the left image, and status: 0 reliable, 1 mismatch, 2 occlusion.
     H, W, D = fwd.shape
@@ -90,7 +91,7 @@ def wta_lr_kernel(fwd, bwd, d_min, lr_threshold):
     return best, status
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def wta_lr_tube_kernel(fwd, bwd, d_min, lr_threshold, start, width, offset, n_disp):
     # wta_lr_kernel on a tube volume: winners as indices d - d_min over the nominal n_disp disparities; a right
     # pixel's winner is taken over the left pixels whose tube holds the disparity.
@@ -132,7 +133,7 @@ def wta_lr_tube_kernel(fwd, bwd, d_min, lr_threshold, start, width, offset, n_di
     return best, status
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _vote_row(hist, votes, arms, yy, x, sign):
     # add (sign 1) or remove (sign -1) the votes of row yy's horizontal segment through column x
     row = votes[yy, x - np.int64(arms[yy, x, 0]):x + np.int64(arms[yy, x, 1]) + 1]
@@ -140,7 +141,7 @@ def _vote_row(hist, votes, arms, yy, x, sign):
         hist[row[k]] += sign
 
 
-@njit(cache=True)
+@kernel
 def _vote_column(votes, arms, D, ts, th, new_votes, x, hist):
     # Region voting down column x (Jacobi: every outlier votes with the reliable pixels of the iteration's start).
     # The support region of (y, x) is the union of the horizontal segments of the rows of its vertical arm, so
@@ -188,7 +189,7 @@ def _vote_column(votes, arms, D, ts, th, new_votes, x, hist):
     return changed
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _vote_kernel(votes, arms, D, ts, th, new_votes):
     W = votes.shape[1]
     changed = np.zeros(W, dtype=np.int64)
@@ -197,7 +198,7 @@ def _vote_kernel(votes, arms, D, ts, th, new_votes):
     return changed.sum()
 
 
-@njit(cache=True)
+@kernel
 def _vote_kernel_serial(votes, arms, D, ts, th, new_votes):
     hist = np.empty(D + 1, dtype=np.int32)
     changed = 0
@@ -228,7 +229,7 @@ _DIR_COS = np.cos(_ANGLES)
 _DIR_SIN = np.sin(_ANGLES)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _interp_kernel(best, status, img, reach, dcos, dsin):
     H, W = best.shape
     out = best.copy()
@@ -262,7 +263,7 @@ def _interp_kernel(best, status, img, reach, dcos, dsin):
     return out
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _adjusted(best, fwd, bwd, y, x, threshold):
     # Depth-discontinuity adjustment at (y, x): on a disparity edge (Sobel |gx| + |gy| > threshold), the left or
     # right neighbour's disparity when that neighbour's own optimised cost is lower.
@@ -287,7 +288,7 @@ def _adjusted(best, fwd, bwd, y, x, threshold):
     return out
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _final_kernel(best, fwd, bwd, d_min, adjust, threshold, subpixel):
     # discontinuity adjustment (optional) and parabola sub-pixel fit on the optimised cost, in one pass
     H, W = best.shape
@@ -311,7 +312,7 @@ def _final_kernel(best, fwd, bwd, d_min, adjust, threshold, subpixel):
 _UNREACHABLE = 2147483647  # the optimised cost of a disparity outside a pixel's tube
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _tube_cost(fwd, bwd, start, width, offset, y, x, k):
     # optimised cost of absolute disparity index k at (y, x); unreachable outside the pixel's tube
     i = np.int64(k) - np.int64(offset[y, x])
@@ -321,7 +322,7 @@ def _tube_cost(fwd, bwd, start, width, offset, y, x, k):
     return np.int32(fwd[b]) + np.int32(bwd[b])
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _final_tube_kernel(best, fwd, bwd, d_min, adjust, threshold, subpixel, start, width, offset):
     # _final_kernel on a tube volume: a cost outside a pixel's tube is unreachable (no swap towards it, any
     # reachable neighbour beats it; no sub-pixel fit unless both neighbours of the winner are in the tube)

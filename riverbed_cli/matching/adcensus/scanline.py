@@ -8,9 +8,10 @@ times 4: same minimum, same sub-pixel vertex).
 """
 
 import numpy as np
-from numba import get_num_threads, njit, prange
+from numba import get_num_threads, prange
 
 from ...errors import RiverbedError
+from ...runtime.kernel import kernel
 from ..kernels.row_handover import block_end, block_size, new_progress, next_row, pass_threads, publish
 from ..sgm_pass import path_start, tube_value
 from .cost import u8_image
@@ -18,7 +19,7 @@ from .cost import u8_image
 _SENTINEL = 16384
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _colour_dist(img, y0, x0, y1, x1):
     m = 0
     for ch in range(img.shape[2]):
@@ -28,7 +29,7 @@ def _colour_dist(img, y0, x0, y1, x1):
     return m
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _so_step(prev, cur, c, acc, p1, p2, mp):
     m = np.int16(_SENTINEL)
     for d in range(c.shape[0]):
@@ -44,7 +45,7 @@ def _so_step(prev, cur, c, acc, p1, p2, mp):
 _so_start = path_start  # a path starts with its own cost, as in SGM
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _row_penalties(flags, bad_l, p1tab, p2tab, P1, P2, pad):
     # P1/P2 along a reversed, padded row of right-image flags (0: colour difference < tau_so, 1: >= tau_so,
     # 2: unknown, the right pixel or its predecessor leaves the image, then D2 = D1), for a left flag bad_l.
@@ -58,7 +59,7 @@ def _row_penalties(flags, bad_l, p1tab, p2tab, P1, P2, pad):
         P2[j] = p2tab[cat]
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _row_edges(left, right, y, py, first, step, tau, p1tab, p2tab, P1, P2, pad, fh, fv, bh, bv):
     # Row y's colour edges towards the previous pixel of each path (horizontal: the column before in pass order;
     # vertical: row py; 2 where a path starts) in the right (fh, fv) and left (bh, bv) images, and the penalty
@@ -83,7 +84,7 @@ def _row_edges(left, right, y, py, first, step, tau, p1tab, p2tab, P1, P2, pad, 
         _row_penalties(fv, b, p1tab, p2tab, P1[1, b], P2[1, b], pad)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _row_scratch(W, n):
     # a thread's rows of penalties, [path (0 horizontal, 1 vertical), left flag (0/1)] -> reversed padded penalty
     # rows of n, and of colour-edge flags (_row_edges)
@@ -91,7 +92,7 @@ def _row_scratch(W, n):
             np.empty(W, dtype=np.int8), np.empty(W, dtype=np.int8), np.empty(W, dtype=np.int8))
 
 
-@njit(cache=True)
+@kernel
 def _so_pass(cost, out, left, right, d_min, p1tab, p2tab, tau, flip, Lv, mv, progress, claim, threads):
     # Two of the four paths in one raster pass: forward (flip False) runs left->right and top->bottom, the reverse
     # pass right->left and bottom->top. This thread takes rows from claim; the vertical paths' rows (Lv, mv: a slot
@@ -145,7 +146,7 @@ def _so_pass(cost, out, left, right, d_min, p1tab, p2tab, tau, flip, Lv, mv, pro
                 publish(progress, yy, end)
 
 
-@njit(cache=True)
+@kernel
 def _vertical_rows(H, W, width, threads):
     # a pass's shared buffers: the vertical paths' rows (a slot per row in flight and the one before), their minima,
     # its progress and its row counter
@@ -154,14 +155,14 @@ def _vertical_rows(H, W, width, threads):
             new_progress(H, threads), np.zeros(1, np.int64))
 
 
-@njit(cache=True)
+@kernel
 def _shared_rows(H, W, width, nf, nb):
     # the buffers of each pass on several threads, shared by them (tiny stand-ins for a pass on one thread)
     return (_vertical_rows(H, W, width, nf) if nf > 1 else _vertical_rows(0, 0, 1, 1),
             _vertical_rows(H, W, width, nb) if nb > 1 else _vertical_rows(0, 0, 1, 1))
 
 
-@njit(cache=True)
+@kernel
 def _thread_rows(t, nf, nb, shared_f, shared_b, H, W, width):
     # iteration t of the passes' loop (the forward pass's nf threads, then the reverse pass's nb): its pass (0, 1),
     # the pass's thread count and buffers; a pass on one thread makes its own (in its core's cache)
@@ -170,7 +171,7 @@ def _thread_rows(t, nf, nb, shared_f, shared_b, H, W, width):
     return p, n, (shared_f if p == 0 else shared_b) if n > 1 else _vertical_rows(H, W, width, 1)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _so_two_passes(cost, fwd, bwd, left, right, d_min, p1tab, p2tab, tau, threads):
     H, W, D = cost.shape
     nf, nb = pass_threads(H, threads)
@@ -182,7 +183,7 @@ def _so_two_passes(cost, fwd, bwd, left, right, d_min, p1tab, p2tab, tau, thread
                  n)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def _so_tube_step(prev, wq, cur, c, acc, p1, p2, mp, s):
     # _so_step between tubes: index d here is index d + s of the previous pixel's tube (wq wide, padded by the
     # sentinel at prev[0] and prev[wq + 1]); a disparity outside that tube is unreachable there, not zero.
@@ -217,7 +218,7 @@ def _so_tube_step(prev, wq, cur, c, acc, p1, p2, mp, s):
     return m
 
 
-@njit(cache=True)
+@kernel
 def _so_pass_tube(flat, out, start, width, offset, dmax, n_disp, left, right, d_min, p1tab, p2tab, tau, flip, Lv, mv,
                   progress, claim, threads):
     # _so_pass on a tube volume: pixel (y, x) holds width[y, x] disparities from d_min + offset[y, x] at
@@ -280,7 +281,7 @@ def _so_pass_tube(flat, out, start, width, offset, dmax, n_disp, left, right, d_
                 publish(progress, yy, end)
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def _so_two_passes_tube(flat, fwd, bwd, start, width, offset, dmax, n_disp, left, right, d_min, p1tab, p2tab, tau,
                         threads):
     H, W = start.shape

@@ -9,9 +9,10 @@ these are LLVM's atomic instructions (llvmlite), which neither the compiler nor 
 
 import sys
 
-from numba import njit, types
+from numba import types
 from numba.extending import intrinsic
 
+from ...runtime.kernel import kernel
 from .vector_ir import element_ptr
 
 
@@ -79,7 +80,7 @@ def fetch_add(typingctx, arr, index, value):
 
 
 if sys.platform == "win32":
-    @njit(cache=True)
+    @kernel
     def yield_cpu():
         """(No yield on Windows: a waiting thread spins on.)"""
         return 0

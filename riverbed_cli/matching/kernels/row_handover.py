@@ -10,8 +10,8 @@ threads between the two passes of a match is :func:`pass_threads`.
 """
 
 import numpy as np
-from numba import njit
 
+from ...runtime.kernel import kernel
 from .atomics import fetch_add, load_acquire, store_release, yield_cpu
 
 #: the most threads one pass runs on (twice this for the two passes)
@@ -26,7 +26,7 @@ SPINS = 200
 PAD = 8
 
 
-@njit(cache=True)
+@kernel
 def pass_threads(H, threads):
     """How many of a run's ``threads`` each of the two passes takes: half (the forward pass the odd one), at least
     one, at most :data:`MAX_PASS_THREADS` and a thread per row."""
@@ -34,19 +34,19 @@ def pass_threads(H, threads):
     return max(1, min((n + 1) // 2, H)), max(1, min(n // 2, H))
 
 
-@njit(cache=True)
+@kernel
 def new_progress(H, threads):
     """The pass's progress per row (pixels done), for several threads (empty for one)."""
     return np.zeros(H * PAD if threads > 1 else 0, np.int64)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def block_size(W, threads):
     """The pixels of a block of a row of ``W`` on a pass of ``threads`` threads (the whole row on one)."""
     return W if threads == 1 else max(BLOCK_MIN, W // (2 * threads))
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def next_row(claim, progress, H, W, slots, reach, threads):
     """The next row of the pass (``claim``: its counter, one int64; ``H`` or more: none left). On several threads
     its ring-buffer slot (of ``slots``) is free first: the ``reach`` rows after the slot's last row, which read it,
@@ -58,7 +58,7 @@ def next_row(claim, progress, H, W, slots, reach, threads):
     return yy
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def spin(spins):
     """One more turn of a waiting loop: after :data:`SPINS` turns the thread yields its core at every turn."""
     if spins >= SPINS:
@@ -67,7 +67,7 @@ def spin(spins):
     return spins + 1
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def wait_row_done(progress, r, W):
     """Wait until row ``r`` (if any) has done all its ``W`` pixels."""
     spins = 0
@@ -75,13 +75,13 @@ def wait_row_done(progress, r, W):
         spins = spin(spins)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def publish(progress, yy, done):
     """Row ``yy`` has done its first ``done`` pixels (every direction): a release store, after the path costs."""
     store_release(progress, yy * PAD, done)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline=True)
 def block_end(progress, yy, b0, W, block, back1, back2):
     """The end of row ``yy``'s next block from pixel ``b0`` on: at most ``block`` pixels, once the rows one and two
     before have done the pixels its steps read there (``back1``, ``back2``: the least ``dx`` of the directions that
