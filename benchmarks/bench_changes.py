@@ -173,7 +173,8 @@ def summary(rows):
             f"run's in {sum(_near_clean(r) for r in regions)} "
             f"of {len(regions)} cases, and within twice it (+0.2 points) in all.",
             f"- **Gross outliers**: the check drops {min(r['dropped'][0] for r in outl) * 100:.0f}–"
-            f"{max(r['dropped'][0] for r in outl) * 100:.0f} % of them (and at most "
+            f"{max(r['dropped'][0] for r in outl) * 100:.0f} % of them, at least 90 % in "
+            f"{sum(r['dropped'][0] >= 0.9 for r in outl)} of {len(outl)} cases (and at most "
             f"{max(r['dropped'][1] for r in outl) * 100:.2f} % of the other points); the default's bad3 is below the "
             f"unchecked run's in {sum(r['default'][0] < r['off'][0] for r in outl)} of {len(outl)} cases.",
             f"- **Misregistration** (not estimated yet): moved by up to 3 px, the LiDAR makes the default's bad3 "
