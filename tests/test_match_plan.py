@@ -12,8 +12,9 @@ from riverbed_cli.matching.pipeline import match_pair
 from riverbed_cli.products.simulate import simulate_lidar
 from riverbed_cli.scale.match_plan import MatchPlan, plan_match
 from riverbed_cli.scale.tiles import match_tiled, prepare_lidar_whole
+from conftest import DATA
 
-CONES = "tests/data/cones"
+CONES = DATA / "cones"
 
 
 def cones_with_outliers(share=0.05, every=40):

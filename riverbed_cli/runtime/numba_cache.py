@@ -82,16 +82,23 @@ def sources_digest(package=PACKAGE):
     :mod:`.kernel`), the intrinsics and what they inline or call. An edit elsewhere (the command line, the docs)
     leaves the cached kernels as they are."""
     h = hashlib.sha256()
-    for path in kernel_sources(package):
+    for path, text in _kernel_files(package):
         h.update(path.relative_to(package).as_posix().encode())
-        h.update(path.read_bytes())
+        h.update(text)
     return h.hexdigest()[:16]
 
 
 def kernel_sources(package=PACKAGE):
     """The ``.py`` files of ``package`` that use Numba, sorted: those that name it or import :func:`.kernel.kernel`."""
-    return [path for path in sorted(Path(package).rglob("*.py"))
-            if any(key in path.read_bytes() for key in (b"numba", b"runtime.kernel import kernel"))]
+    return [path for path, _ in _kernel_files(package)]
+
+
+def _kernel_files(package):
+    # (path, bytes) of kernel_sources, each file read once (every command start-up digests them)
+    for path in sorted(Path(package).rglob("*.py")):
+        text = path.read_bytes()
+        if b"numba" in text or b"runtime.kernel import kernel" in text:
+            yield path, text
 
 
 def cache_root():

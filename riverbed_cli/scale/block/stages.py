@@ -189,11 +189,12 @@ def project_stage(job):
         d_min, d_max = _range_without_lidar(s, pair, job.pair, W)
         (folder / "sparse.tif").unlink(missing_ok=True)  # an earlier run's, with a cloud the manifest has no more
     else:
-        d_min, d_max, offset, check, sparse = _lidar_stage(s, p, srcs, sparse, W, folder)
+        lidar = _lidar_stage(s, p, srcs, sparse, folder)
+        d_min, d_max, offset, check, sparse, points = (lidar.d_min, lidar.d_max, lidar.offset, lidar.check,
+                                                       lidar.sparse, lidar.points)
         tags = {"riverbed_pair": job.pair, "riverbed_clouds": json.dumps(used), "riverbed_block_pair": job.name,
                 "riverbed_lidar_offset": json.dumps(offset.to_dict())}
         write_disparity(folder / "sparse.tif", sparse, overwrite=True, tags=tags)
-        points = sparse_points_any(sparse)
 
     rmap, dsm_stats = None, {}
     if job.range_map:
@@ -245,7 +246,7 @@ def _range_without_lidar(s, pair, path, width):
     return resolve_disparity_range(d_min, d_max, None, width=width)
 
 
-def _lidar_stage(s, p, srcs, sparse, W, folder):
+def _lidar_stage(s, p, srcs, sparse, folder):
     # The LiDAR's offset against the images, once for the pair (as match_tiled does for its tiles): sparse.tif holds
     # the corrected LiDAR, and the matching tasks take it as it is; then the LiDAR check, once for the pair too:
     # sparse.tif holds the points kept, .work/changed.npy the changed area
@@ -257,7 +258,7 @@ def _lidar_stage(s, p, srcs, sparse, W, folder):
         rr, cc = np.nonzero(check.dropped == 2)
         np.save(folder / WORK / "changed_points.npy",
                 np.stack([rr, cc, lidar.corrected[rr, cc]], axis=1).astype(np.float64))
-    return lidar.d_min, lidar.d_max, lidar.offset, check, lidar.sparse
+    return lidar
 
 
 def _pair_range_map(path, shape, d_min, d_max, s, work):
