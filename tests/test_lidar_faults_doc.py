@@ -96,7 +96,8 @@ def test_the_doc_states_the_check_rule_the_code_has():
     assert c.EDGE == 8 and "plus 8 px" in doc and "within 8 px at the alternative" in doc
     assert c.CELL == 3.0 and c.REGION_SHARE == 0.6 and c.MIN_POINTS == 3 and c.GROW_SHARE == 0.3
     assert "Cells of 3 spacings where at least 60 % " in doc and "(at least 3 points)" in doc and "where 30 % do" in doc
-    assert c.MIN_COMPARED == 8 and "at least 8 points with a reference" in doc
+    assert c.MIN_COMPARED == 16 and "at least 16 points with a reference" in doc
+    assert c.SURFACE_STEP == 9.0 and "each within 9 px of the point before" in doc
     assert c.REGION_MARGIN == 0.2 and "by at least 0.2 on average" in doc
     assert c.UNKNOWN_HOPS == 2 and "at most 2 in a row" in doc
     assert c.SEEN_SHARE == 0.3 and "at least 30 % of the points it took" in doc

@@ -30,9 +30,10 @@ Stage: ``(left, right, LiDAR disparities, a coarse unguided match of the pair) -
   ``LiDAR - images`` lies beyond ``TAU`` and the images prefer the alternative by at least :data:`REGION_MARGIN`
   on average (a patch of the reference's own mistakes on repeated texture costs about the same either way). From
   its disagreeing points the change spreads to the points within ``NEAR`` spacings: through points the images
-  contradict the same way, through at most :data:`UNKNOWN_HOPS` in a row they cannot judge, never through a point
-  the reference confirms (within ``TAU``). A change is kept when the images contradict at least
-  :data:`SEEN_SHARE` of the points it took. Every point it took is dropped.
+  contradict the same way, through at most :data:`UNKNOWN_HOPS` in a row they cannot judge (each within
+  :data:`SURFACE_STEP` px of the point before: along the LiDAR's surface, not across the stale block's edge into
+  the clean LiDAR around it), never through a point the reference confirms (within ``TAU``). A change is kept
+  when the images contradict at least :data:`SEEN_SHARE` of the points it took. Every point it took is dropped.
 * **Gross outliers.** A point outside the changes that no other LiDAR point within ``NEAR`` spacings supports
   (none lies within ``TAU`` px of it) is dropped when the images contradict it, or when it lies more than
   ``2 TAU`` px off both the median of those points and their least-squares plane (:func:`plane_at`: a point on
@@ -92,12 +93,16 @@ GROW_SHARE = 0.3
 #: a changed region's points as a whole: the images' alternative costs at least this less than the LiDAR (mean
 #: 1 - ZNCC); a patch of the reference's mistakes on repeated texture costs about the same either way
 REGION_MARGIN = 0.2
-#: a region is judged only on at least this many points with the reference's alternative
-MIN_COMPARED = 8
+#: a region is judged only on at least this many points with the reference's alternative (fewer: a patch of the
+#: reference's own mistakes next to noisy or outlying LiDAR passed the other tests)
+MIN_COMPARED = 16
 #: a change is kept when the images contradict at least this share of its points (the rest it passed through)
 SEEN_SHARE = 0.3
-#: a change spreads through at most this many LiDAR points in a row the images cannot judge
+#: a change spreads through at most this many LiDAR points in a row the images cannot judge ...
 UNKNOWN_HOPS = 2
+#: ... each within this many px of the point before (along the LiDAR's surface: a stale block's edge is a jump to
+#: the clean LiDAR around it)
+SURFACE_STEP = 3 * TAU
 #: a point's own patch vouches for it only when it correlates: 1 - ZNCC at most this
 VOUCH = 0.5
 
@@ -328,11 +333,12 @@ def _changed_area(rows, cols, shape, spacing):
 
 
 @kernel
-def _flood(index, rows, cols, radius, state, seeds, hops):
+def _flood(index, rows, cols, values, radius, state, seeds, hops, step):
     # the points a change reaches from its seeds (seeds[i] = its sign), neighbours being the points within a square
     # of the radius (index: the point at each pixel, -1 none): through points of state == sign (contradicted that
-    # way) freely, through unknown ones (0, or the other sign) hops in a row, never through confirmed ones (2).
-    # Breadth first; a point is taken with the most hops left it can be reached with
+    # way) freely, through unknown ones (0, or the other sign) hops in a row and only along the LiDAR's surface
+    # (values within step px of the point before), never through confirmed ones (2). Breadth first; a point is
+    # taken with the most hops left it can be reached with
     H, W = index.shape
     n = state.size
     left = np.full(n, -1, np.int64)
@@ -352,6 +358,8 @@ def _flood(index, rows, cols, radius, state, seeds, hops):
             for x in range(max(0, cols[i] - radius), min(W, cols[i] + radius + 1)):
                 j = index[y, x]
                 if j < 0 or state[j] == 2:
+                    continue
+                if state[j] != sign[i] and abs(values[j] - values[i]) > step:
                     continue
                 budget = hops if state[j] == sign[i] else left[i] - 1
                 if budget > left[j] and tail < queue.size:
@@ -442,12 +450,14 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
             sign = 1 if change > 0 else -1
             seeds[(label == k) & (raw == sign)] = sign
     # from its seeds a change spreads to the points within NEAR spacings: through the points the images contradict
-    # the same way, and up to UNKNOWN_HOPS points in a row they cannot judge; it stops at points the images confirm
+    # the same way, and up to UNKNOWN_HOPS points in a row they cannot judge along the LiDAR's surface; it stops at
+    # points the images confirm
     in_region = seeds != 0
     if seeds.any():
         index = np.full(shape, -1, np.int32)
         index[rows, cols] = np.arange(n, dtype=np.int32)
-        in_region = _flood(index, rows.astype(np.int64), cols.astype(np.int64), near, state, seeds, UNKNOWN_HOPS)
+        in_region = _flood(index, rows.astype(np.int64), cols.astype(np.int64), values, near, state, seeds,
+                           UNKNOWN_HOPS, np.float64(SURFACE_STEP))
     changed, n_regions = None, 0
     if in_region.any():  # a change the images mostly saw: most of its points contradicted, not passed through
         changed = _changed_area(rows[in_region], cols[in_region], shape, spacing)
