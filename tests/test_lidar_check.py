@@ -10,7 +10,7 @@ from click.testing import CliRunner
 from riverbed_cli.cli.main import cli
 from riverbed_cli.io.disparity import write_disparity
 from riverbed_cli.io.images import read_image
-from riverbed_cli.matching import lidar_check
+from riverbed_cli.matching import lidar_check, lidar_regions
 from riverbed_cli.matching.config import validate_setting
 from riverbed_cli.matching.pipeline import match_pair
 from riverbed_cli.products.evaluate import evaluate_disparity
@@ -155,8 +155,83 @@ def test_the_plane_kernel_is_its_plain_statement():
     assert lidar_check.plane_at(ramp, [20], [20], 4)[0] == pytest.approx(30.0)
 
 
+def _index(sparse):
+    rows, cols = np.nonzero(np.isfinite(sparse))
+    index = np.full(sparse.shape, -1, np.int32)
+    index[rows, cols] = np.arange(rows.size, dtype=np.int32)
+    return index, rows.astype(np.int64), cols.astype(np.int64), sparse[rows, cols].astype(np.float64)
+
+
+def test_a_change_spreads_along_the_lidar_surface_not_across_a_stale_blocks_edge():
+    # one row of points 2 px apart: a seed (contradicted, LiDAR below the images), two the images cannot judge on
+    # its surface, then the clean LiDAR 28 px higher (unjudged), then one point contradicted the same way
+    sparse = np.full((5, 40), np.nan, np.float32)
+    sparse[2, 2:40:2] = [10, 10.5, 11, 39, 39.5, 40, 40.5, 41, 41.5, 42, 42.5, 43, 43.5, 44, 44.5, 45, 45.5, 46, 46.5]
+    index, rows, cols, values = _index(sparse)
+    state = np.zeros(values.size, np.int8)
+    seeds = np.zeros(values.size, np.int8)
+    seeds[0] = state[0] = -1
+    taken = lidar_regions.flood(index, rows, cols, values, 2, state, seeds, 2, lidar_check.SURFACE_STEP)
+    assert taken.tolist() == [True, True, True] + [False] * 16  # not across the 28 px jump
+    state[3] = -1  # the first point beyond the jump contradicted the same way: the change takes it, then 2 more
+    taken = lidar_regions.flood(index, rows, cols, values, 2, state, seeds, 2, lidar_check.SURFACE_STEP)
+    assert taken.tolist() == [True] * 6 + [False] * 13
+    state[4] = 2  # a point the reference confirms stops it
+    taken = lidar_regions.flood(index, rows, cols, values, 2, state, seeds, 2, lidar_check.SURFACE_STEP)
+    assert taken.tolist() == [True] * 4 + [False] * 15
+
+
+def fringe_plain(sparse, rows, cols, values, radius, state, taken, tau):
+    """The fringe rule as a plain loop: rounds of every point joining at once."""
+    out = taken.copy()
+    while True:
+        add = np.zeros_like(out)
+        for j in range(values.size):
+            if out[j] or state[j] == 2:
+                continue
+            same = inside = 0
+            near_change = False
+            for k in range(values.size):
+                if k == j or abs(rows[k] - rows[j]) > radius or abs(cols[k] - cols[j]) > radius:
+                    continue
+                near_change |= bool(out[k])
+                if abs(values[k] - values[j]) <= tau:
+                    same += 1
+                    inside += int(out[k])
+            add[j] = near_change and 2 * inside > same
+        if not add.any():
+            return out
+        out |= add
+
+
+def test_the_fringe_kernel_is_its_plain_statement():
+    for seed in range(4):
+        sparse, _, _ = scattered(seed, 400)
+        index, rows, cols, values = _index(sparse)
+        rng = np.random.default_rng(seed)
+        state = rng.choice(np.array([-1, 0, 1, 2], np.int8), values.size, p=[0.2, 0.5, 0.1, 0.2])
+        taken = rng.random(values.size) < 0.1
+        got = lidar_regions.fringe(index, rows, cols, values, 3, state, taken, lidar_check.TAU)
+        want = fringe_plain(sparse, rows, cols, values, 3, state, taken, lidar_check.TAU)
+        assert (got == want).all() and got.sum() > taken.sum()
+
+
+def test_a_changes_fringe_joins_it_and_the_clean_lidar_round_it_does_not():
+    # a stale block (value 10) with a taken core and an untaken rim, set in clean LiDAR 28 px higher
+    sparse = np.full((30, 30), 38.0, np.float32)
+    sparse[8:22, 8:22] = 10.0
+    index, rows, cols, values = _index(sparse)
+    taken = (rows >= 10) & (rows < 20) & (cols >= 10) & (cols < 20)
+    state = np.zeros(values.size, np.int8)
+    got = lidar_regions.fringe(index, rows, cols, values, 2, state, taken, lidar_check.TAU)
+    block = (rows >= 8) & (rows < 22) & (cols >= 8) & (cols < 22)
+    assert (got == block).all()
+    state[(rows == 8) & (cols == 15)] = 2  # a rim point the reference confirms stays
+    got = lidar_regions.fringe(index, rows, cols, values, 2, state, taken, lidar_check.TAU)
+    assert not got[(rows == 8) & (cols == 15)].any() and got.sum() == block.sum() - 1
+
 def test_the_changed_area_drawn_in_its_box_is_the_whole_images():
-    # _changed_area closes the changed points' discs inside their bounding box with a margin: the same area as the
+    # changed_area closes the changed points' discs inside their bounding box with a margin: the same area as the
     # plain statement, the closing over the whole image (points near the edges and far apart included)
     import cv2
 
@@ -174,7 +249,7 @@ def test_the_changed_area_drawn_in_its_box_is_the_whole_images():
         whole = cv2.dilate(whole, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
         whole = cv2.morphologyEx(whole, cv2.MORPH_CLOSE,
                                  cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (4 * r + 1, 4 * r + 1))).astype(bool)
-        assert np.array_equal(lidar_check._changed_area(rows, cols, (H, W), spacing), whole)
+        assert np.array_equal(lidar_regions.changed_area(rows, cols, (H, W), spacing), whole)
 
 
 def test_the_setting_and_its_message():

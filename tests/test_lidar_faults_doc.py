@@ -87,6 +87,7 @@ def test_the_check_tables_are_the_committed_results():
 
 def test_the_doc_states_the_check_rule_the_code_has():
     from riverbed_cli.matching import lidar_check as c
+    from riverbed_cli.matching import lidar_regions as r
 
     doc = " ".join(DOC.split())
     assert c.FACTOR == 2 and "at half resolution over the whole range" in doc
@@ -94,10 +95,11 @@ def test_the_doc_states_the_check_rule_the_code_has():
     assert c.TAU == 3.0 and "more than 3 px from the alternative" in doc
     assert c.MARGIN == 0.1 and "at least 0.1 below the cost" in doc and "at most 0.9" in doc
     assert c.EDGE == 8 and "plus 8 px" in doc and "within 8 px at the alternative" in doc
-    assert c.CELL == 3.0 and c.REGION_SHARE == 0.6 and c.MIN_POINTS == 3 and c.GROW_SHARE == 0.3
+    assert c.CELL == 3.0 and r.REGION_SHARE == 0.6 and r.MIN_POINTS == 3 and r.GROW_SHARE == 0.3
     assert "Cells of 3 spacings where at least 60 % " in doc and "(at least 3 points)" in doc and "where 30 % do" in doc
     assert c.MIN_COMPARED == 16 and "at least 16 points with a reference" in doc
     assert c.SURFACE_STEP == 9.0 and "each within 9 px of the point before" in doc
+    assert "joins when most of its neighbours on its own surface (within 1.5 spacings and 3 px of it)" in doc
     assert c.REGION_MARGIN == 0.2 and "by at least 0.2 on average" in doc
     assert c.UNKNOWN_HOPS == 2 and "at most 2 in a row" in doc
     assert c.SEEN_SHARE == 0.3 and "at least 30 % of the points it took" in doc

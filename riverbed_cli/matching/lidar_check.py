@@ -23,17 +23,19 @@ Stage: ``(left, right, LiDAR disparities, a coarse unguided match of the pair) -
   that foreground; a point in front of it with a LiDAR point within ``EDGE`` px at the alternative sits beside a
   depth edge the coarse reference moved.
 * **Changed regions.** Change comes in regions (a building, a stand of trees), and one disagreeing point may be the
-  reference's mistake. The image is cut into square cells of :data:`CELL` spacings; a cell is a seed when at least
-  :data:`REGION_SHARE` of its points with a reference disagree with the same sign (at least :data:`MIN_POINTS`);
-  seed cells are closed and grown into neighbouring cells where :data:`GROW_SHARE` disagree that way. A group of
-  cells is a change when it holds at least :data:`MIN_COMPARED` points with a reference, their median
+  reference's mistake (:mod:`.lidar_regions`). The image is cut into square cells of :data:`CELL` spacings; a
+  cell is a seed when at least ``REGION_SHARE`` of its points with a reference disagree with the same sign (at
+  least ``MIN_POINTS``); seed cells are closed and grown into neighbouring cells where ``GROW_SHARE`` disagree that
+  way. A group of cells is a change when it holds at least :data:`MIN_COMPARED` points with a reference, their median
   ``LiDAR - images`` lies beyond ``TAU`` and the images prefer the alternative by at least :data:`REGION_MARGIN`
   on average (a patch of the reference's own mistakes on repeated texture costs about the same either way). From
   its disagreeing points the change spreads to the points within ``NEAR`` spacings: through points the images
   contradict the same way, through at most :data:`UNKNOWN_HOPS` in a row they cannot judge (each within
   :data:`SURFACE_STEP` px of the point before: along the LiDAR's surface, not across the stale block's edge into
   the clean LiDAR around it), never through a point the reference confirms (within ``TAU``). A change is kept
-  when the images contradict at least :data:`SEEN_SHARE` of the points it took. Every point it took is dropped.
+  when the images contradict at least :data:`SEEN_SHARE` of the points it took. It then takes its fringe
+  (:func:`~.lidar_regions.fringe`): a point the reference does not confirm joins when most of its neighbours on
+  its own surface (within ``NEAR`` spacings and ``TAU`` px) are in the change. Every point it took is dropped.
 * **Gross outliers.** A point outside the changes that no other LiDAR point within ``NEAR`` spacings supports
   (none lies within ``TAU`` px of it) is dropped when the images contradict it, or when it lies more than
   ``2 TAU`` px off both the median of those points and their least-squares plane (:func:`plane_at`: a point on
@@ -62,6 +64,7 @@ from ..io.images import effective_bits, to_grey
 from ..records import RecordMapping
 from ..runtime.kernel import kernel
 from .lidar_offset import RADIUS, patch_costs
+from .lidar_regions import cell_regions, changed_area, flood, fringe
 from .range_maps import coarse_match
 
 #: the coarse reference's scale: 1 / FACTOR of the image's resolution
@@ -84,12 +87,6 @@ EDGE = 8
 NEAR = 1.5
 #: side of the cells regions are made of, in mean LiDAR spacings
 CELL = 3.0
-#: a cell is changed when this share of its points with an alternative disagree with the same sign ...
-REGION_SHARE = 0.6
-#: ... and at least this many do
-MIN_POINTS = 3
-#: changed regions grow into neighbouring cells where this share disagrees the same way
-GROW_SHARE = 0.3
 #: a changed region's points as a whole: the images' alternative costs at least this less than the LiDAR (mean
 #: 1 - ZNCC); a patch of the reference's mistakes on repeated texture costs about the same either way
 REGION_MARGIN = 0.2
@@ -182,33 +179,6 @@ def _verdicts(gl, gr, rows, cols, values, alt, factor):
     contradicted = _prefers(own, best, MARGIN) | (leaves & (best + MARGIN <= 1.0))
     out[i[contradicted]] = np.sign(values[i[contradicted]] - alt[i[contradicted]]).astype(np.int8)
     return out
-
-
-def _cell_regions(rows, cols, verdict, has_alt, shape, side):
-    # changed cells (bool grid) from the points' verdicts
-    H, W = shape
-    gh, gw = -(-H // side), -(-W // side)
-    cell = (rows // side) * gw + cols // side
-    n = np.bincount(cell[has_alt], minlength=gh * gw).reshape(gh, gw)
-    up = np.bincount(cell[verdict > 0], minlength=gh * gw).reshape(gh, gw)
-    down = np.bincount(cell[verdict < 0], minlength=gh * gw).reshape(gh, gw)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        share_up, share_down = up / n, down / n
-    regions = np.zeros((gh, gw), np.uint8)
-    for votes, share in ((up, share_up), (down, share_down)):
-        seed = (votes >= MIN_POINTS) & (share >= REGION_SHARE)
-        if not seed.any():
-            continue
-        grid = cv2.morphologyEx(seed.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
-        grow = (share >= GROW_SHARE) & (votes >= 1)
-        grid = grid.astype(bool) & (n > 0) | seed
-        for _ in range(max(gh, gw)):  # grow while neighbouring cells agree
-            more = cv2.dilate(grid.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & grow & ~grid
-            if not more.any():
-                break
-            grid |= more
-        regions |= grid.astype(np.uint8)
-    return regions.astype(bool), cell
 
 
 @kernel(parallel=True)
@@ -315,61 +285,6 @@ def plane_at(sparse, rows, cols, radius):
     return out
 
 
-def _changed_area(rows, cols, shape, spacing):
-    # the changed points' surroundings: a disc of one spacing round each, closed over two: (H, W) bool. Drawn in
-    # the points' bounding box with a margin the closing cannot reach past (3 r out, 2 r back), which gives the
-    # same area as the whole image at a fraction of the cost
-    r = max(1, int(round(spacing)))
-    m = 6 * r + 1
-    y0, y1 = max(0, int(rows.min()) - m), min(shape[0], int(rows.max()) + m + 1)
-    x0, x1 = max(0, int(cols.min()) - m), min(shape[1], int(cols.max()) + m + 1)
-    box = np.zeros((y1 - y0, x1 - x0), np.uint8)
-    box[rows - y0, cols - x0] = 1
-    box = cv2.dilate(box, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
-    box = cv2.morphologyEx(box, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (4 * r + 1, 4 * r + 1)))
-    area = np.zeros(shape, bool)
-    area[y0:y1, x0:x1] = box.astype(bool)
-    return area
-
-
-@kernel
-def _flood(index, rows, cols, values, radius, state, seeds, hops, step):
-    # the points a change reaches from its seeds (seeds[i] = its sign), neighbours being the points within a square
-    # of the radius (index: the point at each pixel, -1 none): through points of state == sign (contradicted that
-    # way) freely, through unknown ones (0, or the other sign) hops in a row and only along the LiDAR's surface
-    # (values within step px of the point before), never through confirmed ones (2). Breadth first; a point is
-    # taken with the most hops left it can be reached with
-    H, W = index.shape
-    n = state.size
-    left = np.full(n, -1, np.int64)
-    sign = np.zeros(n, np.int8)
-    queue = np.empty(n * (hops + 2), np.int64)
-    head, tail = 0, 0
-    for i in range(n):
-        if seeds[i] != 0:
-            left[i] = hops
-            sign[i] = seeds[i]
-            queue[tail] = i
-            tail += 1
-    while head < tail:
-        i = queue[head]
-        head += 1
-        for y in range(max(0, rows[i] - radius), min(H, rows[i] + radius + 1)):
-            for x in range(max(0, cols[i] - radius), min(W, cols[i] + radius + 1)):
-                j = index[y, x]
-                if j < 0 or state[j] == 2:
-                    continue
-                if state[j] != sign[i] and abs(values[j] - values[i]) > step:
-                    continue
-                budget = hops if state[j] == sign[i] else left[i] - 1
-                if budget > left[j] and tail < queue.size:
-                    left[j] = budget
-                    sign[j] = sign[i]
-                    queue[tail] = j
-                    tail += 1
-    return left >= 0
-
-
 def _skip(n, shape):
     # why n points over an image of shape are not checked, or None
     if n < 9:
@@ -431,7 +346,7 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
     verdict = np.where(explained, 0, raw).astype(np.int8)
 
     side = max(2, int(round(CELL * spacing)))
-    regions, cell = _cell_regions(rows, cols, np.where(from_ref, verdict, 0), from_ref, shape, side)
+    regions, cell = cell_regions(rows, cols, np.where(from_ref, verdict, 0), from_ref, shape, side)
     # a region is a change only when its points as a whole lie off the images: the median of LiDAR - images
     # over its compared points beyond TAU, and the images' alternative clearly better on average (a patch of the
     # reference's own mistakes on repeated texture costs about the same either way)
@@ -456,18 +371,24 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
     if seeds.any():
         index = np.full(shape, -1, np.int32)
         index[rows, cols] = np.arange(n, dtype=np.int32)
-        in_region = _flood(index, rows.astype(np.int64), cols.astype(np.int64), values, near, state, seeds,
+        in_region = flood(index, rows.astype(np.int64), cols.astype(np.int64), values, near, state, seeds,
                            UNKNOWN_HOPS, np.float64(SURFACE_STEP))
     changed, n_regions = None, 0
     if in_region.any():  # a change the images mostly saw: most of its points contradicted, not passed through
-        changed = _changed_area(rows[in_region], cols[in_region], shape, spacing)
+        changed = changed_area(rows[in_region], cols[in_region], shape, spacing)
         n_area, labels = cv2.connectedComponents(changed.astype(np.uint8), connectivity=8)
         label = labels[rows, cols]
         seen = np.bincount(label[in_region & (state == raw) & (raw != 0)], minlength=n_area)
         weak = seen < SEEN_SHARE * np.bincount(label[in_region], minlength=n_area)
         in_region &= ~weak[label]
-        if weak[1:].any():  # the area of the changes kept, drawn again without the weak ones
-            changed = _changed_area(rows[in_region], cols[in_region], shape, spacing) if in_region.any() else None
+        if in_region.any():  # with the fringe the flood left (most of a point's own surface in the change)
+            widened = fringe(index, rows.astype(np.int64), cols.astype(np.int64), values, near, state, in_region,
+                             np.float64(TAU))
+            if weak[1:].any() or (widened != in_region).any():  # the area of the changes kept, drawn again
+                in_region = widened
+                changed = changed_area(rows[in_region], cols[in_region], shape, spacing)
+        else:
+            changed = None
         if changed is not None:
             n_regions = cv2.connectedComponents(changed.astype(np.uint8), connectivity=8)[0] - 1
     # a point no neighbour supports is dropped when the images contradict it, or when it lies off its neighbours and
