@@ -9,6 +9,7 @@ point at each pixel (-1: none); a point's state is +1 / -1 (the images contradic
 
 import cv2
 import numpy as np
+from numba import prange
 
 from ..runtime.kernel import kernel
 
@@ -105,21 +106,20 @@ def flood(index, rows, cols, values, radius, state, seeds, hops, step):
     return left >= 0
 
 
-@kernel
+@kernel(parallel=True)
 def fringe(index, rows, cols, values, radius, state, taken, tau):
     """A change's points (``taken``, bool) with the fringe its spread left: a point the reference does not confirm
     (``state != 2``) joins when most of its neighbours on its own surface (``values`` within ``tau`` px of its,
     in the square of half side ``radius`` px) are in the change, round after round until none does. Its neighbours
     on another surface (the clean LiDAR round a stale block) do not count."""
-    # each round judges on the last round's change, so the result does not depend on the order of the points
+    # each round judges on the last round's change, so the result does not depend on the order of the points (nor
+    # on the threads: the first loop only ever writes True)
     H, W = index.shape
     n = values.size
     out = taken.copy()
-    grew = True
-    while grew:
-        grew = False
-        near = np.zeros(n, np.bool_)
-        for i in range(n):
+    while True:
+        near = np.zeros(n, np.bool_)  # the candidates: a point of the change within the square
+        for i in prange(n):
             if out[i]:
                 for y in range(max(0, rows[i] - radius), min(H, rows[i] + radius + 1)):
                     for x in range(max(0, cols[i] - radius), min(W, cols[i] + radius + 1)):
@@ -127,7 +127,7 @@ def fringe(index, rows, cols, values, radius, state, taken, tau):
                         if j >= 0 and not out[j] and state[j] != 2:
                             near[j] = True
         add = np.zeros(n, np.bool_)
-        for j in range(n):
+        for j in prange(n):
             if not near[j]:
                 continue
             same, inside = 0, 0
@@ -138,8 +138,7 @@ def fringe(index, rows, cols, values, radius, state, taken, tau):
                         same += 1
                         if out[k]:
                             inside += 1
-            if 2 * inside > same:
-                add[j] = True
-                grew = True
+            add[j] = 2 * inside > same
+        if not add.any():
+            return out
         out |= add
-    return out
