@@ -116,7 +116,9 @@ def fringe(index, rows, cols, values, radius, state, taken, tau):
     # on the threads: the first loop only ever writes True)
     H, W = index.shape
     n = values.size
-    out = taken.copy()
+    out = np.zeros(n, np.bool_)
+    for i in range(n):
+        out[i] = taken[i]
     while True:
         near = np.zeros(n, np.bool_)  # the candidates: a point of the change within the square
         for i in prange(n):
@@ -139,6 +141,10 @@ def fringe(index, rows, cols, values, radius, state, taken, tau):
                         if out[k]:
                             inside += 1
             add[j] = 2 * inside > same
-        if not add.any():
+        grew = False  # plain loops: array methods would load Numba's array maths with the cached kernel
+        for j in range(n):
+            if add[j]:
+                out[j] = True
+                grew = True
+        if not grew:
             return out
-        out |= add
