@@ -113,16 +113,19 @@ def fringe(index, rows, cols, values, radius, state, taken, tau):
     in the square of half side ``radius`` px) are in the change, round after round until none does. Its neighbours
     on another surface (the clean LiDAR round a stale block) do not count."""
     # each round judges on the last round's change, so the result does not depend on the order of the points (nor
-    # on the threads: the first loop only ever writes True)
+    # on the threads: the first loop only ever writes True). Only the points near the last round's newcomers are
+    # judged again: the others' counts have not changed since they failed
     H, W = index.shape
     n = values.size
     out = np.zeros(n, np.bool_)
+    fresh = np.zeros(n, np.bool_)
     for i in range(n):
         out[i] = taken[i]
+        fresh[i] = taken[i]
     while True:
-        near = np.zeros(n, np.bool_)  # the candidates: a point of the change within the square
+        near = np.zeros(n, np.bool_)  # the candidates: a newcomer to the change within the square
         for i in prange(n):
-            if out[i]:
+            if fresh[i]:
                 for y in range(max(0, rows[i] - radius), min(H, rows[i] + radius + 1)):
                     for x in range(max(0, cols[i] - radius), min(W, cols[i] + radius + 1)):
                         j = index[y, x]
@@ -143,6 +146,7 @@ def fringe(index, rows, cols, values, radius, state, taken, tau):
             add[j] = 2 * inside > same
         grew = False  # plain loops: array methods would load Numba's array maths with the cached kernel
         for j in range(n):
+            fresh[j] = add[j]
             if add[j]:
                 out[j] = True
                 grew = True
