@@ -88,6 +88,19 @@ def test_a_lone_point_the_images_cannot_judge_is_dropped_only_far_off_its_neighb
     assert (dropped > 0).sum() == 1 and res.info["lidar_check"]["outliers"] == 1
 
 
+def test_a_patch_vouches_only_when_no_other_disparity_of_the_range_matches_it_better():
+    from riverbed_cli.io.images import to_grey
+    from riverbed_cli.matching.lidar_offset import patch_costs
+
+    left, right, _, _ = constructed()
+    gl, gr = to_grey(left, 8), to_grey(right, 8)
+    rows, cols = np.array([50, 60, 70]), np.array([100, 120, 140])
+    values = np.array([10.0, 25.0, 11.0])  # the truth; a random disparity; the truth + 1 px
+    own = patch_costs(gl, gr, rows, cols, values.astype(np.float32), np.zeros(1), cap=lidar_check.NO_INFO)[:, 0]
+    # the truth is best; 25 px is beaten at 10 px; 11 px is beaten at 10 px, but that lies within 2 px of it
+    assert lidar_check._unique(gl, gr, rows, cols, values, own, 0, 40, 2).tolist() == [True, False, True]
+    assert lidar_check._unique(gl, gr, rows, cols, values, own, 0, 40, 0).tolist() == [True, False, False]
+
 def test_clean_lidar_is_kept(cones):
     left, right, gt = cones
     sparse = simulate_lidar(gt, 0.05, seed=0)

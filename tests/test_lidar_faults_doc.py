@@ -105,7 +105,8 @@ def test_the_doc_states_the_check_rule_the_code_has():
     assert c.SEEN_SHARE == 0.3 and "at least 30 % of the points it took" in doc
     assert c.MAX_SPACING == 16 and "Below one point per 16 x 16 px" in doc
     assert "more than 6 px off both the median of those points and their least-squares plane" in doc
-    assert c.VOUCH == 0.5 and "(`1 - ZNCC` at most 0.5) and cost at least 0.1 less than the best near" in doc
+    assert c.VOUCH == 0.5 and "(`1 - ZNCC` at most 0.5), costs at least 0.1 less than the best near" in doc
+    assert "costs no more than at every other whole disparity of the range more than 2 px from it" in doc
     assert c.MASK_LABELS == {0: "no LiDAR", 1: "used", 2: "outlier", 3: "changed region", 4: "changed area"}
 
 

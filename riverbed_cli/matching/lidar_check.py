@@ -40,9 +40,10 @@ Stage: ``(left, right, LiDAR disparities, a coarse unguided match of the pair) -
   (none lies within ``TAU`` px of it) is dropped when the images contradict it, or when it lies more than
   ``2 TAU`` px off both the median of those points and their least-squares plane (:func:`plane_at`: a point on
   a steep slope lies off the median, not off the plane; with no plane the neighbours are too few to outvote it)
-  and the images do not vouch for it: the reference does not confirm it, and its patch does not both correlate
-  (cost at most :data:`VOUCH`) and cost at least :data:`MARGIN` less than the best near the neighbours' median
-  (a flat patch vouches for nothing).
+  and the images do not vouch for it: the reference does not confirm it, and its patch does not vouch. A patch
+  vouches when it correlates (cost at most :data:`VOUCH`), costs at least :data:`MARGIN` less than the best near
+  the neighbours' median (a flat patch vouches for nothing) and costs no more than at every other whole disparity
+  of the range more than ``FACTOR`` px from it (a low-contrast patch correlates by chance somewhere).
 * **Downstream** (:func:`~riverbed_cli.matching.pipeline.match_pair`). The points dropped guide nothing, bound no
   tube and are not interpolated by the fusion. The changed area (a disc of one spacing round each changed point,
   closed over two) searches the whole range instead of the tubes of the LiDAR around it, and there the fusion keeps
@@ -163,6 +164,15 @@ def _costs(gl, gr, rows, cols, values, alt, factor):
 def _prefers(own, best, margin):
     # the images prefer the alternative clearly: both patches informative, the alternative's at least margin lower
     return (own < NO_INFO) & (best < NO_INFO) & (best + margin <= own)
+
+
+def _unique(gl, gr, rows, cols, values, own, lo, hi, factor):
+    # each point's patch cost own (at its disparity) no higher than the best at every whole disparity of
+    # [lo, hi] more than factor px from it
+    d = np.arange(math.floor(lo), math.ceil(hi) + 1, dtype=np.float64)
+    costs = patch_costs(gl, gr, rows, cols, np.zeros(rows.size, np.float32), -d, cap=NO_INFO)
+    costs[np.abs(d[None, :] - values[:, None]) <= factor] = np.inf
+    return own <= costs.min(axis=1)
 
 
 def _verdicts(gl, gr, rows, cols, values, alt, factor):
@@ -401,9 +411,14 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
         # with no plane (fewer than 3 neighbours, or all on a line) they are too few to outvote it
         plane = plane_at(sparse, rows[i], cols[i], near)
         i = i[np.abs(values[i] - plane) > 2 * TAU]
-    if i.size:  # the images do not vouch for it: its patch is not clearly better than the neighbours'
+    if i.size:  # the images do not vouch for it: its patch is not clearly better than the neighbours', nor best
         own, best = _costs(gl, gr, rows[i], cols[i], values[i], around[i], factor)
-        outlier[i] = ~((own <= VOUCH) & (own + MARGIN <= best))
+        vouched = (own <= VOUCH) & (own + MARGIN <= best)
+        j = np.flatnonzero(vouched)
+        if j.size:  # ... and no other disparity of the range does about as well (a flat or repeated patch does)
+            lo, hi = searched if searched is not None else (values.min(), values.max())
+            vouched[j] = _unique(gl, gr, rows[i[j]], cols[i[j]], values[i[j]], own[j], lo, hi, factor)
+        outlier[i] = ~vouched
     dropped = np.zeros(shape, np.uint8)
     dropped[rows[outlier], cols[outlier]] = 1
     dropped[rows[in_region], cols[in_region]] = 2
