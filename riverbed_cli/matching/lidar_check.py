@@ -415,7 +415,7 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
         own, best = _costs(gl, gr, rows[i], cols[i], values[i], around[i], factor)
         vouched = (own <= VOUCH) & (own + MARGIN <= best)
         j = np.flatnonzero(vouched)
-        if j.size:  # ... and no other disparity of the range does about as well (a flat or repeated patch does)
+        if j.size:  # ... and no other disparity of the range does better (a low-contrast patch correlates somewhere)
             lo, hi = searched if searched is not None else (values.min(), values.max())
             vouched[j] = _unique(gl, gr, rows[i[j]], cols[i[j]], values[i[j]], own[j], lo, hi, factor)
         outlier[i] = ~vouched
