@@ -184,14 +184,37 @@ def test_a_change_spreads_along_the_lidar_surface_not_across_a_stale_blocks_edge
     state = np.zeros(values.size, np.int8)
     seeds = np.zeros(values.size, np.int8)
     seeds[0] = state[0] = -1
-    taken = lidar_regions.flood(index, rows, cols, values, 2, state, seeds, 2, lidar_check.SURFACE_STEP)
+    no_lean = np.full(values.size, np.nan), np.full(values.size, -29.0), lidar_check.TAU
+    taken = lidar_regions.flood(index, rows, cols, values, 2, state, seeds, 2, lidar_check.SURFACE_STEP, *no_lean)
     assert taken.tolist() == [True, True, True] + [False] * 16  # not across the 28 px jump
     state[3] = -1  # the first point beyond the jump contradicted the same way: the change takes it, then 2 more
-    taken = lidar_regions.flood(index, rows, cols, values, 2, state, seeds, 2, lidar_check.SURFACE_STEP)
+    taken = lidar_regions.flood(index, rows, cols, values, 2, state, seeds, 2, lidar_check.SURFACE_STEP, *no_lean)
     assert taken.tolist() == [True] * 6 + [False] * 13
     state[4] = 2  # a point the reference confirms stops it
-    taken = lidar_regions.flood(index, rows, cols, values, 2, state, seeds, 2, lidar_check.SURFACE_STEP)
+    taken = lidar_regions.flood(index, rows, cols, values, 2, state, seeds, 2, lidar_check.SURFACE_STEP, *no_lean)
     assert taken.tolist() == [True] * 4 + [False] * 15
+
+
+def test_a_change_passes_where_only_the_reference_contradicts_the_lidar_by_its_change():
+    # a lowered block on a flat wall: a seed the images contradict, then a row of flat patches (unjudged) where the
+    # reference lies 29 px above the LiDAR, as the region's change says, then one 12 px above it, then no reference
+    sparse = np.full((5, 40), np.nan, np.float32)
+    sparse[2, 2:40:2] = 10.0
+    index, rows, cols, values = _index(sparse)
+    state = np.zeros(values.size, np.int8)
+    seeds = np.zeros(values.size, np.int8)
+    seeds[0] = state[0] = -1
+    level = np.zeros(values.size)
+    level[0] = -29.0
+    lean = np.full(values.size, -29.0)
+    lean[12], lean[13:] = -12.0, np.nan
+    taken = lidar_regions.flood(index, rows, cols, values, 2, state, seeds, 2, lidar_check.SURFACE_STEP,
+                                lean, level, lidar_check.TAU)
+    # through the leaning points freely, then 2 unjudged in a row past the one that leans by another change
+    assert taken.tolist() == [True] * 14 + [False] * 5
+    taken = lidar_regions.flood(index, rows, cols, values, 2, state, seeds, 2, lidar_check.SURFACE_STEP,
+                                np.full(values.size, np.nan), level, lidar_check.TAU)
+    assert taken.tolist() == [True] * 3 + [False] * 16  # without the reference's lean: 2 unjudged in a row
 
 
 def fringe_plain(sparse, rows, cols, values, radius, state, taken, tau):

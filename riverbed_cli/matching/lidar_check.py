@@ -30,11 +30,13 @@ Stage: ``(left, right, LiDAR disparities, a coarse unguided match of the pair) -
   ``LiDAR - images`` lies beyond ``TAU`` and the images prefer the alternative by at least :data:`REGION_MARGIN`
   on average (a patch of the reference's own mistakes on repeated texture costs about the same either way). From
   its disagreeing points the change spreads to the points within ``NEAR`` spacings: through points the images
-  contradict the same way, through at most :data:`UNKNOWN_HOPS` in a row they cannot judge (each within
-  :data:`SURFACE_STEP` px of the point before: along the LiDAR's surface, not across the stale block's edge into
-  the clean LiDAR around it), never through a point the reference confirms (within ``TAU``). A change is kept
-  when the images contradict at least :data:`SEEN_SHARE` of the points it took. It then takes its fringe
-  (:func:`~.lidar_regions.fringe`): a point the reference does not confirm joins when most of its neighbours on
+  contradict the same way (unless an occlusion or a moved depth edge explains it), through points where the
+  reference lies off the LiDAR by the region's change (within ``TAU``) and the patch cannot tell (SGM carries the
+  surface across a flat patch) or the disagreement is explained, through at most :data:`UNKNOWN_HOPS` in a row
+  they cannot judge (each within :data:`SURFACE_STEP` px of the point before: along the LiDAR's surface, not
+  across the stale block's edge into the clean LiDAR around it), never through a point the reference confirms
+  (within ``TAU``). A change is kept when the images contradict at least :data:`SEEN_SHARE` of the points it took
+  other than those the reference alone contradicts. It then takes its fringe (:func:`~.lidar_regions.fringe`): a point the reference does not confirm joins when most of its neighbours on
   its own surface (within ``NEAR`` spacings and ``TAU`` px) are in the change. Every point it took is dropped.
 * **Gross outliers.** A point outside the changes that no other LiDAR point within ``NEAR`` spacings supports
   (none lies within ``TAU`` px of it) is dropped when the images contradict it, or when it lies more than
@@ -94,7 +96,8 @@ REGION_MARGIN = 0.2
 #: a region is judged only on at least this many points with the reference's alternative (fewer: a patch of the
 #: reference's own mistakes next to noisy or outlying LiDAR passed the other tests)
 MIN_COMPARED = 16
-#: a change is kept when the images contradict at least this share of its points (the rest it passed through)
+#: a change is kept when the images contradict at least this share of its points (the rest it passed through;
+#: the points the reference alone contradicts by the change do not count)
 SEEN_SHARE = 0.3
 #: a change spreads through at most this many LiDAR points in a row the images cannot judge ...
 UNKNOWN_HOPS = 2
@@ -363,7 +366,10 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
     n_regions, labels = cv2.connectedComponents(regions.astype(np.uint8), connectivity=8)
     label = labels.ravel()[cell]
     seeds = np.zeros(n, np.int8)
-    state = np.where(from_ref & (np.abs(values - alt) <= TAU), 2, raw).astype(np.int8)
+    level = np.zeros(n)  # a seed's change: its region's median LiDAR - images
+    # what the spread sees of each point: confirmed (2), contradicted (the sign), or not judged (0: an occlusion or
+    # a moved depth edge explains its disagreement: the background beside a foreground the reference fattened)
+    state = np.where(from_ref & (np.abs(values - alt) <= TAU), 2, verdict).astype(np.int8)
     for k in range(1, n_regions):
         i = np.flatnonzero((label == k) & from_ref)
         if i.size < MIN_COMPARED:
@@ -374,22 +380,25 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
         if abs(change) > TAU and informative.any() and np.mean((own - best)[informative]) >= REGION_MARGIN:
             sign = 1 if change > 0 else -1
             seeds[(label == k) & (raw == sign)] = sign
+            level[(label == k) & (raw == sign)] = change
     # from its seeds a change spreads to the points within NEAR spacings: through the points the images contradict
-    # the same way, and up to UNKNOWN_HOPS points in a row they cannot judge along the LiDAR's surface; it stops at
-    # points the images confirm
+    # the same way or the reference alone contradicts by the change, and up to UNKNOWN_HOPS points in a row they
+    # cannot judge along the LiDAR's surface; it stops at points the images confirm
     in_region = seeds != 0
+    lean = np.where(from_ref & (state == 0) & (np.abs(values - alt) > TAU), values - alt, np.nan)
     if seeds.any():
         index = np.full(shape, -1, np.int32)
         index[rows, cols] = np.arange(n, dtype=np.int32)
         in_region = flood(index, rows.astype(np.int64), cols.astype(np.int64), values, near, state, seeds,
-                           UNKNOWN_HOPS, np.float64(SURFACE_STEP))
+                           UNKNOWN_HOPS, np.float64(SURFACE_STEP), lean, level, np.float64(TAU))
     changed, n_regions = None, 0
     if in_region.any():  # a change the images mostly saw: most of its points contradicted, not passed through
         changed = changed_area(rows[in_region], cols[in_region], shape, spacing)
         n_area, labels = cv2.connectedComponents(changed.astype(np.uint8), connectivity=8)
         label = labels[rows, cols]
-        seen = np.bincount(label[in_region & (state == raw) & (raw != 0)], minlength=n_area)
-        weak = seen < SEEN_SHARE * np.bincount(label[in_region], minlength=n_area)
+        seen = np.bincount(label[in_region & (state != 2) & (raw != 0)], minlength=n_area)
+        alone = np.isfinite(lean) & (raw == 0)  # the reference contradicts it, its patch cannot tell
+        weak = seen < SEEN_SHARE * np.bincount(label[in_region & ~alone], minlength=n_area)
         in_region &= ~weak[label]
         if in_region.any():  # with the fringe the flood left (most of a point's own surface in the change)
             widened = fringe(index, rows.astype(np.int64), cols.astype(np.int64), values, near, state, in_region,

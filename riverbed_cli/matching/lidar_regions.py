@@ -69,22 +69,26 @@ def changed_area(rows, cols, shape, spacing):
 
 
 @kernel
-def flood(index, rows, cols, values, radius, state, seeds, hops, step):
-    """The points (bool) a change reaches from its seeds (``seeds[i]``: its sign, 0 none), neighbours being the
-    points within a square of half side ``radius`` px: through points contradicted that way (``state == sign``)
-    freely, through the others (0, or the other sign) ``hops`` in a row and only along the LiDAR's surface
-    (``values`` within ``step`` px of the point before), never through confirmed ones (2)."""
+def flood(index, rows, cols, values, radius, state, seeds, hops, step, lean, level, tol):
+    """The points (bool) a change reaches from its seeds (``seeds[i]``: its sign, 0 none; ``level[i]``: its change,
+    px), neighbours being the points within a square of half side ``radius`` px: through points contradicted that
+    way (``state == sign``) freely, and through those whose ``lean`` (the reference's ``LiDAR - images`` where only
+    the reference disagrees, NaN elsewhere) lies within ``tol`` px of the seed's change; through the others (0, or
+    the other sign) ``hops`` in a row and only along the LiDAR's surface (``values`` within ``step`` px of the point
+    before); never through confirmed ones (2)."""
     # breadth first; a point is taken with the most hops left it can be reached with
     H, W = index.shape
     n = state.size
     left = np.full(n, -1, np.int64)
     sign = np.zeros(n, np.int8)
+    change = np.zeros(n, np.float64)
     queue = np.empty(n * (hops + 2), np.int64)
     head, tail = 0, 0
     for i in range(n):
         if seeds[i] != 0:
             left[i] = hops
             sign[i] = seeds[i]
+            change[i] = level[i]
             queue[tail] = i
             tail += 1
     while head < tail:
@@ -95,12 +99,14 @@ def flood(index, rows, cols, values, radius, state, seeds, hops, step):
                 j = index[y, x]
                 if j < 0 or state[j] == 2:
                     continue
-                if state[j] != sign[i] and abs(values[j] - values[i]) > step:
+                same = state[j] == sign[i] or abs(lean[j] - change[i]) <= tol  # False for a NaN lean
+                if not same and abs(values[j] - values[i]) > step:
                     continue
-                budget = hops if state[j] == sign[i] else left[i] - 1
+                budget = hops if same else left[i] - 1
                 if budget > left[j] and tail < queue.size:
                     left[j] = budget
                     sign[j] = sign[i]
+                    change[j] = change[i]
                     queue[tail] = j
                     tail += 1
     return left >= 0
