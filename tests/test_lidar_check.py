@@ -217,6 +217,23 @@ def test_a_change_passes_where_only_the_reference_contradicts_the_lidar_by_its_c
     assert taken.tolist() == [True] * 3 + [False] * 16  # without the reference's lean: 2 unjudged in a row
 
 
+def test_an_unjudged_point_continues_a_change_only_nearer_the_lidar_surface_than_the_images():
+    # a seed, then unjudged points 2.5 px apart: along a change of -29 px they continue the stale surface (within
+    # 9 px), along a change of -4 px they lie nearer the images' surface (more than half the change away)
+    sparse = np.full((5, 12), np.nan, np.float32)
+    sparse[2, 2:12:2] = [10.0, 12.5, 15.0, 17.5, 20.0]
+    index, rows, cols, values = _index(sparse)
+    state = np.zeros(values.size, np.int8)
+    seeds = np.zeros(values.size, np.int8)
+    seeds[0] = state[0] = -1
+    no_lean = np.full(values.size, np.nan)
+    for change, want in ((-29.0, [True] * 3 + [False] * 2), (-4.0, [True] + [False] * 4)):
+        level = np.full(values.size, change)
+        taken = lidar_regions.flood(index, rows, cols, values, 2, state, seeds, 2, lidar_check.SURFACE_STEP,
+                                    no_lean, level, lidar_check.TAU)
+        assert taken.tolist() == want
+
+
 def fringe_plain(sparse, rows, cols, values, radius, state, taken, tau):
     """The fringe rule as a plain loop: rounds of every point joining at once."""
     out = taken.copy()

@@ -33,8 +33,9 @@ Stage: ``(left, right, LiDAR disparities, a coarse unguided match of the pair) -
   contradict the same way (unless an occlusion or a moved depth edge explains it), through points where the
   reference lies off the LiDAR by the region's change (within ``TAU``) and the patch cannot tell (SGM carries the
   surface across a flat patch) or the disagreement is explained, through at most :data:`UNKNOWN_HOPS` in a row
-  they cannot judge (each within :data:`SURFACE_STEP` px of the point before: along the LiDAR's surface, not
-  across the stale block's edge into the clean LiDAR around it), never through a point the reference confirms
+  they cannot judge (each within :data:`SURFACE_STEP` px of the point before, and half the change: along the
+  LiDAR's surface, not across the stale block's edge into the clean LiDAR around it), never through a point the
+  reference confirms
   (within ``TAU``). A change is kept when the images contradict at least :data:`SEEN_SHARE` of the points it took
   other than those the reference alone contradicts. It then takes its fringe (:func:`~.lidar_regions.fringe`): a
   point the reference does not confirm joins when most of its neighbours on its own surface (within ``NEAR``

@@ -75,7 +75,7 @@ def flood(index, rows, cols, values, radius, state, seeds, hops, step, lean, lev
     way (``state == sign``) freely, and through those whose ``lean`` (the reference's ``LiDAR - images`` where only
     the reference disagrees, NaN elsewhere) lies within ``tol`` px of the seed's change; through the others (0, or
     the other sign) ``hops`` in a row and only along the LiDAR's surface (``values`` within ``step`` px of the point
-    before); never through confirmed ones (2)."""
+    before, and within half the change); never through confirmed ones (2)."""
     # breadth first; a point is taken with the most hops left it can be reached with
     H, W = index.shape
     n = state.size
@@ -100,7 +100,8 @@ def flood(index, rows, cols, values, radius, state, seeds, hops, step, lean, lev
                 if j < 0 or state[j] == 2:
                     continue
                 same = state[j] == sign[i] or abs(lean[j] - change[i]) <= tol  # False for a NaN lean
-                if not same and abs(values[j] - values[i]) > step:
+                # an unjudged point continues the stale surface only nearer it than the images' (half the change)
+                if not same and abs(values[j] - values[i]) > min(step, 0.5 * abs(change[i])):
                     continue
                 budget = hops if same else left[i] - 1
                 if budget > left[j] and tail < queue.size:
