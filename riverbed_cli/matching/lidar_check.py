@@ -35,11 +35,10 @@ Stage: ``(left, right, LiDAR disparities, a coarse unguided match of the pair) -
   surface across a flat patch) or the disagreement is explained, through at most :data:`UNKNOWN_HOPS` in a row
   they cannot judge (each within :data:`SURFACE_STEP` px of the point before, and half the change: along the
   LiDAR's surface, not across the stale block's edge into the clean LiDAR around it), never through a point the
-  reference confirms
-  (within ``TAU``). A change is kept when the images contradict at least :data:`SEEN_SHARE` of the points it took
-  other than those the reference alone contradicts. It then takes its fringe (:func:`~.lidar_regions.fringe`): a
-  point the reference does not confirm joins when most of its neighbours on its own surface (within ``NEAR``
-  spacings and ``TAU`` px) are in the change. Every point it took is dropped.
+  reference confirms (within ``TAU``). A change is kept when the images contradict at least :data:`SEEN_SHARE` of
+  the points it took other than those the reference alone contradicts. It then takes its fringe
+  (:func:`~.lidar_regions.fringe`): a point the reference does not confirm joins when most of its neighbours on
+  its own surface (within ``NEAR`` spacings and ``TAU`` px) are in the change. Every point it took is dropped.
 * **Gross outliers.** A point outside the changes that no other LiDAR point within ``NEAR`` spacings supports
   (none lies within ``TAU`` px of it) is dropped when the images contradict it, or when it lies more than
   ``2 TAU`` px off both the median of those points and their least-squares plane (:func:`plane_at`: a point on
