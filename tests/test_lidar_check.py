@@ -101,6 +101,19 @@ def test_a_patch_vouches_only_when_no_other_disparity_of_the_range_matches_it_be
     assert lidar_check._unique(gl, gr, rows, cols, values, own, 0, 40, 2).tolist() == [True, False, True]
     assert lidar_check._unique(gl, gr, rows, cols, values, own, 0, 40, 0).tolist() == [True, False, False]
 
+def test_the_coarse_to_fine_reference_is_the_whole_ranges(cones):
+    # the reference searched in tubes round a match at half its resolution finds what the whole range finds
+    from riverbed_cli.matching.config import MatchConfig
+    from riverbed_cli.matching.range_maps import coarse_match, coarse_to_fine_match
+
+    left, right, _ = cones
+    whole, fine = (f(left, right, 0, 63, 2, MatchConfig(), match_pair, lidar_check.REFERENCE_MATCH)
+                   for f in (coarse_match, coarse_to_fine_match))
+    both = np.isfinite(whole) & np.isfinite(fine)
+    assert both.mean() > 0.8 and np.isfinite(fine).mean() == pytest.approx(np.isfinite(whole).mean(), abs=0.02)
+    assert np.mean(np.abs(whole[both] - fine[both]) <= 1) > 0.99
+
+
 def test_clean_lidar_is_kept(cones):
     left, right, gt = cones
     sparse = simulate_lidar(gt, 0.05, seed=0)

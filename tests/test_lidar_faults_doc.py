@@ -108,6 +108,9 @@ def test_the_doc_states_the_check_rule_the_code_has():
     assert c.VOUCH == 0.5 and "(`1 - ZNCC` at most 0.5), costs at least 0.1 less than the best near" in doc
     assert "costs no more than at every other whole disparity of the range more than 2 px from it" in doc
     assert c.MASK_LABELS == {0: "no LiDAR", 1: "used", 2: "outlier", 3: "changed region", 4: "changed area"}
+    from riverbed_cli.matching import tubes
+    assert c.FINE_CELLS == 16_000_000 and "Over 16 M cells (pixels x disparities at half resolution)" in doc
+    assert tubes.HOLE_WINDOW == 4 and tubes.HOLE_MARGIN == 8 and "within 4 of its pixels, 8 px beyond" in doc
 
 
 def test_every_scene_share_and_fault_of_the_check_is_in_the_results():
@@ -156,3 +159,22 @@ def test_a_row_of_the_check_measured_again_is_the_committed_one(shared_data):
     res = match_pair(scene.left, scene.right, stale)
     assert bench_changes._score(res.disparity, scene.gt, sparse, block) == row["default"]
     assert bench_changes._score(res.disparity, scene.gt, sparse, ~block) == row["default_outside"]
+
+
+import bench_check_scale  # noqa: E402
+
+SCALE = json.loads((REPO / "benchmarks" / "results_check_scale.json").read_text())
+
+
+def test_the_check_at_scale_table_is_the_committed_results():
+    block = DOC.split(bench_check_scale.BEGIN)[1].split(bench_check_scale.END)[0]
+    assert block.strip() == bench_check_scale.tables(SCALE).strip()
+
+
+def test_at_scale_the_coarse_to_fine_reference_keeps_the_check_within_a_quarter_of_the_match():
+    # the bound (+25 %) on the committed 10 MP run; the whole-range reference, measured beside it, is not
+    row = SCALE[0]
+    assert row["size"][0] * row["size"][1] >= 9.9e6 and row["range"] == [0, 520]
+    off = row["off"]["seconds"]
+    assert row["default"]["seconds"] <= 1.25 * off < row["whole range"]["seconds"]
+    assert row["default"]["dropped"] == pytest.approx(row["whole range"]["dropped"], abs=5)

@@ -69,7 +69,7 @@ from ..records import RecordMapping
 from ..runtime.kernel import kernel
 from .lidar_offset import RADIUS, patch_costs
 from .lidar_regions import cell_regions, changed_area, flood, fringe
-from .range_maps import coarse_match
+from .range_maps import coarse_match, coarse_to_fine_match
 
 #: the coarse reference's scale: 1 / FACTOR of the image's resolution
 FACTOR = 2
@@ -447,12 +447,23 @@ REFERENCE_MATCH = {"matcher": "sgm", "guide": "none", "range": "full", "fusion":
                    "lidar_check": "off", "lidar_offset": "none"}
 
 
+#: a reference of more cells than this (pixels x disparities at its resolution) is searched coarse to fine; below
+#: it the first pass saves a small share of the match at best (the 1 MP aerial tile holds 10 M), and its tubes move
+#: a few of the check's verdicts
+FINE_CELLS = 16_000_000
+
+
 def coarse_reference(left, right, d_min, d_max, config, match, factor=FACTOR):
     """The check's reference: ``match`` (:func:`~riverbed_cli.matching.pipeline.match_pair`) of the pair at
     ``1 / factor`` resolution, unguided census SGM over ``[d_min, d_max] / factor`` with its left-right check and
     ``config``'s other settings; (h, w) float32 in coarse px, NaN where it failed. None for a pair smaller than
-    16 px at that scale (:func:`~riverbed_cli.matching.range_maps.coarse_match`)."""
-    return coarse_match(left, right, d_min, d_max, factor, config, match, REFERENCE_MATCH)
+    16 px at that scale (:func:`~riverbed_cli.matching.range_maps.coarse_match`). Over :data:`FINE_CELLS` cells
+    it searches tubes round a match at half its resolution
+    (:func:`~riverbed_cli.matching.range_maps.coarse_to_fine_match`)."""
+    H, W = left.shape[:2]
+    cells = (H // factor) * (W // factor) * (math.ceil(d_max / factor) - math.floor(d_min / factor) + 1)
+    search = coarse_to_fine_match if cells > FINE_CELLS else coarse_match
+    return search(left, right, d_min, d_max, factor, config, match, REFERENCE_MATCH)
 
 
 def check_pair(left, right, sparse, d_min, d_max, config, match):

@@ -71,6 +71,26 @@ def coarse_match(left, right, d_min, d_max, factor, config, match, settings):
                  params=config, **settings).disparity
 
 
+def coarse_to_fine_match(left, right, d_min, d_max, factor, config, match, settings):
+    """:func:`coarse_match` searched in tubes: the pair shrunk ``factor`` times is first matched at half that
+    resolution over the whole range (:data:`COARSE_MATCH`), and the match at ``1 / factor`` searches only round it
+    (:func:`~riverbed_cli.matching.tubes.hole_bounds`: the coarse disparities within ``HOLE_WINDOW`` of its pixels,
+    ``HOLE_MARGIN`` px beyond); ``settings`` over ``config``'s, with the tubes. (h, w) float32 in coarse px; None
+    for a pair smaller than 16 px at ``factor``."""
+    H, W = left.shape[:2]
+    h, w = H // factor, W // factor
+    if min(h, w) < 16:
+        return None
+    small = [cv2.resize(np.ascontiguousarray(im), (w, h), interpolation=cv2.INTER_AREA) for im in (left, right)]
+    lo, hi = int(math.floor(d_min / factor)), int(math.ceil(d_max / factor))
+    first = coarse_match(small[0], small[1], lo, hi, 2, config, match, COARSE_MATCH)
+    if first is None:
+        return match(small[0], small[1], None, lo, hi, params=config, **settings).disparity
+    ends = hole_bounds(first, (h, w), lo, hi, factor=2)
+    return match(small[0], small[1], None, lo, hi, params=config, range_map=tuple(e.astype(np.float32) for e in ends),
+                 **dict(settings, range="tube")).disparity
+
+
 def coarse_hole_ranges(left, right, d_min, d_max, config, match):
     """Per-pixel ranges ``(lo, hi)`` (inclusive int32, full resolution) from an unguided match of the pair at
     ``1 / HOLE_FACTOR`` resolution, for the tube rule's holes (:func:`~riverbed_cli.matching.tubes.hole_bounds`).
