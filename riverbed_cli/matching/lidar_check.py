@@ -386,7 +386,7 @@ def check_lidar(left, right, sparse, reference, *, factor=FACTOR, bits=None, sea
     # the same way or the reference alone contradicts by the change, and up to UNKNOWN_HOPS points in a row they
     # cannot judge along the LiDAR's surface; it stops at points the images confirm
     in_region = seeds != 0
-    lean = np.where(from_ref & (state == 0) & (np.abs(values - alt) > TAU), values - alt, np.nan)
+    lean = np.where(from_ref & (state == 0), values - alt, np.nan)  # unjudged with a reference: beyond TAU
     if seeds.any():
         index = np.full(shape, -1, np.int32)
         index[rows, cols] = np.arange(n, dtype=np.int32)

@@ -57,18 +57,26 @@ def range_map_ends(lo, hi, d_min, d_max):
 COARSE_MATCH = {"matcher": "sgm", "guide": "none", "range": "full", "fusion": "none", "lr_check": False}
 
 
-def coarse_match(left, right, d_min, d_max, factor, config, match, settings):
-    """``match`` (:func:`~riverbed_cli.matching.pipeline.match_pair`) of the pair shrunk ``factor`` times (area
-    averaging) over ``[d_min, d_max] / factor``, with ``settings`` over ``config``'s: its disparity, (h, w) float32
-    in coarse px; None for a pair smaller than 16 px at that scale. The coarse matches of the tube holes and of the
-    LiDAR check."""
+def _shrunk(left, right, d_min, d_max, factor):
+    # the pair shrunk factor times (area averaging) and [d_min, d_max] / factor; None below 16 px at that scale
     H, W = left.shape[:2]
     h, w = H // factor, W // factor
     if min(h, w) < 16:
         return None
     small = [cv2.resize(np.ascontiguousarray(im), (w, h), interpolation=cv2.INTER_AREA) for im in (left, right)]
-    return match(small[0], small[1], None, int(math.floor(d_min / factor)), int(math.ceil(d_max / factor)),
-                 params=config, **settings).disparity
+    return small, int(math.floor(d_min / factor)), int(math.ceil(d_max / factor))
+
+
+def coarse_match(left, right, d_min, d_max, factor, config, match, settings):
+    """``match`` (:func:`~riverbed_cli.matching.pipeline.match_pair`) of the pair shrunk ``factor`` times (area
+    averaging) over ``[d_min, d_max] / factor``, with ``settings`` over ``config``'s: its disparity, (h, w) float32
+    in coarse px; None for a pair smaller than 16 px at that scale. The coarse matches of the tube holes and of the
+    LiDAR check."""
+    shrunk = _shrunk(left, right, d_min, d_max, factor)
+    if shrunk is None:
+        return None
+    (small_left, small_right), lo, hi = shrunk
+    return match(small_left, small_right, None, lo, hi, params=config, **settings).disparity
 
 
 def coarse_to_fine_match(left, right, d_min, d_max, factor, config, match, settings):
@@ -77,18 +85,15 @@ def coarse_to_fine_match(left, right, d_min, d_max, factor, config, match, setti
     (:func:`~riverbed_cli.matching.tubes.hole_bounds`: the coarse disparities within ``HOLE_WINDOW`` of its pixels,
     ``HOLE_MARGIN`` px beyond); ``settings`` over ``config``'s, with the tubes. (h, w) float32 in coarse px; None
     for a pair smaller than 16 px at ``factor``."""
-    H, W = left.shape[:2]
-    h, w = H // factor, W // factor
-    if min(h, w) < 16:
+    shrunk = _shrunk(left, right, d_min, d_max, factor)
+    if shrunk is None:
         return None
-    small = [cv2.resize(np.ascontiguousarray(im), (w, h), interpolation=cv2.INTER_AREA) for im in (left, right)]
-    lo, hi = int(math.floor(d_min / factor)), int(math.ceil(d_max / factor))
-    first = coarse_match(small[0], small[1], lo, hi, 2, config, match, COARSE_MATCH)
-    if first is None:
-        return match(small[0], small[1], None, lo, hi, params=config, **settings).disparity
-    ends = hole_bounds(first, (h, w), lo, hi, factor=2)
-    return match(small[0], small[1], None, lo, hi, params=config, range_map=tuple(e.astype(np.float32) for e in ends),
-                 **dict(settings, range="tube")).disparity
+    (small_left, small_right), lo, hi = shrunk
+    first = coarse_match(small_left, small_right, lo, hi, 2, config, match, COARSE_MATCH)
+    if first is not None:  # (None: too small for a first pass, the whole range searched)
+        ends = hole_bounds(first, small_left.shape[:2], lo, hi, factor=2)
+        settings = dict(settings, range="tube", range_map=tuple(e.astype(np.float32) for e in ends))
+    return match(small_left, small_right, None, lo, hi, params=config, **settings).disparity
 
 
 def coarse_hole_ranges(left, right, d_min, d_max, config, match):
