@@ -1,6 +1,7 @@
 """The LiDAR check's cost at the scale users match: a 10 MP pair over 0..520 px (bench_scale's synthetic terrain and
 buildings, 1 % LiDAR), matched in tiles in fresh processes with the check (its reference coarse to fine, the default),
-with the check's reference over the whole range at half resolution, and with the check off; round-robin, medians.
+with the check's reference over the whole range at half resolution, and with the check off; round-robin, medians
+of the time and the largest peak RSS.
 
     python benchmarks/bench_check_scale.py --write benchmarks/results_check_scale.json --docs docs/lidar_faults.md
 
@@ -21,12 +22,12 @@ from datasets import rows_main  # noqa: E402
 
 MEGAPIXELS = 10
 D_MIN, D_MAX = 0, 520
-REPEAT = 3
+REPEAT = 5
 BEGIN, END = "<!-- bench_check_scale: begin -->", "<!-- bench_check_scale: end -->"
 VARIANTS = ("default", "whole range", "off")
 
 CHILD = r"""
-import json, sys
+import json, resource, sys
 from riverbed_cli.runtime import Env
 Env().__enter__()
 from riverbed_cli.io.windowed import TiffSink, open_windowed
@@ -44,7 +45,8 @@ with TiffSink(folder + "/disp.tif", *left.shape[:2]) as sink:
                     lidar_check="off" if variant == "off" else "auto")
 check = r.info.to_dict().get("lidar_check")
 print(json.dumps({"seconds": r.info["seconds"], "check": r.info["stages"].get("lidar_check", 0.0),
-                  "dropped": None if check is None else check["outliers"] + check["changed"]}))
+                  "dropped": None if check is None else check["outliers"] + check["changed"],
+                  "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
 """
 
 
@@ -69,7 +71,8 @@ def run(data=None):
     row = {"size": [H, W], "range": [D_MIN, D_MAX], "repeat": REPEAT}
     for variant, rs in runs.items():
         row[variant] = {"seconds": round(statistics.median(r["seconds"] for r in rs), 3),
-                        "check": round(statistics.median(r["check"] for r in rs), 3), "dropped": rs[0]["dropped"]}
+                        "check": round(statistics.median(r["check"] for r in rs), 3), "dropped": rs[0]["dropped"],
+                        "peak_rss_mib": round(max(r["peak_rss_mib"] for r in rs))}
     return [row]
 
 
@@ -79,14 +82,15 @@ def tables(rows):
     out = [f"A {r['size'][1]} x {r['size'][0]} pair ({r['size'][0] * r['size'][1] / 1e6:.0f} MP) over "
            f"{r['range'][0]}..{r['range'][1]} px with 1 % LiDAR, matched in tiles in fresh processes (medians of "
            f"{r['repeat']}, round-robin; `python benchmarks/bench_check_scale.py`):", "",
-           "| LiDAR check | `seconds` | the check's stage s | longer than off | points dropped |",
-           "|---|---:|---:|---:|---:|"]
+           "| LiDAR check | `seconds` | the check's stage s | longer than off | points dropped | peak RSS MiB |",
+           "|---|---:|---:|---:|---:|---:|"]
     for v, label in (("default", "on, its reference coarse to fine (the default)"),
                      ("whole range", "on, its reference over the whole range"), ("off", "off")):
         s = r[v]
         longer = f"{(s['seconds'] / off - 1) * 100:.0f} %" if v != "off" else ""
         dropped = "" if s["dropped"] is None else f"{s['dropped']:,}"
-        out.append(f"| {label} | {s['seconds']:.2f} | {s['check']:.2f} | {longer} | {dropped} |")
+        out.append(f"| {label} | {s['seconds']:.2f} | {s['check']:.2f} | {longer} | {dropped} | "
+                   f"{s['peak_rss_mib']} |")
     return "\n".join(out)
 
 

@@ -249,3 +249,26 @@ def test_prepare_sparse_keeps_the_finite_values_inside_the_range():
     with pytest.raises(RiverbedError) as e:
         prepare_sparse(np.full((40, 50), np.inf, np.float32), (40, 50), 0, 39)
     assert str(e.value) == "sparse map has no valid disparities"
+
+
+def test_a_tiled_match_guides_with_the_points_the_whole_check_keeps():
+    # a tiled match checks its LiDAR once for the whole pair and keeps the result as the check's byte per pixel over
+    # the given map (CheckedSparse), not as a float copy: the same points as the untiled check, window by window
+    from riverbed_cli.io.windowed import sparse_points_any
+    from riverbed_cli.matching.config import MatchConfig
+    from riverbed_cli.scale.tiles import CheckedSparse, prepare_lidar_whole
+    from test_lidar_check import constructed
+
+    left, right, sparse, _ = constructed()
+    stale = sparse.copy()
+    stale[40:110, 70:170] += 8  # a region whose LiDAR shows an older surface
+    whole = match_pair(left, right, stale)
+    kept = np.where(whole.lidar_check.dropped > 0, np.nan, stale)
+    assert (whole.lidar_check.dropped == 2).sum() == np.isfinite(stale[40:110, 70:170]).sum() == 425
+    lidar = prepare_lidar_whole(left, right, stale, sparse_points_any(stale), None, None, MatchConfig())
+    assert isinstance(lidar.sparse, CheckedSparse) and (lidar.check.dropped == whole.lidar_check.dropped).all()
+    assert np.array_equal(np.asarray(lidar.sparse), kept, equal_nan=True)
+    assert np.array_equal(lidar.sparse[35:97, 60:201], kept[35:97, 60:201], equal_nan=True)
+    assert np.array_equal(lidar.points[2], kept[np.isfinite(kept)])
+    tiled = match_tiled(left, right, stale, tile=128, overlap=32)
+    assert tiled.info["tiles"] == 4 and (tiled.lidar_check.dropped == whole.lidar_check.dropped).all()

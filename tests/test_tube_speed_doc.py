@@ -51,13 +51,13 @@ def test_the_speed_targets_as_the_table_states_them():
         assert bench_tubes.ratio_per_round(rb[bench_tubes.FOUR]["seconds"], cv["SGBM_3WAY"]) > 1, p["label"]
         aerial = p["label"].startswith("1024x1024")
         assert (bench_tubes.ratio_per_round(rb[bench_tubes.DEFAULT]["seconds"], cv["HH"]) <= 0.5) == aerial, p["label"]
-    # at 10 and 40 MP: the tubes' nominal throughput at least 5x the 55 M/s before tubes (met); peak RSS within
-    # 1.4 GiB (not met)
+    # at 10 and 40 MP: the tubes' nominal throughput at least 5x the 55 M/s before tubes, peak RSS within 1.4 GiB
+    # (both met, the LiDAR check on)
     scale = {(r["mp"], r["rng"]): r for r in results("scale")["rows"]}
     for mp in (10, 40):
         r = scale[mp, "tube"]
         assert r["H"] * r["W"] * 521 / r["run"]["seconds"] / 1e6 >= 5 * bench_scale.BEFORE_TUBES, mp
-        assert r["run"]["peak_rss_mib"] > 1.4 * 1024, mp
+        assert r["run"]["peak_rss_mib"] <= 1.4 * 1024, mp
     assert (100, "tube") in scale  # reported
 
 

@@ -346,14 +346,14 @@ class MatchPlan(RecordMapping):
 
 
 def plan_match(shape, points, d_min, d_max, params, *, sparse=None, tile=TILE_DEFAULT, overlap=OVERLAP_DEFAULT,
-               lidar_range=True, scan=None):
+               lidar_range=True, scan=None, budget=None):
     """The :class:`MatchPlan` of a ``shape`` (H, W) match over ``[d_min, d_max]`` with ``params`` (a
     :class:`~riverbed_cli.matching.config.MatchConfig`).
 
     ``points``: the LiDAR's ``(rows, cols, values)`` as it will guide (its offset removed, checked), or None;
     ``sparse``: its map (array or windowed raster; the tiles' LiDAR ranges), ``scan``: a range map's
-    :class:`RangeMapScan` (its widths and ranges instead of the LiDAR's). ``tile``, ``overlap`` and ``lidar_range``
-    as :func:`plan_tiles`'s. The window is the guide's for the points inside the range (one for every tile: a
+    :class:`RangeMapScan` (its widths and ranges instead of the LiDAR's). ``tile``, ``overlap``, ``lidar_range`` and
+    ``budget`` as :func:`plan_tiles`'s. The window is the guide's for the points inside the range (one for every tile: a
     tile's own share would change it from tile to tile), as :func:`~riverbed_cli.matching.pipeline.match_pair`
     chooses it for a whole image.
     """
@@ -372,7 +372,8 @@ def plan_match(shape, points, d_min, d_max, params, *, sparse=None, tile=TILE_DE
         widths = (scan.widths(d_min, d_max), scan.cell)
     else:
         widths = tube_widths(params, points, (H, W), d_min, d_max, share_all) if points is not None else None
-    tiles = plan_tiles(H, W, sparse, d_min, d_max, tile, overlap, lidar_range, widths=widths, range_map=scan)
+    tiles = plan_tiles(H, W, sparse, d_min, d_max, tile, overlap, lidar_range, budget=budget, widths=widths,
+                       range_map=scan)
     return MatchPlan(int(d_min), int(d_max), share_all, share_in_range, window, int(tiles.size), tiles.tiled,
                      [[t.y0, t.y1, t.x0, t.x1, t.d_min, t.d_max, t.source] for t in tiles.tiles],
                      tiles.to_dict()["tile_ranges"], float(np.mean(widths[0])) if widths is not None else None)

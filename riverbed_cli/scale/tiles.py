@@ -29,7 +29,7 @@ from ..matching.range_maps import fill_tube_holes, range_map_ends
 from ..matching.registry import get_guide, get_matcher
 from ..matching.results import MatchResult, TiledMatchInfo
 from ..matching.tubes import lidar_tubes_window
-from .match_plan import check_tiling, plan_match, scan_range_map
+from .match_plan import check_tiling, plan_match, scan_range_map, tile_budget
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +56,21 @@ def tiled_tube_stats(parts, d_min, d_max):
             "nominal": int(d_max) - int(d_min) + 1, "full_share": round(sum(q.full for q in parts) / n, 5)}
 
 
+#: bytes a tile's volumes may take in a whole-range pass of the check's reference: at the match's own budget those
+#: tiles would raise a tiled match's peak memory well above what its tubes take
+REFERENCE_BUDGET = 512 * 2**20
+#: the overlap (coarse px) of those tiles: the match's 128 px would be 256 px of the image at half resolution and
+#: double the tiles' work at that budget (at 64 the reference differs on few pixels by more than half a coarse px)
+REFERENCE_OVERLAP = 64
+
+
+def reference_match(left, right, sparse=None, d_min=None, d_max=None, **settings):
+    """:func:`match_tiled` for the check's reference (:func:`~riverbed_cli.matching.lidar_check.coarse_reference`),
+    in tiles of at most :data:`REFERENCE_BUDGET` bytes of volumes and :data:`REFERENCE_OVERLAP` px of overlap."""
+    budget = min(REFERENCE_BUDGET, tile_budget())
+    return match_tiled(left, right, sparse, d_min, d_max, budget=budget, overlap=REFERENCE_OVERLAP, **settings)
+
+
 def check_whole(left, right, sparse, d_min, d_max, params):
     """The LiDAR check (:mod:`~riverbed_cli.matching.lidar_check`) once for a whole pair matched in tiles (a tile's
     own check could drop other points than its neighbour's), its reference matched in tiles too: ``(sparse,
@@ -63,13 +78,33 @@ def check_whole(left, right, sparse, d_min, d_max, params):
     (its ``report``, the changed area ``changed``, the ``dropped`` points). ``left``, ``right`` and ``sparse`` may
     be windowed rasters (read whole here)."""
     arrays = [np.asarray(a[:, :]) for a in (left, right)]
-    return check_pair(*arrays, np.asarray(sparse[:, :], np.float32), d_min, d_max, params, match_tiled)
+    return check_pair(*arrays, np.asarray(sparse[:, :], np.float32), d_min, d_max, params, reference_match)
+
+
+class CheckedSparse:
+    """A sparse map (an array or windowed, sliced ``[y0:y1, x0:x1]``) without the points its LiDAR check dropped
+    (``dropped``: the check's (H, W) uint8, > 0 where a point was dropped): a tiled match keeps that byte per pixel
+    instead of a float copy of the whole map."""
+
+    def __init__(self, src, dropped):
+        self.src, self.dropped = src, dropped
+        self.shape, self.ndim, self.dtype = tuple(src.shape[:2]), 2, np.dtype(np.float32)
+
+    def __getitem__(self, key):
+        rows, cols = key[:2] if isinstance(key, tuple) else (key, slice(None))
+        out = np.array(self.src[rows, cols], np.float32)
+        out[self.dropped[rows, cols] > 0] = np.nan
+        return out
+
+    def __array__(self, dtype=None, copy=None):  # the whole map, for a caller that needs it (a block's sparse.tif)
+        out = self[0:self.shape[0], 0:self.shape[1]]
+        return out if dtype is None else out.astype(dtype)
 
 
 @dataclass
 class WholeLidar:
-    """A pair's LiDAR as it will guide its tiles (:func:`prepare_lidar_whole`): ``sparse`` (the given map, or an
-    array when the offset or the check changed it), its ``points`` ``(rows, cols, values)``, ``corrected`` (the
+    """A pair's LiDAR as it will guide its tiles (:func:`prepare_lidar_whole`): ``sparse`` (the given map, the map
+    with its offset removed, or a :class:`CheckedSparse` of it when the check dropped points), its ``points`` ``(rows, cols, values)``, ``corrected`` (the
     map with its offset removed, before the check), the range ``d_min``, ``d_max`` resolved with it, the
     :class:`~riverbed_cli.matching.lidar_offset.OffsetEstimate` ``offset``, the
     :class:`~riverbed_cli.matching.lidar_check.LidarCheck` ``check`` (None with ``lidar_check`` off) and the two
@@ -106,8 +141,10 @@ def prepare_lidar_whole(left, right, sparse, points, d_min, d_max, params):
     check, corrected = None, sparse
     if params.lidar_check == "auto":
         t0 = time.perf_counter()
-        sparse, check = check_whole(left, right, sparse, d_min, d_max, params)
-        points = sparse_points_any(sparse)
+        kept, check = check_whole(left, right, sparse, d_min, d_max, params)
+        if check.dropped is not None and check.dropped.any():
+            points = sparse_points_any(kept)
+            sparse = CheckedSparse(sparse, check.dropped)
         seconds["lidar_check"] = round(time.perf_counter() - t0, 4)
     return WholeLidar(sparse, points, corrected, d_min, d_max, offset, check, seconds)
 
@@ -200,7 +237,7 @@ def match_tile(left, right, sparse, t, overlap, params, bits=8, share_all=None, 
 
 def match_tiled(left, right, sparse=None, d_min=None, d_max=None, *, params=None, tile=TILE_DEFAULT,
                 overlap=OVERLAP_DEFAULT, lidar_range=True, progress=None, out=None, range_map=None,
-                confidence_out=None, range_scan=None, valid_areas=None, points=None, **overrides):
+                confidence_out=None, range_scan=None, valid_areas=None, points=None, budget=None, **overrides):
     """:func:`match_pair` tile by tile; same arguments plus ``tile`` (px, ``"auto"`` or 0), ``overlap`` (px) and
     ``lidar_range``; ``range_map`` (per-pixel ``(lo, hi)``, NaN: the nominal range) as :func:`match_pair`'s: each
     tile searches the range the map spans there and its pixels their own intervals (``range_scan``: its
@@ -208,7 +245,8 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, *, params=None
     cols, values)``). ``confidence_out`` receives the
     fusion's confidence tile by tile as ``out`` the disparities (NaN in tiles that were not fused).
 
-    ``valid_areas`` (the images' valid areas, :func:`match_tile`'s) as :func:`match_pair`'s.
+    ``valid_areas`` (the images' valid areas, :func:`match_tile`'s) as :func:`match_pair`'s. ``budget``: the bytes
+    an automatic tile's volumes may take (default :func:`~.match_plan.tile_budget`).
 
     ``left``, ``right`` and ``sparse`` may be numpy arrays or :class:`WindowedRaster` (read tile by tile); ``out``
     receives each tile by ``out[y0:y1, x0:x1] = block`` (default: a new float32 array, returned in the result).
@@ -255,7 +293,7 @@ def match_tiled(left, right, sparse=None, d_min=None, d_max=None, *, params=None
         if scan is not None:
             scan.check(d_min, d_max)
         plan = plan_match((H, W), points, d_min, d_max, p, sparse=sparse, tile=tile, overlap=overlap,
-                          lidar_range=lidar_range, scan=scan)
+                          lidar_range=lidar_range, scan=scan, budget=budget)
         p = p.replace(window=plan.window)
         bits = image_bits(left, right)
         changed = lidar.check.changed if lidar is not None and lidar.check is not None else None
