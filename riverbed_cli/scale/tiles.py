@@ -56,8 +56,8 @@ def tiled_tube_stats(parts, d_min, d_max):
             "nominal": int(d_max) - int(d_min) + 1, "full_share": round(sum(q.full for q in parts) / n, 5)}
 
 
-#: bytes a tile's volumes may take in a whole-range pass of the check's reference: at the match's own budget those
-#: tiles would raise a tiled match's peak memory well above what its tubes take
+#: bytes a tile's volumes may take in the check's reference: at the match's own budget the tiles of its first pass
+#: (over the whole range) and of its second would raise a tiled match's peak memory well above what its tubes take
 REFERENCE_BUDGET = 512 * 2**20
 #: the overlap (coarse px) of those tiles: the match's 128 px would be 256 px of the image at half resolution and
 #: double the tiles' work at that budget (at 64 the reference differs on few pixels by more than half a coarse px)
@@ -104,11 +104,11 @@ class CheckedSparse:
 @dataclass
 class WholeLidar:
     """A pair's LiDAR as it will guide its tiles (:func:`prepare_lidar_whole`): ``sparse`` (the given map, the map
-    with its offset removed, or a :class:`CheckedSparse` of it when the check dropped points), its ``points`` ``(rows, cols, values)``, ``corrected`` (the
-    map with its offset removed, before the check), the range ``d_min``, ``d_max`` resolved with it, the
-    :class:`~riverbed_cli.matching.lidar_offset.OffsetEstimate` ``offset``, the
-    :class:`~riverbed_cli.matching.lidar_check.LidarCheck` ``check`` (None with ``lidar_check`` off) and the two
-    stages' ``seconds``."""
+    with its offset removed, or a :class:`CheckedSparse` of it when the check dropped points), its ``points``
+    ``(rows, cols, values)``, ``corrected`` (the map with its offset removed, before the check), the range
+    ``d_min``, ``d_max`` resolved with it, the :class:`~riverbed_cli.matching.lidar_offset.OffsetEstimate`
+    ``offset``, the :class:`~riverbed_cli.matching.lidar_check.LidarCheck` ``check`` (None with ``lidar_check``
+    off) and the two stages' ``seconds``."""
 
     sparse: object
     points: tuple
