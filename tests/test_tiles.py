@@ -272,3 +272,28 @@ def test_a_tiled_match_guides_with_the_points_the_whole_check_keeps():
     assert np.array_equal(lidar.points[2], kept[np.isfinite(kept)])
     tiled = match_tiled(left, right, stale, tile=128, overlap=32)
     assert tiled.info["tiles"] == 4 and (tiled.lidar_check.dropped == whole.lidar_check.dropped).all()
+
+
+def test_the_checks_reference_in_small_tiles_drops_the_same_points(monkeypatch):
+    # the reference's tiles are bounded apart (REFERENCE_BUDGET, REFERENCE_OVERLAP: a whole-range pass at the
+    # match's own budget set a tiled match's peak memory); cut into several tiles it finds the same change
+    from riverbed_cli.scale import tiles
+    from test_lidar_check import constructed
+
+    left, right, sparse, _ = constructed(H=200, W=320)
+    stale = sparse.copy()
+    stale[40:110, 70:170] += 8
+    whole = match_pair(left, right, stale)
+    counts, plain = [], tiles.match_tiled
+
+    def counted(*args, **kwargs):
+        res = plain(*args, **kwargs)
+        counts.append(res.info["tiles"])
+        return res
+
+    monkeypatch.setattr(tiles, "REFERENCE_BUDGET", 2**20)  # the smallest tiles (128 px)
+    monkeypatch.setattr(tiles, "match_tiled", counted)
+    res = counted(left, right, stale, tile=128, overlap=32)
+    assert counts == [2, 6]  # the reference in two tiles of its own (whole at the match's budget), then the match's 6
+    assert (res.lidar_check.dropped == whole.lidar_check.dropped).all()
+    assert (whole.lidar_check.dropped[40:110, 70:170][np.isfinite(sparse[40:110, 70:170])] == 2).all()
