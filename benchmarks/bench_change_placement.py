@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_changes import REGIONS, _dropped, _near_clean, _score, region_target  # noqa: E402
+from bench_changes import REGIONS, _dropped, _near_clean, _score, region_block, region_target  # noqa: E402
 from bench_faults import SHARES, scenes  # noqa: E402
 from datasets import rows_main  # noqa: E402
 
@@ -32,7 +32,6 @@ BEGIN, END = "<!-- bench_change_placement: begin -->", "<!-- bench_change_placem
 def run(data):
     rows = []
     for name, left, right, gt in scenes(data):
-        H, W = gt.shape
         for share in SHARES:
             sparse = simulate_lidar(gt, share, seed=0)
             have = np.isfinite(sparse)
@@ -41,14 +40,10 @@ def run(data):
             clean = match_pair(left, right, sparse).disparity
             unguided = match_pair(left, right, None, int(np.floor(vals.min())) - 8, int(np.ceil(vals.max())) + 8,
                                   guide="none").disparity
-            rr, cc = np.nonzero(have)  # placed in the LiDAR's bounding box, as bench_changes places them
-            y0, x0, h, w = rr.min(), cc.min(), rr.max() + 1 - rr.min(), cc.max() + 1 - cc.min()
             for variant, move in VARIANTS.items():
                 for label, *where in REGIONS:
                     top, lft, side, rel = move(*where)
-                    block = np.zeros((H, W), bool)
-                    ya, xa = y0 + int(top * h), x0 + int(lft * w)
-                    block[ya:ya + int(side * h), xa:xa + int(side * w)] = True
+                    block = region_block(have, top, lft, side)
                     faulty = block & have
                     bad = np.where(block, sparse + np.float32(rel * span), sparse)
                     res = match_pair(left, right, bad)

@@ -76,13 +76,24 @@ def _dropped(res, faulty, have):
     return [round(float((d[faulty & have] > 0).mean()), 4), round(float((d[~faulty & have] > 0).mean()), 5)]
 
 
+def region_block(have, top, left, side):
+    """A changed region's pixels: the square block whose top-left corner lies at ``top``, ``left`` and whose sides
+    are ``side``, as shares of the height and width of the LiDAR's bounding box (``have``: where there is LiDAR;
+    KITTI's lies low in the image)."""
+    rr, cc = np.nonzero(have)
+    y0, x0, h, w = rr.min(), cc.min(), rr.max() + 1 - rr.min(), cc.max() + 1 - cc.min()
+    block = np.zeros(have.shape, bool)
+    ya, xa = y0 + int(top * h), x0 + int(left * w)
+    block[ya:ya + int(side * h), xa:xa + int(side * w)] = True
+    return block
+
+
 def run(data):
     rows = []
     pairs = scenes(data)
     first = pairs[0]  # the kernels loaded before anything is timed
     match_pair(first[1], first[2], simulate_lidar(first[3], SHARES[0], seed=0))
     for name, left, right, gt in pairs:
-        H, W = gt.shape
         for share in SHARES:
             t0 = time.perf_counter()
             sparse = simulate_lidar(gt, share, seed=0)
@@ -104,12 +115,8 @@ def run(data):
                          "seconds_check": clean.info["stages"]["lidar_check"], "seconds": clean.info["seconds"],
                          "seconds_off": off.info["seconds"]})
             faults = []
-            rr, cc = np.nonzero(have)  # regions placed in the LiDAR's bounding box (KITTI's lies low in the image)
-            y0, x0, h, w = rr.min(), cc.min(), rr.max() + 1 - rr.min(), cc.max() + 1 - cc.min()
             for label, top, lft, side, rel in REGIONS:
-                block = np.zeros((H, W), bool)
-                ya, xa = y0 + int(top * h), x0 + int(lft * w)
-                block[ya:ya + int(side * h), xa:xa + int(side * w)] = True
+                block = region_block(have, top, lft, side)
                 faults.append((label, np.where(block, sparse + np.float32(rel * span), sparse), block & have, block))
             for label, frac in OUTLIERS:
                 bad, faulty = _outliers(sparse, frac)

@@ -154,11 +154,7 @@ def test_a_row_of_the_check_measured_again_is_the_committed_one(shared_data):
     scene = middlebury(shared_data, "Cones")
     sparse = simulate_lidar(scene.gt, 0.05, seed=0)
     have = np.isfinite(sparse)
-    rr, cc = np.nonzero(have)
-    h, w = rr.max() + 1 - rr.min(), cc.max() + 1 - cc.min()
-    block = np.zeros(sparse.shape, bool)
-    ya, xa = rr.min() + int(0.30 * h), cc.min() + int(0.30 * w)
-    block[ya:ya + int(0.25 * h), xa:xa + int(0.25 * w)] = True
+    block = bench_changes.region_block(have, 0.30, 0.30, 0.25)
     vals = sparse[have]
     stale = np.where(block, sparse + np.float32(0.20 * float(vals.max() - vals.min())), sparse)
     res = match_pair(scene.left, scene.right, stale)

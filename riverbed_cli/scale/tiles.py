@@ -141,9 +141,10 @@ def prepare_lidar_whole(left, right, sparse, points, d_min, d_max, params):
     check, corrected = None, sparse
     if params.lidar_check == "auto":
         t0 = time.perf_counter()
-        kept, check = check_whole(left, right, sparse, d_min, d_max, params)
-        if check.dropped is not None and check.dropped.any():
-            points = sparse_points_any(kept)
+        _, check = check_whole(left, right, sparse, d_min, d_max, params)
+        if check.dropped is not None and check.dropped.any():  # the points kept: those it did not drop
+            keep = check.dropped[points[0], points[1]] == 0
+            points = tuple(a[keep] for a in points)
             sparse = CheckedSparse(sparse, check.dropped)
         seconds["lidar_check"] = round(time.perf_counter() - t0, 4)
     return WholeLidar(sparse, points, corrected, d_min, d_max, offset, check, seconds)
